@@ -1,0 +1,19 @@
+//! kdmap: recover diffuse reflectance (albedo, `K_d`) textures from HDR photos of a scene
+//! whose geometry, lights and cameras are known (Zhdanov & Kupriyanov's method).
+//!
+//! Data flows one way through the stages (only `pipeline` knows their order):
+//!
+//! ```text
+//! scene (XML, meshes) -> atlas -> texel samples -> projection (L_orig)
+//!   -> direct light (E_d) -> photon tracing (E_i) -> per-texel update (K_d) -> outputs / checkpoint
+//! ```
+
+pub mod accel;
+pub mod camera;
+pub mod error;
+pub mod image;
+pub mod light;
+pub mod rng;
+pub mod scene;
+
+pub use error::{Error, Result};

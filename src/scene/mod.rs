@@ -1,0 +1,197 @@
+//! The immutable scene every stage reads: world-space triangle meshes, emitters and sensors,
+//! with units settled at load (scene radiance units per RGB channel, angles in radians).
+//!
+//! `mitsuba.rs` builds it from a Mitsuba 3 XML file, `mesh.rs` loads OBJ/PLY meshes and the
+//! built-in shapes. Nothing downstream knows about XML.
+
+pub mod mesh;
+pub mod mitsuba;
+
+use glam::{Mat4, Vec2, Vec3};
+use std::path::PathBuf;
+
+/// An RGB triple in scene units (radiance, intensity, irradiance or reflectance, per context).
+pub type Rgb = Vec3;
+
+/// Linear-sRGB luminance used for all reports: `Y = 0.2126 R + 0.7152 G + 0.0722 B`.
+pub fn luminance(c: Rgb) -> f32 {
+    0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z
+}
+
+/// A world-space triangle mesh. Triangles are counter-clockwise around their geometric normal
+/// `(p1 - p0) x (p2 - p0)`, as in Mitsuba.
+#[derive(Debug, Clone, Default)]
+pub struct Mesh {
+    pub positions: Vec<Vec3>,
+    /// Per-vertex shading normals (unit length), if the file had them and `face_normals` is off.
+    pub normals: Option<Vec<Vec3>>,
+    /// Per-vertex texture coordinates, if the file had them.
+    pub uvs: Option<Vec<Vec2>>,
+    pub triangles: Vec<[u32; 3]>,
+}
+
+impl Mesh {
+    pub fn triangle(&self, t: usize) -> [Vec3; 3] {
+        let [a, b, c] = self.triangles[t];
+        [
+            self.positions[a as usize],
+            self.positions[b as usize],
+            self.positions[c as usize],
+        ]
+    }
+
+    /// Unnormalized geometric normal of triangle `t` (length = 2 x area).
+    pub fn face_normal_raw(&self, t: usize) -> Vec3 {
+        let [p0, p1, p2] = self.triangle(t);
+        (p1 - p0).cross(p2 - p0)
+    }
+
+    pub fn triangle_area(&self, t: usize) -> f32 {
+        0.5 * self.face_normal_raw(t).length()
+    }
+
+    pub fn area(&self) -> f64 {
+        (0..self.triangles.len())
+            .map(|t| self.triangle_area(t) as f64)
+            .sum()
+    }
+
+    /// The shading normal at barycentrics `(b1, b2)` of triangle `t` (weights of vertices 1 and
+    /// 2): the interpolated vertex normal if present, else the geometric normal. Unit length.
+    pub fn shading_normal(&self, t: usize, b1: f32, b2: f32) -> Vec3 {
+        if let Some(n) = &self.normals {
+            let [a, b, c] = self.triangles[t];
+            let v = n[a as usize] * (1.0 - b1 - b2) + n[b as usize] * b1 + n[c as usize] * b2;
+            let l = v.length();
+            if l > 0.0 {
+                return v / l;
+            }
+        }
+        self.face_normal_raw(t).normalize_or_zero()
+    }
+
+    /// Apply an affine transform (points by `m`, normals by its inverse transpose).
+    pub fn transform(&mut self, m: &Mat4) {
+        for p in &mut self.positions {
+            *p = m.transform_point3(*p);
+        }
+        if let Some(ns) = &mut self.normals {
+            let nm = m.inverse().transpose();
+            for n in ns.iter_mut() {
+                *n = nm.transform_vector3(*n).normalize_or_zero();
+            }
+        }
+        // A mirroring transform flips the winding; Mitsuba keeps the index order, so do we.
+    }
+}
+
+/// Which sides of a surface reflect light. Mitsuba's `diffuse` reflects on the side its
+/// (shading) normal points to; `twosided` on both; an emitter-only shape (black BSDF) on none.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Sides {
+    Front,
+    Both,
+}
+
+#[derive(Debug, Clone)]
+pub struct Shape {
+    /// The shape's `id`, or `shape_<index>` in file order.
+    pub id: String,
+    /// Plugin type as written (`obj`, `ply`, `rectangle`, `cube`, `sphere`).
+    pub kind: String,
+    /// The mesh file, for file-backed shapes.
+    pub file: Option<PathBuf>,
+    pub mesh: Mesh,
+    pub sides: Sides,
+    /// One-sided area emitter radiance on the front side, if the shape emits.
+    pub emission: Option<Rgb>,
+}
+
+impl Shape {
+    /// Whether the albedo of this shape is recovered (emitters are not).
+    pub fn is_reconstructed(&self) -> bool {
+        self.emission.is_none()
+    }
+}
+
+/// Light sources. Area emitters live on their shape (`Shape::emission`) and are listed here
+/// too, by shape index, so every light is enumerated in one place.
+#[derive(Debug, Clone)]
+pub enum Emitter {
+    /// Isotropic point light of radiant intensity `intensity` (per steradian).
+    Point { position: Vec3, intensity: Rgb },
+    /// Mitsuba spot light: at `position`, shining along unit `axis`, intensity `intensity` on
+    /// axis, full up to `beam_width`, then falling linearly in angle to zero at `cutoff` (radians).
+    Spot {
+        position: Vec3,
+        axis: Vec3,
+        /// The light's full frame (local +z = axis), kept for exporting the scene as it was.
+        to_world: Mat4,
+        intensity: Rgb,
+        cutoff: f32,
+        beam_width: f32,
+    },
+    /// Light from infinitely far away travelling along unit `direction`, with `irradiance`
+    /// on a surface perpendicular to it.
+    Directional { direction: Vec3, irradiance: Rgb },
+    /// One-sided area emitter on shape `shape` with uniform `radiance`.
+    Area { shape: usize, radiance: Rgb },
+}
+
+/// Mitsuba's `fov_axis` choices.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FovAxis {
+    X,
+    Y,
+    Diagonal,
+    Smaller,
+    Larger,
+}
+
+/// A perspective sensor as Mitsuba 3 defines it.
+#[derive(Debug, Clone)]
+pub struct Sensor {
+    pub id: String,
+    /// Camera-to-world; camera looks along local +z, local +x is image left, +y image up.
+    pub to_world: Mat4,
+    /// Field of view in degrees, along `fov_axis`, as written in the file.
+    pub fov: f32,
+    pub fov_axis: FovAxis,
+    pub width: u32,
+    pub height: u32,
+}
+
+#[derive(Debug, Clone)]
+pub struct Scene {
+    /// The XML file the scene came from.
+    pub path: PathBuf,
+    pub shapes: Vec<Shape>,
+    pub emitters: Vec<Emitter>,
+    pub sensors: Vec<Sensor>,
+}
+
+impl Scene {
+    pub fn dir(&self) -> PathBuf {
+        self.path
+            .parent()
+            .map(|p| p.to_path_buf())
+            .unwrap_or_else(|| PathBuf::from("."))
+    }
+
+    pub fn triangle_count(&self) -> usize {
+        self.shapes.iter().map(|s| s.mesh.triangles.len()).sum()
+    }
+
+    /// Axis-aligned bounds of all geometry `(min, max)`.
+    pub fn bounds(&self) -> (Vec3, Vec3) {
+        let mut lo = Vec3::splat(f32::INFINITY);
+        let mut hi = Vec3::splat(f32::NEG_INFINITY);
+        for s in &self.shapes {
+            for p in &s.mesh.positions {
+                lo = lo.min(*p);
+                hi = hi.max(*p);
+            }
+        }
+        (lo, hi)
+    }
+}
