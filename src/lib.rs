@@ -9,6 +9,7 @@
 //! ```
 
 pub mod accel;
+pub mod atlas;
 pub mod camera;
 pub mod error;
 pub mod image;

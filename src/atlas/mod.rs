@@ -1,0 +1,5 @@
+//! The texture atlas: per-shape UV charts, the texel <-> surface map, and the memory-mapped
+//! tile store that holds per-texel state.
+
+pub mod tiles;
+pub mod unwrap;
