@@ -217,7 +217,7 @@ mod tests {
                     assert!((p - q).length() < 1e-3, "{p} vs {q}");
                 }
             }
-            assert_eq!(accel.occluded(o, d, best * 0.999), false);
+            assert!(!accel.occluded(o, d, best * 0.999));
             if best.is_finite() {
                 assert!(accel.occluded(o, d, best * 1.001 + 1e-4));
             }

@@ -1,1 +1,509 @@
-//! stub
+//! Image input and output: OpenEXR photos in (float or half, RGB(A), any channel order) with
+//! bad pixels masked and counted, OpenEXR results out (written atomically), and sRGB PNG
+//! previews. Nothing else in the crate touches an image file format.
+//!
+//! Pixels are stored row-major with row 0 at the top, as OpenEXR and Mitsuba's film store them.
+
+use crate::error::{Error, Result};
+use crate::scene::Sensor;
+use exr::prelude::{
+    self as x, f16, Encoding, FlatSamples, LayerAttributes, ReadChannels, ReadLayers,
+    SpecificChannels, WritableImage,
+};
+use glam::Vec3;
+use std::ffi::OsString;
+use std::path::{Path, PathBuf};
+
+/// A linear RGB image with a per-pixel validity mask.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Image {
+    pub width: u32,
+    pub height: u32,
+    /// Row-major, row 0 = top. Masked pixels hold zero.
+    pub pixels: Vec<Vec3>,
+    /// `false` where the file held a non-finite or negative value in any of R, G, B.
+    pub valid: Vec<bool>,
+    /// How many pixels are masked (`valid == false`).
+    pub masked: usize,
+}
+
+impl Image {
+    /// The pixel at column `x`, row `y` (row 0 = top).
+    #[inline]
+    pub fn get(&self, x: u32, y: u32) -> Vec3 {
+        self.pixels[(y * self.width + x) as usize]
+    }
+
+    #[inline]
+    pub fn is_valid(&self, x: u32, y: u32) -> bool {
+        self.valid[(y * self.width + x) as usize]
+    }
+
+    /// Build from raw values, masking non-finite or negative pixels (set to zero, counted).
+    pub fn from_raw(width: u32, height: u32, mut pixels: Vec<Vec3>) -> Image {
+        assert_eq!(pixels.len(), width as usize * height as usize);
+        let mut valid = vec![true; pixels.len()];
+        let mut masked = 0;
+        for (p, v) in pixels.iter_mut().zip(valid.iter_mut()) {
+            if !(p.is_finite() && p.min_element() >= 0.0) {
+                *p = Vec3::ZERO;
+                *v = false;
+                masked += 1;
+            }
+        }
+        Image {
+            width,
+            height,
+            pixels,
+            valid,
+            masked,
+        }
+    }
+}
+
+fn exr_error(path: &Path, e: x::Error) -> Error {
+    match e {
+        x::Error::Io(io) if io.kind() == std::io::ErrorKind::NotFound => Error::io(path, io),
+        x::Error::Io(io) if io.kind() == std::io::ErrorKind::UnexpectedEof => {
+            Error::input(path, "not a readable OpenEXR file: truncated")
+        }
+        x::Error::Io(io) => Error::io(path, io),
+        other => Error::input(
+            path,
+            format!(
+                "not a readable OpenEXR file: {}",
+                one_line(&other.to_string())
+            ),
+        ),
+    }
+}
+
+fn one_line(s: &str) -> String {
+    s.replace('\n', " ")
+}
+
+/// Find channel `want` ("R", "G" or "B") in a layer: an exact name, else a unique
+/// `<prefix>.R` style name (legacy multi-layer files).
+fn find_channel<'a>(
+    list: &'a [x::AnyChannel<FlatSamples>],
+    want: &str,
+) -> Option<&'a x::AnyChannel<FlatSamples>> {
+    if let Some(c) = list.iter().find(|c| c.name.eq(want)) {
+        return Some(c);
+    }
+    let suffix = format!(".{want}");
+    let mut it = list
+        .iter()
+        .filter(|c| c.name.to_string().ends_with(&suffix));
+    match (it.next(), it.next()) {
+        (Some(c), None) => Some(c),
+        _ => None,
+    }
+}
+
+fn samples_f32(s: &FlatSamples) -> Vec<f32> {
+    match s {
+        FlatSamples::F16(v) => v.iter().map(|h| h.to_f32()).collect(),
+        FlatSamples::F32(v) => v.clone(),
+        FlatSamples::U32(v) => v.iter().map(|&u| u as f32).collect(),
+    }
+}
+
+/// Read a linear RGB OpenEXR image (float, half or uint channels; R, G, B found by name in any
+/// order; alpha and other channels ignored). Non-finite or negative pixels are masked.
+pub fn read_exr(path: impl AsRef<Path>) -> Result<Image> {
+    let path = path.as_ref();
+    let img = x::read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .all_channels()
+        .all_layers()
+        .all_attributes()
+        .pedantic()
+        .from_file(path)
+        .map_err(|e| exr_error(path, e))?;
+
+    let mut names: Vec<String> = Vec::new();
+    for layer in &img.layer_data {
+        let list = &layer.channel_data.list;
+        names.extend(list.iter().map(|c| c.name.to_string()));
+        let (Some(r), Some(g), Some(b)) = (
+            find_channel(list, "R"),
+            find_channel(list, "G"),
+            find_channel(list, "B"),
+        ) else {
+            continue;
+        };
+        let (w, h) = (layer.size.x(), layer.size.y());
+        if [r, g, b]
+            .iter()
+            .any(|c| c.sampling.x() != 1 || c.sampling.y() != 1)
+        {
+            return Err(Error::input(
+                path,
+                "subsampled R/G/B channels are not supported",
+            ));
+        }
+        let (rv, gv, bv) = (
+            samples_f32(&r.sample_data),
+            samples_f32(&g.sample_data),
+            samples_f32(&b.sample_data),
+        );
+        let n = w * h;
+        if rv.len() != n || gv.len() != n || bv.len() != n {
+            return Err(Error::input(
+                path,
+                "channel sizes do not match the image size",
+            ));
+        }
+        let (Ok(wu), Ok(hu)) = (u32::try_from(w), u32::try_from(h)) else {
+            return Err(Error::input(
+                path,
+                format!("image size {w}x{h} is too large"),
+            ));
+        };
+        let pixels = (0..n).map(|i| Vec3::new(rv[i], gv[i], bv[i])).collect();
+        return Ok(Image::from_raw(wu, hu, pixels));
+    }
+    let what = if names.iter().any(|n| n == "Y" || n.ends_with(".Y")) {
+        "a luminance-only (Y) image is not supported; an RGB image is needed".to_string()
+    } else {
+        format!("no R, G, B channels found (channels: {})", names.join(", "))
+    };
+    Err(Error::input(path, what))
+}
+
+/// [`read_exr`], then check the size is `width` x `height`.
+pub fn read_exr_expect(path: impl AsRef<Path>, width: u32, height: u32) -> Result<Image> {
+    let path = path.as_ref();
+    let img = read_exr(path)?;
+    if (img.width, img.height) != (width, height) {
+        return Err(Error::input(
+            path,
+            format!(
+                "image is {}x{} but {width}x{height} was expected",
+                img.width, img.height
+            ),
+        ));
+    }
+    Ok(img)
+}
+
+/// [`read_exr`] the photo taken by `sensor`; its size must be the sensor's film size.
+pub fn read_sensor_image(path: impl AsRef<Path>, sensor: &Sensor) -> Result<Image> {
+    let path = path.as_ref();
+    let img = read_exr(path)?;
+    if (img.width, img.height) != (sensor.width, sensor.height) {
+        return Err(Error::input(
+            path,
+            format!(
+                "image is {}x{} but sensor {} film is {}x{}",
+                img.width, img.height, sensor.id, sensor.width, sensor.height
+            ),
+        ));
+    }
+    Ok(img)
+}
+
+/// `<path>.tmp`, the name a file is written under before it is renamed into place.
+fn tmp_path(path: &Path) -> PathBuf {
+    let mut s = OsString::from(path.as_os_str());
+    s.push(".tmp");
+    PathBuf::from(s)
+}
+
+/// Write `bytes` via a `<path>.tmp` file produced by `write`, renamed into place on success.
+fn write_atomic(
+    path: &Path,
+    write: impl FnOnce(&Path) -> std::result::Result<(), String>,
+) -> Result<()> {
+    let tmp = tmp_path(path);
+    if let Err(msg) = write(&tmp) {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(Error::input(
+            path,
+            format!("cannot write: {}", one_line(&msg)),
+        ));
+    }
+    std::fs::rename(&tmp, path).map_err(|e| {
+        let _ = std::fs::remove_file(&tmp);
+        Error::io(path, e)
+    })
+}
+
+fn check_len(path: &Path, width: u32, height: u32, pixels: &[Vec3]) -> Result<()> {
+    if pixels.len() != width as usize * height as usize || width == 0 || height == 0 {
+        return Err(Error::input(
+            path,
+            format!(
+                "cannot write a {width}x{height} image from {} pixels",
+                pixels.len()
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// Write a linear RGB OpenEXR image (row-major, row 0 = top), ZIP-compressed, as 32-bit float
+/// or, with `half`, as 16-bit half (finite values beyond the half range are clamped to it).
+/// The file appears only once it is complete.
+pub fn write_exr_rgb(
+    path: impl AsRef<Path>,
+    width: u32,
+    height: u32,
+    pixels: &[Vec3],
+    half: bool,
+) -> Result<()> {
+    let path = path.as_ref();
+    check_len(path, width, height, pixels)?;
+    let size = (width as usize, height as usize);
+    let w = width as usize;
+    let at = move |p: x::Vec2<usize>| pixels[p.y() * w + p.x()];
+    let attrs = LayerAttributes::default();
+    write_atomic(path, |tmp| {
+        if half {
+            let to_h = |v: f32| {
+                let v = if v.is_finite() {
+                    v.clamp(-65504.0, 65504.0)
+                } else {
+                    v
+                };
+                f16::from_f32(v)
+            };
+            let ch = SpecificChannels::rgb(|p| {
+                let c = at(p);
+                (to_h(c.x), to_h(c.y), to_h(c.z))
+            });
+            x::Image::from_layer(x::Layer::new(size, attrs, Encoding::SMALL_LOSSLESS, ch))
+                .write()
+                .to_file(tmp)
+        } else {
+            let ch = SpecificChannels::rgb(|p| {
+                let c = at(p);
+                (c.x, c.y, c.z)
+            });
+            x::Image::from_layer(x::Layer::new(size, attrs, Encoding::SMALL_LOSSLESS, ch))
+                .write()
+                .to_file(tmp)
+        }
+        .map_err(|e| e.to_string())
+    })
+}
+
+/// The sRGB transfer function, for a linear value in [0, 1].
+fn srgb_encode(v: f32) -> f32 {
+    if v <= 0.003_130_8 {
+        12.92 * v
+    } else {
+        1.055 * v.powf(1.0 / 2.4) - 0.055
+    }
+}
+
+/// Write an 8-bit sRGB PNG preview of linear RGB pixels scaled by `2^exposure` (stops, as in
+/// Mitsuba and tev), clamped to [0, 1]; non-finite pixels show black. Written atomically.
+pub fn write_png_srgb(
+    path: impl AsRef<Path>,
+    width: u32,
+    height: u32,
+    pixels: &[Vec3],
+    exposure: f32,
+) -> Result<()> {
+    let path = path.as_ref();
+    check_len(path, width, height, pixels)?;
+    let scale = exposure.exp2();
+    let mut pm = tiny_skia::Pixmap::new(width, height)
+        .ok_or_else(|| Error::input(path, format!("cannot make a {width}x{height} PNG")))?;
+    for (px, c) in pm.data_mut().chunks_exact_mut(4).zip(pixels) {
+        for k in 0..3 {
+            let v = c[k] * scale;
+            let v = if v.is_finite() {
+                v.clamp(0.0, 1.0)
+            } else {
+                0.0
+            };
+            px[k] = (srgb_encode(v) * 255.0 + 0.5) as u8;
+        }
+        px[3] = 255;
+    }
+    let bytes = pm.encode_png().map_err(|e| {
+        Error::input(
+            path,
+            format!("cannot encode PNG: {}", one_line(&e.to_string())),
+        )
+    })?;
+    write_atomic(path, |tmp| {
+        std::fs::write(tmp, &bytes).map_err(|e| e.to_string())
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ramp(w: u32, h: u32) -> Vec<Vec3> {
+        (0..w * h)
+            .map(|i| {
+                let (x, y) = ((i % w) as f32, (i / w) as f32);
+                Vec3::new(x * 0.37 + 0.01, y * 1.9 + 0.5, (x * y) * 0.013 + 1e-3)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn float_round_trip_is_exact() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("a.exr");
+        let px = ramp(13, 7);
+        write_exr_rgb(&p, 13, 7, &px, false).unwrap();
+        assert!(!tmp_path(&p).exists());
+        let img = read_exr(&p).unwrap();
+        assert_eq!((img.width, img.height, img.masked), (13, 7, 0));
+        assert_eq!(img.pixels, px);
+        assert!(img.valid.iter().all(|&v| v));
+        // row 0 is the top row, x runs along a row
+        assert_eq!(img.get(3, 2), px[2 * 13 + 3]);
+    }
+
+    #[test]
+    fn half_round_trip_within_1e3() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("h.exr");
+        let px = ramp(9, 11);
+        write_exr_rgb(&p, 9, 11, &px, true).unwrap();
+        let img = read_exr_expect(&p, 9, 11).unwrap();
+        for (a, b) in img.pixels.iter().zip(&px) {
+            for k in 0..3 {
+                assert!((a[k] - b[k]).abs() <= 1e-3 * b[k].abs(), "{a} vs {b}");
+            }
+        }
+    }
+
+    #[test]
+    fn channels_in_any_order_with_alpha() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("bgra.exr");
+        let (w, h) = (5usize, 4usize);
+        let val = |i: usize, k: usize| (i * 10 + k) as f32;
+        let n = w * h;
+        let mk = |name: &str, k: usize| {
+            x::AnyChannel::new(name, FlatSamples::F32((0..n).map(|i| val(i, k)).collect()))
+        };
+        // listed B, G, R, A on purpose (the writer sorts them by name anyway)
+        let chans = x::AnyChannels::sort(smallvec_of(vec![
+            mk("B", 2),
+            mk("G", 1),
+            mk("R", 0),
+            mk("A", 9),
+        ]));
+        x::Image::from_channels((w, h), chans)
+            .write()
+            .to_file(&p)
+            .unwrap();
+        let img = read_exr(&p).unwrap();
+        for i in 0..n {
+            assert_eq!(img.pixels[i], Vec3::new(val(i, 0), val(i, 1), val(i, 2)));
+        }
+    }
+
+    fn smallvec_of(
+        v: Vec<x::AnyChannel<FlatSamples>>,
+    ) -> x::SmallVec<[x::AnyChannel<FlatSamples>; 4]> {
+        v.into_iter().collect()
+    }
+
+    #[test]
+    fn bad_pixels_are_masked_and_counted() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("bad.exr");
+        let mut px = ramp(4, 3);
+        px[0].x = f32::NAN;
+        px[5].y = -0.5;
+        px[7].z = f32::INFINITY;
+        px[8] = Vec3::splat(f32::NEG_INFINITY);
+        write_exr_rgb(&p, 4, 3, &px, false).unwrap();
+        let img = read_exr(&p).unwrap();
+        assert_eq!(img.masked, 4);
+        for (i, &orig) in px.iter().enumerate() {
+            let bad = [0, 5, 7, 8].contains(&i);
+            assert_eq!(img.valid[i], !bad, "pixel {i}");
+            let want = if bad { Vec3::ZERO } else { orig };
+            assert_eq!(img.pixels[i], want);
+        }
+    }
+
+    #[test]
+    fn size_mismatch_names_both_sizes() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("cam_train_0.exr");
+        write_exr_rgb(&p, 8, 8, &ramp(8, 8), true).unwrap();
+        let e = read_exr_expect(&p, 16, 16).unwrap_err().to_string();
+        assert!(e.contains("cam_train_0.exr") && e.contains("8x8") && e.contains("16x16"));
+        let s = Sensor {
+            id: "cam_train_0".into(),
+            to_world: glam::Mat4::IDENTITY,
+            fov: 40.0,
+            fov_axis: crate::scene::FovAxis::X,
+            width: 16,
+            height: 16,
+        };
+        let e = read_sensor_image(&p, &s).unwrap_err().to_string();
+        assert!(
+            e.ends_with("cam_train_0.exr: image is 8x8 but sensor cam_train_0 film is 16x16"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn missing_truncated_and_corrupt_files_are_errors_naming_the_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let missing = dir.path().join("missing.exr");
+        let e = read_exr(&missing).unwrap_err().to_string();
+        assert!(e.contains("missing.exr"), "{e}");
+
+        let good = dir.path().join("good.exr");
+        write_exr_rgb(&good, 32, 32, &ramp(32, 32), false).unwrap();
+        let bytes = std::fs::read(&good).unwrap();
+        for (name, data) in [
+            ("truncated.exr", bytes[..bytes.len() * 2 / 3].to_vec()),
+            ("header_only.exr", bytes[..40].to_vec()),
+            ("garbage.exr", b"this is not an exr file at all".to_vec()),
+            ("empty.exr", Vec::new()),
+        ] {
+            let p = dir.path().join(name);
+            std::fs::write(&p, data).unwrap();
+            let e = read_exr(&p).unwrap_err().to_string();
+            assert!(e.contains(name), "{e}");
+            assert!(!e.contains('\n'), "{e}");
+        }
+    }
+
+    #[test]
+    fn luminance_only_image_is_refused_clearly() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("y.exr");
+        let ch = x::AnyChannels::sort(smallvec_of(vec![x::AnyChannel::new(
+            "Y",
+            FlatSamples::F32(vec![0.5; 6]),
+        )]));
+        x::Image::from_channels((3, 2), ch)
+            .write()
+            .to_file(&p)
+            .unwrap();
+        let e = read_exr(&p).unwrap_err().to_string();
+        assert!(e.contains("y.exr") && e.contains("luminance"), "{e}");
+    }
+
+    #[test]
+    fn png_preview_is_written_and_wrong_sizes_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("a.png");
+        write_png_srgb(&p, 4, 3, &ramp(4, 3), -2.0).unwrap();
+        let bytes = std::fs::read(&p).unwrap();
+        assert_eq!(&bytes[1..4], b"PNG");
+        assert!(!tmp_path(&p).exists());
+        assert!(write_png_srgb(&p, 5, 3, &ramp(4, 3), 0.0).is_err());
+        assert!(write_exr_rgb(dir.path().join("b.exr"), 5, 3, &ramp(4, 3), false).is_err());
+        assert!((srgb_encode(1.0) - 1.0).abs() < 1e-6);
+        assert!((srgb_encode(0.18) - 0.4613).abs() < 1e-3);
+    }
+}

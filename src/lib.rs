@@ -11,9 +11,14 @@
 pub mod accel;
 pub mod atlas;
 pub mod camera;
+pub mod config;
 pub mod error;
 pub mod image;
 pub mod light;
+pub mod pipeline;
+pub mod progress;
+pub mod project;
+pub mod render;
 pub mod rng;
 pub mod scene;
 

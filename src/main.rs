@@ -1,1 +1,223 @@
-fn main(){}
+//! The `kdmap` command line: parses arguments (clap), runs one subcommand, and turns any
+//! error into a single `error: ...` line on stderr with exit code 1 (clap's usage errors exit
+//! with 2). Library code never prints; only this file talks to the terminal.
+
+use anyhow::Context;
+use clap::{Parser, Subcommand};
+use glam::Vec3;
+use kdmap::scene::{luminance, mitsuba, Emitter, Scene, Sides};
+use std::fmt::Write as _;
+use std::io::Write as _;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+#[derive(Parser, Debug)]
+#[command(
+    name = "kdmap",
+    version,
+    about = "Recover diffuse albedo (Kd) textures from HDR photos of a known scene"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Load a Mitsuba 3 scene and summarize its shapes, emitters and sensors.
+    Inspect {
+        /// The scene file (Mitsuba 3 XML).
+        scene: PathBuf,
+    },
+    /// Steps 1-2 of the method on their own: unwrap the atlas, project every photo onto it and
+    /// write the luminance and coverage maps to `<out>/maps/` (with PNG previews).
+    Project {
+        /// A Mitsuba 3 scene (photos in `<scene dir>/images/<sensor id>.exr`) or a run config (TOML).
+        input: PathBuf,
+        /// Output directory.
+        #[arg(long)]
+        out: PathBuf,
+        /// Worker threads (0 = all cores); never changes the result.
+        #[arg(long)]
+        threads: Option<usize>,
+    },
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    match run(cli.command) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            let _ = writeln!(std::io::stderr(), "error: {}", one_line(&e));
+            ExitCode::from(1)
+        }
+    }
+}
+
+/// The error and its causes joined by ": " on one line, skipping a cause whose text the
+/// message already holds (our I/O errors print their source themselves).
+fn one_line(e: &anyhow::Error) -> String {
+    let mut msg = String::new();
+    for cause in e.chain() {
+        let t = cause.to_string();
+        if !msg.contains(&t) {
+            if !msg.is_empty() {
+                msg.push_str(": ");
+            }
+            msg.push_str(&t);
+        }
+    }
+    msg.replace(['\n', '\r'], " ")
+}
+
+fn run(command: Command) -> anyhow::Result<()> {
+    match command {
+        Command::Inspect { scene } => inspect(&scene),
+        Command::Project {
+            input,
+            out,
+            threads,
+        } => project(&input, &out, threads),
+    }
+}
+
+fn inspect(path: &Path) -> anyhow::Result<()> {
+    let scene = mitsuba::load(path)?;
+    let text = summary(&scene);
+    let mut out = std::io::stdout().lock();
+    out.write_all(text.as_bytes())
+        .and_then(|()| out.flush())
+        .context("writing to stdout")?;
+    Ok(())
+}
+
+fn project(input: &Path, out: &Path, threads: Option<usize>) -> anyhow::Result<()> {
+    let ov = kdmap::config::Overrides {
+        threads,
+        ..Default::default()
+    };
+    let cfg = kdmap::config::Config::load(input, &ov)?;
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(cfg.threads)
+        .build()
+        .context("starting worker threads")?;
+    let (p, stats) =
+        pool.install(|| kdmap::pipeline::run_projection(&cfg, out, kdmap::progress::Mode::Auto))?;
+    println!(
+        "projected {} views onto {} shapes: {} of {} surface texels observed ({:.1}%), {} pixels masked, {:.2} s",
+        stats.views,
+        p.layout.slots.len(),
+        stats.observed_texels,
+        stats.covered_texels,
+        100.0 * stats.observed_texels as f64 / stats.covered_texels.max(1) as f64,
+        stats.masked_pixels,
+        stats.seconds
+    );
+    println!("maps: {}", out.join("maps").display());
+    Ok(())
+}
+
+fn v3(v: Vec3) -> String {
+    format!("({}, {}, {})", v.x, v.y, v.z)
+}
+
+fn v3p(v: Vec3) -> String {
+    format!("({:.4}, {:.4}, {:.4})", v.x, v.y, v.z)
+}
+
+/// The human-readable summary printed by `inspect`.
+fn summary(scene: &Scene) -> String {
+    let mut s = String::new();
+    // Writing into a String cannot fail.
+    let _ = writeln!(s, "scene {}", scene.path.display());
+    let _ = writeln!(
+        s,
+        "shapes: {} ({} triangles)",
+        scene.shapes.len(),
+        scene.triangle_count()
+    );
+    for sh in &scene.shapes {
+        let sides = match sh.sides {
+            Sides::Front => "front",
+            Sides::Both => "both",
+        };
+        let _ = write!(
+            s,
+            "  {:<16} {:<9} {:>8} triangles  area {:>10.4}  sides {:<5}",
+            sh.id,
+            sh.kind,
+            sh.mesh.triangles.len(),
+            sh.mesh.area(),
+            sides
+        );
+        if let Some(l) = sh.emission {
+            let _ = write!(s, "  emits radiance {}", v3(l));
+        }
+        s.push('\n');
+    }
+    let _ = writeln!(s, "emitters: {}", scene.emitters.len());
+    for e in &scene.emitters {
+        let p = kdmap::light::emitter_power(scene, e);
+        let what = match e {
+            Emitter::Point {
+                position,
+                intensity,
+            } => format!("point at {} intensity {}", v3(*position), v3(*intensity)),
+            Emitter::Spot {
+                position,
+                axis,
+                intensity,
+                cutoff,
+                beam_width,
+                ..
+            } => format!(
+                "spot at {} axis {} intensity {} cutoff {:.3} deg beam_width {:.3} deg",
+                v3(*position),
+                v3p(*axis),
+                v3(*intensity),
+                cutoff.to_degrees(),
+                beam_width.to_degrees()
+            ),
+            Emitter::Directional {
+                direction,
+                irradiance,
+            } => format!(
+                "directional direction {} irradiance {}",
+                v3p(*direction),
+                v3(*irradiance)
+            ),
+            Emitter::Area { shape, radiance } => {
+                let id = scene.shapes.get(*shape).map_or("?", |s| s.id.as_str());
+                format!("area on '{id}' radiance {}", v3(*radiance))
+            }
+        };
+        let _ = writeln!(
+            s,
+            "  {what}  power {} (luminance {:.4})",
+            v3p(p),
+            luminance(p)
+        );
+    }
+    let _ = writeln!(s, "sensors: {}", scene.sensors.len());
+    let images = scene.dir().join("images");
+    for c in &scene.sensors {
+        let image = images.join(format!("{}.exr", c.id));
+        let state = if image.is_file() {
+            "present"
+        } else {
+            "missing"
+        };
+        let _ = writeln!(
+            s,
+            "  {:<16} {}x{}  fov {} deg ({})  at {}  image {}: {state}",
+            c.id,
+            c.width,
+            c.height,
+            c.fov,
+            format!("{:?}", c.fov_axis).to_lowercase(),
+            v3(c.to_world.w_axis.truncate()),
+            image.display()
+        );
+    }
+    s
+}

@@ -32,7 +32,9 @@ impl Rng {
     #[inline]
     pub fn u64(&mut self) -> u64 {
         self.counter += 1;
-        mix(self.key.wrapping_add(self.counter.wrapping_mul(0x9e3779b97f4a7c15)))
+        mix(self
+            .key
+            .wrapping_add(self.counter.wrapping_mul(0x9e3779b97f4a7c15)))
     }
 
     /// Uniform in [0, 1).

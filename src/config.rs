@@ -1,0 +1,417 @@
+//! The run configuration: raw TOML (a `configs/*.toml` file) plus command-line overrides,
+//! validated once into a [`Config`] that drives the whole run. Unknown keys are errors, every
+//! setting has a documented unit, and impossible combinations are refused here, not deep in a
+//! stage.
+
+use crate::error::{Error, Location, Result};
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+/// The run config as written in TOML. Every field is optional except `scene`.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawConfig {
+    /// Mitsuba 3 scene file, relative to the config file.
+    pub scene: Option<PathBuf>,
+    /// Sensor id -> EXR path (relative to the config file). Default: `<scene dir>/images/<id>.exr`.
+    #[serde(default)]
+    pub views: BTreeMap<String, PathBuf>,
+    #[serde(default)]
+    pub atlas: RawAtlas,
+    #[serde(default)]
+    pub direct: RawDirect,
+    #[serde(default)]
+    pub photons: RawPhotons,
+    #[serde(default)]
+    pub solver: RawSolver,
+    #[serde(default)]
+    pub run: RawRun,
+}
+
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawAtlas {
+    pub texels_per_unit: Option<f32>,
+    pub padding: Option<u32>,
+    pub use_mesh_uvs: Option<bool>,
+    pub tile_size: Option<u32>,
+    pub max_texture_size: Option<u32>,
+}
+
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawDirect {
+    pub area_samples: Option<u32>,
+}
+
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawPhotons {
+    pub per_iteration: Option<u64>,
+    pub batch_size: Option<u32>,
+    pub max_depth: Option<u32>,
+    pub smoothing_radius: Option<u32>,
+}
+
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawSolver {
+    pub iterations: Option<u32>,
+    pub tolerance: Option<f32>,
+    pub alpha0: Option<f32>,
+    pub update: Option<String>,
+    pub initial_indirect_share: Option<f32>,
+}
+
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawRun {
+    pub seed: Option<u64>,
+    pub threads: Option<usize>,
+    pub checkpoint_every_batches: Option<u32>,
+    pub memory_budget_mib: Option<u64>,
+}
+
+/// Command-line overrides (`None` = not given).
+#[derive(Debug, Clone, Default)]
+pub struct Overrides {
+    pub photons: Option<u64>,
+    pub iterations: Option<u32>,
+    pub seed: Option<u64>,
+    pub threads: Option<usize>,
+}
+
+/// How E_i is updated between photon passes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum UpdateRule {
+    /// The paper's gradient step, eqs. (8)-(9): `E_i -= -alpha_n K_d/pi F`.
+    Paper,
+    /// Take the photon-traced E_i as it is (a fixed-point iteration).
+    FixedPoint,
+}
+
+/// Settings of the UV atlas.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct AtlasConfig {
+    /// Texel density: texels per scene unit of length.
+    pub texels_per_unit: f32,
+    /// Gutter between charts, in texels.
+    pub padding: u32,
+    /// Keep the meshes' own UVs instead of unwrapping.
+    pub use_mesh_uvs: bool,
+    /// Tile edge in texels (tiles are `tile_size x tile_size`).
+    pub tile_size: u32,
+    /// Largest texture edge in texels; a shape needing more is refused.
+    pub max_texture_size: u32,
+}
+
+/// Every setting of a run, validated.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Config {
+    pub scene: PathBuf,
+    /// Sensor id -> image path. Empty means "the scene's `images/<id>.exr`".
+    pub views: BTreeMap<String, PathBuf>,
+    pub atlas: AtlasConfig,
+    /// Stratified samples per emitter triangle for area-light visibility.
+    pub area_samples: u32,
+    /// Light paths (photons) traced per iteration.
+    pub photons: u64,
+    /// Photons per batch: the unit of parallel work, determinism and mid-pass checkpoints.
+    pub batch_size: u32,
+    /// Longest photon path in bounces (Russian roulette usually ends paths earlier).
+    pub max_depth: u32,
+    /// Box-filter radius (texels) applied to E_i within charts; 0 = off.
+    pub smoothing_radius: u32,
+    /// Most solver iterations (photon passes).
+    pub iterations: u32,
+    /// Stop when the RMS relative error over observed texels falls below this (fraction).
+    pub tolerance: f32,
+    /// Step size of the paper's update, `alpha_n = alpha0 / (1 + n)`.
+    pub alpha0: f32,
+    pub update: UpdateRule,
+    /// Initial E_i as a share of E_d (step 4 of the method).
+    pub initial_indirect_share: f32,
+    pub seed: u64,
+    /// Worker threads; 0 = all cores. Never changes results.
+    pub threads: usize,
+    /// Mid-pass checkpoint every N photon batches.
+    pub checkpoint_every_batches: u32,
+    /// Budget for memory-mapped working sets, MiB.
+    pub memory_budget_mib: u64,
+}
+
+impl Config {
+    /// Defaults for a scene given directly on the command line.
+    pub fn for_scene(scene: PathBuf) -> Config {
+        Config {
+            scene,
+            views: BTreeMap::new(),
+            atlas: AtlasConfig {
+                texels_per_unit: 64.0,
+                padding: 2,
+                use_mesh_uvs: false,
+                tile_size: 64,
+                max_texture_size: 8192,
+            },
+            area_samples: 64,
+            photons: 10_000_000,
+            batch_size: 65_536,
+            max_depth: 64,
+            smoothing_radius: 0,
+            iterations: 6,
+            tolerance: 0.005,
+            alpha0: 2.0,
+            update: UpdateRule::Paper,
+            initial_indirect_share: 0.5,
+            seed: 1,
+            threads: 0,
+            checkpoint_every_batches: 32,
+            memory_budget_mib: 1024,
+        }
+    }
+
+    /// Load `path` (a `.toml` run config, or a Mitsuba `.xml` scene for all defaults) and apply
+    /// `ov`, then validate.
+    pub fn load(path: &Path, ov: &Overrides) -> Result<Config> {
+        let is_toml = path
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("toml"));
+        let mut cfg = if is_toml {
+            let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+            Self::from_toml(path, &text)?
+        } else {
+            Config::for_scene(path.to_path_buf())
+        };
+        if let Some(v) = ov.photons {
+            cfg.photons = v;
+        }
+        if let Some(v) = ov.iterations {
+            cfg.iterations = v;
+        }
+        if let Some(v) = ov.seed {
+            cfg.seed = v;
+        }
+        if let Some(v) = ov.threads {
+            cfg.threads = v;
+        }
+        cfg.validate().map_err(|m| Error::input(path, m))?;
+        Ok(cfg)
+    }
+
+    /// Parse a TOML run config; relative paths resolve against the config file's directory.
+    pub fn from_toml(path: &Path, text: &str) -> Result<Config> {
+        let raw: RawConfig = toml::from_str(text).map_err(|e| {
+            let line = e
+                .span()
+                .map(|s| text[..s.start.min(text.len())].matches('\n').count() as u32 + 1);
+            Error::Input {
+                path: path.to_path_buf(),
+                loc: Location {
+                    line,
+                    ..Default::default()
+                },
+                msg: e.message().to_string(),
+            }
+        })?;
+        let base = path.parent().unwrap_or(Path::new("."));
+        let scene = raw.scene.ok_or_else(|| {
+            Error::input(path, "missing `scene = \"...\"` (the Mitsuba XML file)")
+        })?;
+        let mut c = Config::for_scene(base.join(scene));
+        c.views = raw
+            .views
+            .into_iter()
+            .map(|(k, v)| (k, base.join(v)))
+            .collect();
+        let a = raw.atlas;
+        set(&mut c.atlas.texels_per_unit, a.texels_per_unit);
+        set(&mut c.atlas.padding, a.padding);
+        set(&mut c.atlas.use_mesh_uvs, a.use_mesh_uvs);
+        set(&mut c.atlas.tile_size, a.tile_size);
+        set(&mut c.atlas.max_texture_size, a.max_texture_size);
+        set(&mut c.area_samples, raw.direct.area_samples);
+        let p = raw.photons;
+        set(&mut c.photons, p.per_iteration);
+        set(&mut c.batch_size, p.batch_size);
+        set(&mut c.max_depth, p.max_depth);
+        set(&mut c.smoothing_radius, p.smoothing_radius);
+        let s = raw.solver;
+        set(&mut c.iterations, s.iterations);
+        set(&mut c.tolerance, s.tolerance);
+        set(&mut c.alpha0, s.alpha0);
+        set(&mut c.initial_indirect_share, s.initial_indirect_share);
+        if let Some(u) = s.update {
+            c.update = match u.as_str() {
+                "paper" => UpdateRule::Paper,
+                "fixed_point" => UpdateRule::FixedPoint,
+                other => {
+                    return Err(Error::input(
+                        path,
+                        format!(
+                            "solver.update = \"{other}\": expected \"paper\" or \"fixed_point\""
+                        ),
+                    ))
+                }
+            };
+        }
+        let r = raw.run;
+        set(&mut c.seed, r.seed);
+        set(&mut c.threads, r.threads);
+        set(&mut c.checkpoint_every_batches, r.checkpoint_every_batches);
+        set(&mut c.memory_budget_mib, r.memory_budget_mib);
+        Ok(c)
+    }
+
+    /// Check that the settings can work; the message names the offending setting.
+    pub fn validate(&self) -> std::result::Result<(), String> {
+        let a = &self.atlas;
+        if !(a.texels_per_unit.is_finite() && a.texels_per_unit > 0.0) {
+            return Err(format!(
+                "atlas.texels_per_unit = {}: must be a positive number of texels per scene unit",
+                a.texels_per_unit
+            ));
+        }
+        if a.tile_size == 0 || a.tile_size > 1024 {
+            return Err(format!(
+                "atlas.tile_size = {}: must be 1..=1024 texels",
+                a.tile_size
+            ));
+        }
+        if a.max_texture_size == 0 || a.max_texture_size > 65536 {
+            return Err(format!(
+                "atlas.max_texture_size = {}: must be 1..=65536 texels",
+                a.max_texture_size
+            ));
+        }
+        if self.area_samples == 0 {
+            return Err(
+                "direct.area_samples = 0: need at least 1 sample per emitter triangle".into(),
+            );
+        }
+        if self.photons == 0 {
+            return Err("photons = 0: need at least one light path per iteration".into());
+        }
+        if self.batch_size == 0 {
+            return Err("photons.batch_size = 0: must be at least 1".into());
+        }
+        if self.max_depth == 0 {
+            return Err("photons.max_depth = 0: must be at least 1 bounce".into());
+        }
+        if self.iterations == 0 {
+            return Err("iterations = 0: need at least one iteration".into());
+        }
+        if !(self.tolerance.is_finite() && self.tolerance >= 0.0) {
+            return Err(format!(
+                "solver.tolerance = {}: must be a fraction >= 0",
+                self.tolerance
+            ));
+        }
+        if !(self.alpha0.is_finite() && self.alpha0 > 0.0) {
+            return Err(format!("solver.alpha0 = {}: must be > 0", self.alpha0));
+        }
+        if !(self.initial_indirect_share.is_finite() && self.initial_indirect_share >= 0.0) {
+            return Err(format!(
+                "solver.initial_indirect_share = {}: must be >= 0",
+                self.initial_indirect_share
+            ));
+        }
+        if self.threads > 1024 {
+            return Err(format!("threads = {}: at most 1024", self.threads));
+        }
+        if self.checkpoint_every_batches == 0 {
+            return Err("run.checkpoint_every_batches = 0: must be at least 1".into());
+        }
+        if self.memory_budget_mib < 16 {
+            return Err(format!(
+                "run.memory_budget_mib = {}: at least 16 MiB",
+                self.memory_budget_mib
+            ));
+        }
+        Ok(())
+    }
+}
+
+fn set<T>(slot: &mut T, v: Option<T>) {
+    if let Some(v) = v {
+        *slot = v;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn toml_overrides_defaults_and_paths_resolve_against_the_file() {
+        let text = r#"
+            scene = "scenes/a.xml"
+            [views]
+            cam0 = "photos/c0.exr"
+            [atlas]
+            texels_per_unit = 32.0
+            [solver]
+            iterations = 3
+            update = "fixed_point"
+        "#;
+        let c = Config::from_toml(Path::new("/x/y/run.toml"), text).unwrap();
+        assert_eq!(c.scene, PathBuf::from("/x/y/scenes/a.xml"));
+        assert_eq!(c.views["cam0"], PathBuf::from("/x/y/photos/c0.exr"));
+        assert_eq!(c.atlas.texels_per_unit, 32.0);
+        assert_eq!(c.iterations, 3);
+        assert_eq!(c.update, UpdateRule::FixedPoint);
+        // untouched settings keep their defaults
+        let d = Config::for_scene(PathBuf::new());
+        assert_eq!(c.photons, d.photons);
+        assert_eq!(c.alpha0, d.alpha0);
+    }
+
+    #[test]
+    fn unknown_key_is_an_error_naming_file_and_line() {
+        let text = "scene = \"a.xml\"\n[atlas]\ntexels_per_unt = 3.0\n";
+        let e = Config::from_toml(Path::new("run.toml"), text)
+            .unwrap_err()
+            .to_string();
+        assert!(e.starts_with("run.toml (line 3)"), "{e}");
+        assert!(e.contains("texels_per_unt"), "{e}");
+        assert!(!e.contains('\n'));
+    }
+
+    #[test]
+    fn impossible_settings_are_refused() {
+        let mut c = Config::for_scene("s.xml".into());
+        assert!(c.validate().is_ok());
+        c.photons = 0;
+        assert!(c.validate().unwrap_err().contains("photons"));
+        let mut c = Config::for_scene("s.xml".into());
+        c.atlas.texels_per_unit = f32::NAN;
+        assert!(c.validate().unwrap_err().contains("texels_per_unit"));
+        let mut c = Config::for_scene("s.xml".into());
+        c.iterations = 0;
+        assert!(c.validate().unwrap_err().contains("iterations"));
+    }
+
+    #[test]
+    fn flags_override_config() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("run.toml");
+        std::fs::write(&p, "scene = \"s.xml\"\n[photons]\nper_iteration = 5\n").unwrap();
+        let c = Config::load(&p, &Overrides::default()).unwrap();
+        assert_eq!(c.photons, 5);
+        let ov = Overrides {
+            photons: Some(7),
+            iterations: Some(2),
+            seed: Some(9),
+            threads: Some(1),
+        };
+        let c = Config::load(&p, &ov).unwrap();
+        assert_eq!((c.photons, c.iterations, c.seed, c.threads), (7, 2, 9, 1));
+        let ov = Overrides {
+            photons: Some(0),
+            ..Default::default()
+        };
+        let e = Config::load(&p, &ov).unwrap_err().to_string();
+        assert!(e.contains("run.toml") && e.contains("photons"), "{e}");
+    }
+}

@@ -1,0 +1,389 @@
+//! The one place that orders the stages. Each stage is a plain function over tiles in its own
+//! module; this module only wires them: scene -> atlas -> texel samples -> projection -> ...
+//! and decides where their state lives (`<out>/checkpoint/*.tiles`).
+
+use crate::accel::Accel;
+use crate::atlas::layout::{flags, Layout, TexelGeom, TexelState};
+use crate::atlas::texels::{dilate, rasterize};
+use crate::atlas::tiles::{window_tiles_for_budget, TileStore};
+use crate::atlas::unwrap::{build_atlas, AtlasSettings, ShapeAtlas};
+use crate::camera::Camera;
+use crate::config::Config;
+use crate::error::{Error, Result};
+use crate::image::{read_sensor_image, write_exr_rgb, write_png_srgb};
+use crate::progress::{note, Mode, Stage};
+use crate::project::{finish_tile, project_tile, ShapeRef, View};
+use crate::scene::{luminance, mitsuba, Scene};
+use glam::Vec3;
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+use std::time::Duration;
+
+/// The scene with its acceleration structure, atlases and tile layout: everything fixed.
+pub struct Prepared {
+    pub scene: Scene,
+    pub accel: Accel,
+    /// Per shape: its atlas if reconstructed (emitters have none).
+    pub atlases: Vec<Option<ShapeAtlas>>,
+    pub layout: Layout,
+    /// Sensor index -> photo path, for the sensors that have a photo.
+    pub views: Vec<(usize, PathBuf)>,
+}
+
+/// Load the scene, pick the views, unwrap every reconstructed shape and lay out the tiles.
+pub fn prepare(cfg: &Config, mode: Mode) -> Result<Prepared> {
+    let scene = mitsuba::load(&cfg.scene)?;
+    let views = match_views(&scene, cfg, mode)?;
+    let accel = Accel::build(&scene);
+    let settings = AtlasSettings {
+        texels_per_unit: cfg.atlas.texels_per_unit,
+        padding: cfg.atlas.padding,
+        use_mesh_uvs: cfg.atlas.use_mesh_uvs,
+        max_size: cfg.atlas.max_texture_size,
+    };
+    let mut atlases = Vec::with_capacity(scene.shapes.len());
+    let mut textures = Vec::new();
+    for (i, s) in scene.shapes.iter().enumerate() {
+        if !s.is_reconstructed() {
+            atlases.push(None);
+            continue;
+        }
+        let a = build_atlas(&s.mesh, &settings).map_err(|e| match e {
+            Error::Config(m) | Error::Input { msg: m, .. } => {
+                Error::input(&cfg.scene, format!("shape '{}': {m}", s.id))
+            }
+            other => other,
+        })?;
+        textures.push((i, a.width, a.height));
+        atlases.push(Some(a));
+    }
+    let layout = Layout::new(cfg.atlas.tile_size, &textures);
+    Ok(Prepared {
+        scene,
+        accel,
+        atlases,
+        layout,
+        views,
+    })
+}
+
+/// The (sensor, photo) pairs of a run: the config's `views`, or every sensor with an
+/// `images/<id>.exr` beside the scene (sensors without one are skipped with a note).
+pub fn match_views(scene: &Scene, cfg: &Config, mode: Mode) -> Result<Vec<(usize, PathBuf)>> {
+    let mut views = Vec::new();
+    if cfg.views.is_empty() {
+        let dir = scene.dir().join("images");
+        for (i, s) in scene.sensors.iter().enumerate() {
+            let p = dir.join(format!("{}.exr", s.id));
+            if p.is_file() {
+                views.push((i, p));
+            } else {
+                note(
+                    mode,
+                    &format!("sensor '{}' has no photo {}: skipped", s.id, p.display()),
+                );
+            }
+        }
+    } else {
+        for (id, p) in &cfg.views {
+            let i = scene
+                .sensors
+                .iter()
+                .position(|s| &s.id == id)
+                .ok_or_else(|| {
+                    Error::input(
+                        &cfg.scene,
+                        format!("views names sensor '{id}', which the scene does not have"),
+                    )
+                })?;
+            views.push((i, p.clone()));
+        }
+    }
+    if views.is_empty() {
+        return Err(Error::input(
+            &cfg.scene,
+            "no photos: no sensor has an images/<sensor id>.exr and the config names no views",
+        ));
+    }
+    Ok(views)
+}
+
+impl Prepared {
+    pub fn shape_ref(&self, slot: usize) -> ShapeRef<'_> {
+        let si = self.layout.slots[slot].shape;
+        let s = &self.scene.shapes[si];
+        ShapeRef {
+            index: si as u32,
+            mesh: &s.mesh,
+            sides: s.sides,
+            corner_uv: &self.atlases[si]
+                .as_ref()
+                .expect("reconstructed shape has an atlas")
+                .corner_uv,
+        }
+    }
+
+    /// Tiles per mapped window for a store of `T` under the configured memory budget.
+    pub fn window<T>(&self, cfg: &Config) -> usize {
+        let tile_bytes = (self.layout.tile_texels() * std::mem::size_of::<T>()) as u64;
+        window_tiles_for_budget(cfg.memory_budget_mib << 20, tile_bytes).max(1)
+    }
+}
+
+/// Where a run keeps its tile stores.
+pub fn state_dir(out: &Path) -> PathBuf {
+    out.join("checkpoint")
+}
+
+/// Rasterize every atlas into the geometry store (texel -> surface point).
+pub fn build_geometry(p: &Prepared, path: &Path, mode: Mode) -> Result<TileStore<TexelGeom>> {
+    let mut store = TileStore::create(
+        path,
+        p.layout.tile_count as usize,
+        p.layout.tile_texels(),
+        TexelGeom::default(),
+    )?;
+    let total: u64 = p
+        .layout
+        .slots
+        .iter()
+        .map(|s| s.width as u64 * s.height as u64)
+        .sum();
+    let stage = Stage::new(mode, "atlas", total, "texels");
+    for (slot, st) in p.layout.slots.iter().enumerate() {
+        let shape = &p.scene.shapes[st.shape];
+        let atlas = p.atlases[st.shape].as_ref().expect("atlas");
+        let samples = rasterize(&shape.mesh, atlas);
+        let ts = p.layout.tile_size;
+        for ty in 0..st.tiles_y {
+            for tx in 0..st.tiles_x {
+                let tile = st.first_tile + ty * st.tiles_x + tx;
+                let mut recs = vec![TexelGeom::default(); p.layout.tile_texels()];
+                for (off, r) in recs.iter_mut().enumerate() {
+                    let (x, y) = (tx * ts + off as u32 % ts, ty * ts + off as u32 / ts);
+                    if x >= st.width || y >= st.height {
+                        continue;
+                    }
+                    if let Some(s) = &samples[(y * st.width + x) as usize] {
+                        let ng = shape
+                            .mesh
+                            .face_normal_raw(s.tri as usize)
+                            .normalize_or_zero();
+                        *r = TexelGeom {
+                            position: s.position.to_array(),
+                            normal: s.normal.to_array(),
+                            geo_normal: ng.to_array(),
+                            area: s.area,
+                            tri: s.tri,
+                            flags: flags::COVERED,
+                        };
+                    }
+                }
+                store.write_tile(tile as usize, &recs)?;
+            }
+        }
+        stage.inc(st.width as u64 * st.height as u64);
+        let _ = slot;
+    }
+    stage.finish();
+    Ok(store)
+}
+
+/// Statistics of the projection stage.
+#[derive(Debug, Clone, Default, serde::Serialize)]
+pub struct ProjectionStats {
+    pub views: usize,
+    pub masked_pixels: usize,
+    pub covered_texels: u64,
+    pub observed_texels: u64,
+    pub seconds: f64,
+}
+
+/// Project every photo onto the atlas into `state` (L_orig, weight, OBSERVED), streaming the
+/// photos one at a time.
+pub fn project_all(
+    p: &Prepared,
+    cfg: &Config,
+    geom: &TileStore<TexelGeom>,
+    state: &mut TileStore<TexelState>,
+    mode: Mode,
+) -> Result<ProjectionStats> {
+    let mut stats = ProjectionStats {
+        views: p.views.len(),
+        ..Default::default()
+    };
+    let window = p.window::<TexelState>(cfg);
+    let stage = Stage::new(mode, "projection", p.views.len() as u64, "views");
+    let mut time = Duration::ZERO;
+    for (si, path) in &p.views {
+        let sensor = &p.scene.sensors[*si];
+        let image = read_sensor_image(path, sensor)?;
+        if image.masked > 0 {
+            note(
+                mode,
+                &format!(
+                    "{}: {} non-finite or negative pixels masked",
+                    path.display(),
+                    image.masked
+                ),
+            );
+        }
+        stats.masked_pixels += image.masked;
+        let t0 = std::time::Instant::now();
+        let view = View::new(&p.scene, &p.accel, Camera::from_sensor(sensor), &image);
+        let err: Mutex<Option<Error>> = Mutex::new(None);
+        state.for_each_tile_mut(window, |t, st| {
+            let g = match geom.read_tile(t) {
+                Ok(g) => g,
+                Err(e) => {
+                    *err.lock().unwrap_or_else(|e| e.into_inner()) = Some(e);
+                    return;
+                }
+            };
+            let slot = p.layout.slot_of_tile(t as u32);
+            project_tile(&view, &p.accel, &p.shape_ref(slot), &g, st);
+        })?;
+        if let Some(e) = err.into_inner().unwrap_or_else(|e| e.into_inner()) {
+            return Err(e);
+        }
+        time += t0.elapsed();
+        stage.inc(1);
+    }
+    state.for_each_tile_mut(window, |_, st| finish_tile(st))?;
+    stage.finish();
+    let counts = Mutex::new((0u64, 0u64));
+    let err: Mutex<Option<Error>> = Mutex::new(None);
+    state.for_each_tile(window, |t, st| match geom.read_tile(t) {
+        Ok(g) => {
+            let c = g.iter().filter(|g| g.covered()).count() as u64;
+            let o = st.iter().filter(|s| s.flags & flags::OBSERVED != 0).count() as u64;
+            let mut k = counts.lock().unwrap_or_else(|e| e.into_inner());
+            k.0 += c;
+            k.1 += o;
+        }
+        Err(e) => *err.lock().unwrap_or_else(|e| e.into_inner()) = Some(e),
+    })?;
+    if let Some(e) = err.into_inner().unwrap_or_else(|e| e.into_inner()) {
+        return Err(e);
+    }
+    let (c, o) = counts.into_inner().unwrap_or_else(|e| e.into_inner());
+    stats.covered_texels = c;
+    stats.observed_texels = o;
+    stats.seconds = time.as_secs_f64();
+    Ok(stats)
+}
+
+/// One slot's texture assembled from tiles: `(values, covered)` row-major.
+pub fn gather<T: bytemuck::Pod + Send + Sync>(
+    p: &Prepared,
+    slot: usize,
+    store: &TileStore<T>,
+    geom: &TileStore<TexelGeom>,
+    value: impl Fn(&T) -> Vec3,
+) -> Result<(Vec<Vec3>, Vec<bool>)> {
+    let st = p.layout.slots[slot];
+    let n = (st.width * st.height) as usize;
+    let mut vals = vec![Vec3::ZERO; n];
+    let mut cov = vec![false; n];
+    let ts = p.layout.tile_size;
+    for ty in 0..st.tiles_y {
+        for tx in 0..st.tiles_x {
+            let tile = (st.first_tile + ty * st.tiles_x + tx) as usize;
+            let recs = store.read_tile(tile)?;
+            let g = geom.read_tile(tile)?;
+            for (off, r) in recs.iter().enumerate() {
+                let (x, y) = (tx * ts + off as u32 % ts, ty * ts + off as u32 / ts);
+                if x < st.width && y < st.height {
+                    let i = (y * st.width + x) as usize;
+                    vals[i] = value(r);
+                    cov[i] = g[off].covered();
+                }
+            }
+        }
+    }
+    Ok((vals, cov))
+}
+
+/// Exposure (stops) that maps the 99th percentile luminance of `vals` to 0.9.
+pub fn auto_exposure(vals: &[Vec3], mask: &[bool]) -> f32 {
+    let mut ys: Vec<f32> = vals
+        .iter()
+        .zip(mask)
+        .filter(|(_, &m)| m)
+        .map(|(v, _)| luminance(*v))
+        .filter(|y| y.is_finite() && *y > 0.0)
+        .collect();
+    if ys.is_empty() {
+        return 0.0;
+    }
+    let k = ((ys.len() as f64 * 0.99) as usize).min(ys.len() - 1);
+    let (_, v, _) = ys.select_nth_unstable_by(k, |a, b| a.total_cmp(b));
+    (0.9 / *v).log2()
+}
+
+/// Write a per-shape map `<dir>/<id>_<name>.exr` (gutter dilated) and, if asked, a PNG preview.
+pub fn write_map(
+    dir: &Path,
+    id: &str,
+    name: &str,
+    (width, height): (u32, u32),
+    mut vals: Vec<Vec3>,
+    cov: &[bool],
+    png: bool,
+) -> Result<()> {
+    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    let exposure = auto_exposure(&vals, cov);
+    dilate(&mut vals, cov, width, height, 4)?;
+    write_exr_rgb(
+        dir.join(format!("{id}_{name}.exr")),
+        width,
+        height,
+        &vals,
+        false,
+    )?;
+    if png {
+        write_png_srgb(
+            dir.join(format!("{id}_{name}.png")),
+            width,
+            height,
+            &vals,
+            exposure,
+        )?;
+    }
+    Ok(())
+}
+
+/// Steps 1-2 on their own: atlas, projection, and the luminance and coverage maps in
+/// `<out>/maps/`. Returns the projection statistics.
+pub fn run_projection(cfg: &Config, out: &Path, mode: Mode) -> Result<(Prepared, ProjectionStats)> {
+    let p = prepare(cfg, mode)?;
+    let dir = state_dir(out);
+    std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
+    let geom = build_geometry(&p, &dir.join("geometry.tiles"), mode)?;
+    let mut state = TileStore::create(
+        dir.join("state.tiles"),
+        p.layout.tile_count as usize,
+        p.layout.tile_texels(),
+        TexelState::default(),
+    )?;
+    let stats = project_all(&p, cfg, &geom, &mut state, mode)?;
+    let maps = out.join("maps");
+    for slot in 0..p.layout.slots.len() {
+        let st = p.layout.slots[slot];
+        let id = &p.scene.shapes[st.shape].id;
+        let (lum, cov) = gather(&p, slot, &state, &geom, |s| Vec3::from_array(s.l_orig))?;
+        let (wt, _) = gather(&p, slot, &state, &geom, |s| Vec3::splat(s.weight))?;
+        let observed: Vec<bool> = wt.iter().map(|v| v.x > 0.0).collect();
+        write_map(
+            &maps,
+            id,
+            "luminance",
+            (st.width, st.height),
+            lum,
+            &observed,
+            true,
+        )?;
+        write_map(&maps, id, "coverage", (st.width, st.height), wt, &cov, true)?;
+    }
+    Ok((p, stats))
+}
