@@ -415,3 +415,18 @@ mod tests {
         assert!(e.contains("run.toml") && e.contains("photons"), "{e}");
     }
 }
+
+#[cfg(test)]
+mod example_config {
+    use super::*;
+
+    /// The documented example in `configs/` parses and validates.
+    #[test]
+    fn shipped_example_config_is_valid() {
+        let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/example.toml");
+        let c = Config::load(&p, &Overrides::default()).unwrap();
+        assert_eq!(c.views.len(), 3);
+        assert!(c.scene.ends_with("tests/fixtures/cbox/input.xml"));
+        assert!(c.scene.is_file(), "{}", c.scene.display());
+    }
+}

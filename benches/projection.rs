@@ -1,0 +1,68 @@
+//! Projection throughput (texel-views per second): how fast the photos of the Cornell box
+//! fixture are projected onto its atlas (pixel classification, visibility rays, supersampled
+//! bilinear lookups), with 1 and 2 threads. Atlas and geometry tiles are built outside the
+//! timed loop; each iteration projects all three photos into a fresh state store.
+//!
+//! Run with `cargo bench --bench projection`.
+
+use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
+use kdmap::atlas::layout::TexelState;
+use kdmap::atlas::tiles::TileStore;
+use kdmap::config::Config;
+use kdmap::pipeline::{build_geometry, prepare, project_all};
+use kdmap::progress::Mode;
+use std::path::Path;
+use std::time::Duration;
+
+fn bench(c: &mut Criterion) {
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/cbox/input.xml");
+    let mut cfg = Config::for_scene(scene);
+    cfg.atlas.texels_per_unit = 128.0;
+    let dir = tempfile::tempdir().expect("temp dir");
+    let p = prepare(&cfg, Mode::Quiet).expect("prepare");
+    let geom =
+        build_geometry(&p, &dir.path().join("geometry.tiles"), Mode::Quiet).expect("geometry");
+    let covered: u64 = {
+        let mut st = TileStore::create(
+            dir.path().join("probe.tiles"),
+            p.layout.tile_count as usize,
+            p.layout.tile_texels(),
+            TexelState::default(),
+        )
+        .expect("store");
+        project_all(&p, &cfg, &geom, &mut st, Mode::Quiet)
+            .expect("project")
+            .covered_texels
+    };
+    let mut g = c.benchmark_group("projection");
+    g.sample_size(10).measurement_time(Duration::from_secs(10));
+    g.throughput(Throughput::Elements(covered * p.views.len() as u64));
+    for threads in [1usize, 2] {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .expect("pool");
+        g.bench_with_input(
+            BenchmarkId::new("cbox_3_views", threads),
+            &threads,
+            |b, _| {
+                b.iter(|| {
+                    pool.install(|| {
+                        let mut st = TileStore::create(
+                            dir.path().join("state.tiles"),
+                            p.layout.tile_count as usize,
+                            p.layout.tile_texels(),
+                            TexelState::default(),
+                        )
+                        .expect("store");
+                        project_all(&p, &cfg, &geom, &mut st, Mode::Quiet).expect("project")
+                    })
+                })
+            },
+        );
+    }
+    g.finish();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);
