@@ -19,6 +19,7 @@ pub mod pipeline;
 pub mod progress;
 pub mod project;
 pub mod render;
+pub mod report;
 pub mod rng;
 pub mod scene;
 

@@ -4,7 +4,7 @@
 
 use crate::accel::Accel;
 use crate::atlas::layout::{flags, Layout, TexelGeom, TexelState};
-use crate::atlas::texels::{dilate, rasterize};
+use crate::atlas::texels::{dilate, TexelMap, TexelSample};
 use crate::atlas::tiles::{window_tiles_for_budget, TileStore};
 use crate::atlas::unwrap::{build_atlas, AtlasSettings, ShapeAtlas};
 use crate::camera::Camera;
@@ -15,6 +15,7 @@ use crate::progress::{note, Mode, Stage};
 use crate::project::{finish_tile, project_tile, ShapeRef, View};
 use crate::scene::{luminance, mitsuba, Scene};
 use glam::Vec3;
+use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 use std::time::Duration;
@@ -135,7 +136,11 @@ pub fn state_dir(out: &Path) -> PathBuf {
     out.join("checkpoint")
 }
 
-/// Rasterize every atlas into the geometry store (texel -> surface point).
+/// Sub-samples per texel side used to measure a border texel's area on its chart.
+const BIN_SUBSAMPLES: u32 = 8;
+
+/// Rasterize every atlas into the geometry store (texel -> surface point), one row band of
+/// tiles at a time so memory stays bounded by a band, not a texture.
 pub fn build_geometry(p: &Prepared, path: &Path, mode: Mode) -> Result<TileStore<TexelGeom>> {
     let mut store = TileStore::create(
         path,
@@ -150,21 +155,47 @@ pub fn build_geometry(p: &Prepared, path: &Path, mode: Mode) -> Result<TileStore
         .map(|s| s.width as u64 * s.height as u64)
         .sum();
     let stage = Stage::new(mode, "atlas", total, "texels");
-    for (slot, st) in p.layout.slots.iter().enumerate() {
+    let ts = p.layout.tile_size;
+    for st in &p.layout.slots {
         let shape = &p.scene.shapes[st.shape];
         let atlas = p.atlases[st.shape].as_ref().expect("atlas");
-        let samples = rasterize(&shape.mesh, atlas);
-        let ts = p.layout.tile_size;
+        let map = TexelMap::new(&shape.mesh, atlas);
         for ty in 0..st.tiles_y {
-            for tx in 0..st.tiles_x {
-                let tile = st.first_tile + ty * st.tiles_x + tx;
-                let mut recs = vec![TexelGeom::default(); p.layout.tile_texels()];
-                for (off, r) in recs.iter_mut().enumerate() {
-                    let (x, y) = (tx * ts + off as u32 % ts, ty * ts + off as u32 / ts);
-                    if x >= st.width || y >= st.height {
-                        continue;
-                    }
-                    if let Some(s) = &samples[(y * st.width + x) as usize] {
+            // one band of rows, with a row of margin each side for the border test
+            let y0 = (ty * ts).saturating_sub(1);
+            let y1 = ((ty + 1) * ts + 1).min(st.height);
+            let band = map.sample_rows(y0..y1);
+            let at = |x: u32, y: u32| -> Option<&TexelSample> {
+                band.get(((y - y0) * st.width + x) as usize)?.as_ref()
+            };
+            let geo: Vec<Vec<TexelGeom>> = (0..st.tiles_x)
+                .into_par_iter()
+                .map(|tx| {
+                    let mut recs = vec![TexelGeom::default(); p.layout.tile_texels()];
+                    for (off, r) in recs.iter_mut().enumerate() {
+                        let (x, y) = (tx * ts + off as u32 % ts, ty * ts + off as u32 / ts);
+                        if x >= st.width || y >= st.height {
+                            continue;
+                        }
+                        let Some(s) = at(x, y) else { continue };
+                        let interior = (-1i32..=1).all(|dy| {
+                            (-1i32..=1).all(|dx| {
+                                let (nx, ny) = (x as i32 + dx, y as i32 + dy);
+                                nx >= 0
+                                    && ny >= 0
+                                    && (nx as u32) < st.width
+                                    && (ny as u32) < st.height
+                                    && at(nx as u32, ny as u32).is_some()
+                            })
+                        });
+                        let bin_area = if interior {
+                            s.area
+                        } else {
+                            map.subsamples(x, y, BIN_SUBSAMPLES)
+                                .iter()
+                                .map(|q| q.area)
+                                .sum()
+                        };
                         let ng = shape
                             .mesh
                             .face_normal_raw(s.tri as usize)
@@ -174,16 +205,20 @@ pub fn build_geometry(p: &Prepared, path: &Path, mode: Mode) -> Result<TileStore
                             normal: s.normal.to_array(),
                             geo_normal: ng.to_array(),
                             area: s.area,
+                            bin_area,
                             tri: s.tri,
                             flags: flags::COVERED,
                         };
                     }
-                }
-                store.write_tile(tile as usize, &recs)?;
+                    recs
+                })
+                .collect();
+            for (tx, recs) in geo.iter().enumerate() {
+                let tile = st.first_tile + ty * st.tiles_x + tx as u32;
+                store.write_tile(tile as usize, recs)?;
             }
+            stage.inc(st.width as u64 * (((ty + 1) * ts).min(st.height) - ty * ts) as u64);
         }
-        stage.inc(st.width as u64 * st.height as u64);
-        let _ = slot;
     }
     stage.finish();
     Ok(store)

@@ -105,7 +105,7 @@ pub mod flags {
     pub const FILLED: u32 = 4;
 }
 
-/// Fixed per-texel geometry: where on the surface a texel's center lies. 48 bytes.
+/// Fixed per-texel geometry: where on the surface a texel's center lies. 52 bytes.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, Pod, Zeroable)]
 pub struct TexelGeom {
@@ -116,6 +116,9 @@ pub struct TexelGeom {
     pub geo_normal: [f32; 3],
     /// World area of one texel on this triangle, scene units^2.
     pub area: f32,
+    /// The part of the texel's square that lies on its chart, scene units^2: the area over
+    /// which photon hits landing in this texel are collected (less than `area` on chart borders).
+    pub bin_area: f32,
     pub tri: u32,
     pub flags: u32,
 }
@@ -186,7 +189,7 @@ mod tests {
 
     #[test]
     fn records_have_the_documented_sizes() {
-        assert_eq!(std::mem::size_of::<TexelGeom>(), 48);
+        assert_eq!(std::mem::size_of::<TexelGeom>(), 52);
         assert_eq!(std::mem::size_of::<TexelState>(), 72);
     }
 }

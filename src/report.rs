@@ -1,0 +1,106 @@
+//! What a run reports about itself (`<out>/report.json`): the settings, per-iteration
+//! statistics, time per stage and counts. Filled in by `pipeline`, written by `output`.
+
+use crate::config::Config;
+use serde::{Deserialize, Serialize};
+
+/// Statistics of one solver iteration (one photon pass and one update).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct IterationStats {
+    /// 0-based iteration number.
+    pub iteration: u32,
+    /// RMS over observed texels of the per-texel luminance relative error
+    /// `|L_orig - L_render| / L_orig` (fraction, not %).
+    pub rms_rel_error: f64,
+    /// Mean of the same.
+    pub mean_rel_error: f64,
+    /// Largest per-texel relative error.
+    pub max_rel_error: f64,
+    /// RMS of `F = L_orig - L_render` (luminance, scene radiance units).
+    pub rms_residual: f64,
+    /// Texels whose K_d hit the bound (5) and whose E_i was corrected.
+    pub clamped_texels: u64,
+    /// Photons traced in this iteration's pass.
+    pub photons: u64,
+    /// Seconds in the photon pass.
+    pub photon_seconds: f64,
+    /// Photons per second in the pass.
+    pub photons_per_second: f64,
+    /// Seconds in the per-texel update.
+    pub update_seconds: f64,
+}
+
+/// Wall time per stage, seconds.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct Timings {
+    pub load: f64,
+    pub atlas: f64,
+    pub projection: f64,
+    pub direct: f64,
+    pub photons: f64,
+    pub update: f64,
+    pub output: f64,
+    pub total: f64,
+}
+
+/// Counts that describe the problem size.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct Counts {
+    pub shapes: usize,
+    pub reconstructed_shapes: usize,
+    pub triangles: usize,
+    pub emitters: usize,
+    pub views: usize,
+    pub masked_pixels: usize,
+    pub tiles: u32,
+    /// Texels whose center lies on a surface.
+    pub covered_texels: u64,
+    /// Covered texels seen by at least one view.
+    pub observed_texels: u64,
+    /// Covered texels no view saw (K_d filled from neighbours).
+    pub filled_texels: u64,
+}
+
+/// One row of the paper's comparison table: one shape seen from one view, over the pixels
+/// where the view sees that shape cleanly (no silhouette, no depth edge).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct ViewShapeRow {
+    pub view: String,
+    pub shape: String,
+    pub pixels: u64,
+    /// Mean luminance `Y`, original photo and re-render.
+    pub mean_luminance: [f64; 2],
+    /// Standard deviation of `Y` over the pixels, original and re-render.
+    pub std_luminance: [f64; 2],
+    /// Mean linear RGB, original and re-render.
+    pub mean_rgb: [[f64; 3]; 2],
+    /// CIE 1931 xy chromaticity of the mean RGB (linear sRGB, D65), original and re-render.
+    pub xy: [[f64; 2]; 2],
+}
+
+/// Everything `report.json` holds.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Report {
+    pub version: u32,
+    pub settings: Config,
+    pub iterations: Vec<IterationStats>,
+    /// Why the solver stopped: "tolerance" or "max_iterations".
+    pub stopped_by: String,
+    pub timings: Timings,
+    pub counts: Counts,
+    pub table: Vec<ViewShapeRow>,
+}
+
+impl Report {
+    pub fn new(settings: Config) -> Report {
+        Report {
+            version: 1,
+            settings,
+            iterations: Vec::new(),
+            stopped_by: String::new(),
+            timings: Timings::default(),
+            counts: Counts::default(),
+            table: Vec::new(),
+        }
+    }
+}
