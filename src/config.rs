@@ -61,6 +61,7 @@ pub struct RawSolver {
     pub tolerance: Option<f32>,
     pub alpha0: Option<f32>,
     pub update: Option<String>,
+    pub relaxation: Option<f32>,
     pub initial_indirect_share: Option<f32>,
 }
 
@@ -90,6 +91,10 @@ pub enum UpdateRule {
     Paper,
     /// Take the photon-traced E_i as it is (a fixed-point iteration).
     FixedPoint,
+    /// Move E_i part of the way to the traced value: `E_i += beta (E_i_traced - E_i)`. The
+    /// fixed-point map oscillates where much of a texel's light is interreflected (its slope is
+    /// about `-K_d/(1-K_d)` in a closed furnace); relaxation damps that.
+    Relaxed,
 }
 
 /// Settings of the UV atlas.
@@ -131,6 +136,8 @@ pub struct Config {
     /// Step size of the paper's update, `alpha_n = alpha0 / (1 + n)`.
     pub alpha0: f32,
     pub update: UpdateRule,
+    /// `beta` of the relaxed update, in (0, 1].
+    pub relaxation: f32,
     /// Initial E_i as a share of E_d (step 4 of the method).
     pub initial_indirect_share: f32,
     pub seed: u64,
@@ -163,7 +170,8 @@ impl Config {
             iterations: 6,
             tolerance: 0.005,
             alpha0: 2.0,
-            update: UpdateRule::Paper,
+            update: UpdateRule::Relaxed,
+            relaxation: 0.5,
             initial_indirect_share: 0.5,
             seed: 1,
             threads: 0,
@@ -242,6 +250,7 @@ impl Config {
         set(&mut c.tolerance, s.tolerance);
         set(&mut c.alpha0, s.alpha0);
         set(&mut c.initial_indirect_share, s.initial_indirect_share);
+        set(&mut c.relaxation, s.relaxation);
         if let Some(u) = s.update {
             c.update = match u.as_str() {
                 "paper" => UpdateRule::Paper,
@@ -310,6 +319,12 @@ impl Config {
         }
         if !(self.alpha0.is_finite() && self.alpha0 > 0.0) {
             return Err(format!("solver.alpha0 = {}: must be > 0", self.alpha0));
+        }
+        if !(self.relaxation > 0.0 && self.relaxation <= 1.0) {
+            return Err(format!(
+                "solver.relaxation = {}: must be in (0, 1]",
+                self.relaxation
+            ));
         }
         if !(self.initial_indirect_share.is_finite() && self.initial_indirect_share >= 0.0) {
             return Err(format!(

@@ -15,6 +15,8 @@ pub mod config;
 pub mod error;
 pub mod image;
 pub mod light;
+pub mod output;
+pub mod photon;
 pub mod pipeline;
 pub mod progress;
 pub mod project;
@@ -22,5 +24,7 @@ pub mod render;
 pub mod report;
 pub mod rng;
 pub mod scene;
+pub mod solve;
+pub mod truth;
 
 pub use error::{Error, Result};

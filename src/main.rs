@@ -29,6 +29,29 @@ enum Command {
         /// The scene file (Mitsuba 3 XML).
         scene: PathBuf,
     },
+    /// Recover the albedo textures: the whole method, steps 1-9, and every output.
+    Reconstruct {
+        /// A Mitsuba 3 scene (photos in `<scene dir>/images/<sensor id>.exr`) or a run config (TOML).
+        input: PathBuf,
+        /// Output directory.
+        #[arg(long)]
+        out: PathBuf,
+        /// Light paths (photons) per iteration.
+        #[arg(long)]
+        photons: Option<u64>,
+        /// Most solver iterations.
+        #[arg(long)]
+        iterations: Option<u32>,
+        /// Seed of every random number.
+        #[arg(long)]
+        seed: Option<u64>,
+        /// Worker threads (0 = all cores); never changes the result.
+        #[arg(long)]
+        threads: Option<usize>,
+        /// Continue from `<out>/checkpoint`.
+        #[arg(long)]
+        resume: bool,
+    },
     /// Steps 1-2 of the method on their own: unwrap the atlas, project every photo onto it and
     /// write the luminance and coverage maps to `<out>/maps/` (with PNG previews).
     Project {
@@ -73,6 +96,23 @@ fn one_line(e: &anyhow::Error) -> String {
 fn run(command: Command) -> anyhow::Result<()> {
     match command {
         Command::Inspect { scene } => inspect(&scene),
+        Command::Reconstruct {
+            input,
+            out,
+            photons,
+            iterations,
+            seed,
+            threads,
+            resume,
+        } => {
+            let ov = kdmap::config::Overrides {
+                photons,
+                iterations,
+                seed,
+                threads,
+            };
+            reconstruct(&input, &out, &ov, resume)
+        }
         Command::Project {
             input,
             out,
@@ -88,6 +128,37 @@ fn inspect(path: &Path) -> anyhow::Result<()> {
     out.write_all(text.as_bytes())
         .and_then(|()| out.flush())
         .context("writing to stdout")?;
+    Ok(())
+}
+
+fn reconstruct(
+    input: &Path,
+    out: &Path,
+    ov: &kdmap::config::Overrides,
+    resume: bool,
+) -> anyhow::Result<()> {
+    if resume {
+        anyhow::bail!("--resume: checkpoints are not implemented yet; run without --resume");
+    }
+    let cfg = kdmap::config::Config::load(input, ov)?;
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(cfg.threads)
+        .build()
+        .context("starting worker threads")?;
+    let report =
+        pool.install(|| kdmap::pipeline::reconstruct(&cfg, out, kdmap::progress::Mode::Auto))?;
+    let last = report.iterations.last();
+    println!(
+        "reconstructed {} shapes from {} views in {} iterations ({}): relative error rms {:.3}%, max {:.2}%; {:.1} s",
+        report.counts.reconstructed_shapes,
+        report.counts.views,
+        report.iterations.len(),
+        report.stopped_by,
+        100.0 * last.map_or(0.0, |i| i.rms_rel_error),
+        100.0 * last.map_or(0.0, |i| i.max_rel_error),
+        report.timings.total
+    );
+    println!("results: {}", out.display());
     Ok(())
 }
 

@@ -4,21 +4,31 @@
 
 use crate::accel::Accel;
 use crate::atlas::layout::{flags, Layout, TexelGeom, TexelState};
-use crate::atlas::texels::{dilate, TexelMap, TexelSample};
+use crate::atlas::texels::{dilate, TexelMap, TexelSample, NONE};
 use crate::atlas::tiles::{window_tiles_for_budget, TileStore};
 use crate::atlas::unwrap::{build_atlas, AtlasSettings, ShapeAtlas};
 use crate::camera::Camera;
 use crate::config::Config;
 use crate::error::{Error, Result};
 use crate::image::{read_sensor_image, write_exr_rgb, write_png_srgb};
+use crate::light::{direct_irradiance, DirectParams, EmitterSampler};
+
+use crate::photon::{
+    begin_pass, finish_pass, photon_pass, smooth_accum, AlbedoTextures, PassContext, Receivers,
+};
 use crate::progress::{note, Mode, Stage};
 use crate::project::{finish_tile, project_tile, ShapeRef, View};
+use crate::report::{Counts, IterationStats, Report};
 use crate::scene::{luminance, mitsuba, Scene};
+use crate::solve::{
+    alpha, compare_update_tile, fill_unobserved, init_indirect_tile, kd_tile, ErrorSums,
+};
 use glam::Vec3;
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 use std::time::Duration;
+use std::time::Instant;
 
 /// The scene with its acceleration structure, atlases and tile layout: everything fixed.
 pub struct Prepared {
@@ -421,4 +431,273 @@ pub fn run_projection(cfg: &Config, out: &Path, mode: Mode) -> Result<(Prepared,
         write_map(&maps, id, "coverage", (st.width, st.height), wt, &cov, true)?;
     }
     Ok((p, stats))
+}
+
+/// Run `f(tile, geometry, state)` over every tile (in parallel, `window` tiles mapped at a
+/// time) and return its results in tile order, so sums over them are deterministic.
+pub fn map_tiles<R: Send>(
+    state: &mut TileStore<TexelState>,
+    geom: &TileStore<TexelGeom>,
+    window: usize,
+    f: impl Fn(usize, &[TexelGeom], &mut [TexelState]) -> R + Sync + Send,
+) -> Result<Vec<R>> {
+    let n = state.tile_count();
+    let results: Mutex<Vec<Option<R>>> = Mutex::new((0..n).map(|_| None).collect());
+    let err: Mutex<Option<Error>> = Mutex::new(None);
+    state.for_each_tile_mut(window, |t, st| match geom.read_tile(t) {
+        Ok(g) => {
+            let r = f(t, &g, st);
+            results.lock().unwrap_or_else(|e| e.into_inner())[t] = Some(r);
+        }
+        Err(e) => *err.lock().unwrap_or_else(|e| e.into_inner()) = Some(e),
+    })?;
+    if let Some(e) = err.into_inner().unwrap_or_else(|e| e.into_inner()) {
+        return Err(e);
+    }
+    Ok(results
+        .into_inner()
+        .unwrap_or_else(|e| e.into_inner())
+        .into_iter()
+        .flatten()
+        .collect())
+}
+
+/// Step 3: direct irradiance E_d of every covered texel, from every emitter, with shadows.
+/// Returns the area-weighted mean E_d over covered texels (for the initial E_i).
+pub fn direct_all(
+    p: &Prepared,
+    cfg: &Config,
+    geom: &TileStore<TexelGeom>,
+    state: &mut TileStore<TexelState>,
+    mode: Mode,
+) -> Result<Vec3> {
+    let params = DirectParams {
+        area_samples: cfg.area_samples,
+        ..DirectParams::default()
+    };
+    let window = p.window::<TexelState>(cfg);
+    let texels = p.layout.tile_texels() as u64;
+    let stage = Stage::new(mode, "direct", state.tile_count() as u64, "tiles");
+    let sums = map_tiles(state, geom, window, |t, g, st| {
+        let mut sum = (Vec3::ZERO, 0.0f64);
+        for (off, (g, s)) in g.iter().zip(st.iter_mut()).enumerate() {
+            if !g.covered() {
+                continue;
+            }
+            let key = (cfg.seed, t as u64 * texels + off as u64);
+            let e = direct_irradiance(&p.scene, &p.accel, g.p(), g.n(), g.ng(), &params, key);
+            s.e_d = e.to_array();
+            sum.0 += e * g.area;
+            sum.1 += g.area as f64;
+        }
+        stage.inc(1);
+        sum
+    })?;
+    stage.finish();
+    let (e, a) = sums
+        .iter()
+        .fold((Vec3::ZERO, 0.0f64), |acc, s| (acc.0 + s.0, acc.1 + s.1));
+    Ok(if a > 0.0 { e / a as f32 } else { Vec3::ZERO })
+}
+
+/// Unobserved texels: K_d from observed neighbours of the same chart (else the shape's mean),
+/// flagged FILLED. Works one texture at a time.
+pub fn fill_unobserved_all(
+    p: &Prepared,
+    receivers: &Receivers,
+    geom: &TileStore<TexelGeom>,
+    state: &mut TileStore<TexelState>,
+) -> Result<u64> {
+    let mut filled_total = 0u64;
+    for slot in 0..p.layout.slots.len() {
+        let st = p.layout.slots[slot];
+        let (mut kd, cov) = gather(p, slot, state, geom, |s| Vec3::from_array(s.k_d))?;
+        let (obs, _) = gather(p, slot, state, geom, |s| {
+            Vec3::splat((s.flags & flags::OBSERVED != 0) as u32 as f32)
+        })?;
+        let observed: Vec<bool> = obs.iter().zip(&cov).map(|(o, &c)| c && o.x > 0.0).collect();
+        let chart: Vec<Option<u32>> = receivers.slots[slot]
+            .texel_chart
+            .iter()
+            .zip(&cov)
+            .map(|(&c, &cv)| (cv && c != NONE).then_some(c))
+            .collect();
+        let filled = fill_unobserved(&mut kd, &observed, &chart, st.width, st.height);
+        let ts = p.layout.tile_size;
+        for ty in 0..st.tiles_y {
+            for tx in 0..st.tiles_x {
+                let tile = (st.first_tile + ty * st.tiles_x + tx) as usize;
+                let mut recs = state.read_tile(tile)?;
+                let mut changed = false;
+                for (off, r) in recs.iter_mut().enumerate() {
+                    let (x, y) = (tx * ts + off as u32 % ts, ty * ts + off as u32 / ts);
+                    if x < st.width && y < st.height {
+                        let i = (y * st.width + x) as usize;
+                        if filled[i] {
+                            r.k_d = kd[i].to_array();
+                            r.flags |= flags::FILLED;
+                            changed = true;
+                            filled_total += 1;
+                        }
+                    }
+                }
+                if changed {
+                    state.write_tile(tile, &recs)?;
+                }
+            }
+        }
+    }
+    Ok(filled_total)
+}
+
+/// The whole method, steps 1-9, then every output of the contract. Returns the report.
+pub fn reconstruct(cfg: &Config, out: &Path, mode: Mode) -> Result<Report> {
+    let t_total = Instant::now();
+    let mut report = Report::new(cfg.clone());
+    let t = Instant::now();
+    let p = prepare(cfg, mode)?;
+    report.timings.load = t.elapsed().as_secs_f64();
+    let dir = state_dir(out);
+    std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
+    let t = Instant::now();
+    let geom = build_geometry(&p, &dir.join("geometry.tiles"), mode)?;
+    report.timings.atlas = t.elapsed().as_secs_f64();
+    let mut state = TileStore::create(
+        dir.join("state.tiles"),
+        p.layout.tile_count as usize,
+        p.layout.tile_texels(),
+        TexelState::default(),
+    )?;
+    let t = Instant::now();
+    let proj = project_all(&p, cfg, &geom, &mut state, mode)?;
+    report.timings.projection = t.elapsed().as_secs_f64();
+    let window = p.window::<TexelState>(cfg);
+
+    let t = Instant::now();
+    let mean_e = direct_all(&p, cfg, &geom, &mut state, mode)?;
+    report.timings.direct = t.elapsed().as_secs_f64();
+    let share = cfg.initial_indirect_share;
+    map_tiles(&mut state, &geom, window, |_, g, s| {
+        init_indirect_tile(s, g, share, mean_e)
+    })?;
+
+    let receivers = Receivers::new(&p.scene, &p.layout, &p.atlases)?;
+    let sampler = EmitterSampler::new(&p.scene);
+    report.stopped_by = "max_iterations".into();
+    for n in 0..cfg.iterations {
+        let t = Instant::now();
+        let clamped: u64 = map_tiles(&mut state, &geom, window, |_, g, s| kd_tile(s, g))?
+            .iter()
+            .sum();
+        fill_unobserved_all(&p, &receivers, &geom, &mut state)?;
+        let albedo = AlbedoTextures::gather(&p.layout, &receivers, &state, cfg.atlas.padding + 2)?;
+        let mut update_s = t.elapsed().as_secs_f64();
+
+        let ctx = PassContext {
+            scene: &p.scene,
+            accel: &p.accel,
+            sampler: &sampler,
+            layout: &p.layout,
+            atlases: &p.atlases,
+            receivers: &receivers,
+            albedo: &albedo,
+            seed: cfg.seed,
+            iteration: n as u64,
+            photons: cfg.photons,
+            batch_size: cfg.batch_size,
+            max_depth: cfg.max_depth,
+            window,
+            group_batches: 0,
+        };
+        begin_pass(&mut state, window)?;
+        let stage = Stage::new(
+            mode,
+            &format!("photons {}", n + 1),
+            ctx.batch_count(),
+            "batches",
+        );
+        let mut last = 0u64;
+        let pass = photon_pass(&ctx, &mut state, 0, |done| {
+            stage.inc(done - last);
+            last = done;
+            Ok(())
+        })?;
+        stage.finish();
+        finish_pass(&geom, &mut state, window)?;
+        if cfg.smoothing_radius > 0 {
+            smooth_accum(
+                &p.layout,
+                &receivers,
+                &geom,
+                &mut state,
+                cfg.smoothing_radius,
+            )?;
+        }
+
+        let t = Instant::now();
+        let a = alpha(cfg.alpha0, n);
+        let (rule, beta) = (cfg.update, cfg.relaxation);
+        let sums = map_tiles(&mut state, &geom, window, |_, g, s| {
+            compare_update_tile(s, g, rule, a, beta)
+        })?;
+        let mut e = ErrorSums::default();
+        for s in &sums {
+            e.add(s);
+        }
+        update_s += t.elapsed().as_secs_f64();
+        let it = IterationStats {
+            iteration: n,
+            rms_rel_error: e.rms_rel(),
+            mean_rel_error: e.mean_rel(),
+            max_rel_error: e.max_rel,
+            rms_residual: e.rms_residual(),
+            clamped_texels: clamped,
+            photons: pass.photons,
+            photon_seconds: pass.seconds,
+            photons_per_second: pass.photons as f64 / pass.seconds.max(1e-9),
+            update_seconds: update_s,
+        };
+        report.timings.photons += pass.seconds;
+        report.timings.update += update_s;
+        if mode == Mode::Auto {
+            eprintln!(
+                "[iteration {}] relative error: rms {:.3}%, mean {:.3}%, max {:.2}%; {:.3e} photons/s",
+                n + 1,
+                100.0 * it.rms_rel_error,
+                100.0 * it.mean_rel_error,
+                100.0 * it.max_rel_error,
+                it.photons_per_second
+            );
+        }
+        let done = it.rms_rel_error < cfg.tolerance as f64;
+        report.iterations.push(it);
+        if done {
+            report.stopped_by = "tolerance".into();
+            break;
+        }
+    }
+    // K_d consistent with the final E_i.
+    map_tiles(&mut state, &geom, window, |_, g, s| kd_tile(s, g))?;
+    let filled = fill_unobserved_all(&p, &receivers, &geom, &mut state)?;
+    state.flush()?;
+
+    report.counts = Counts {
+        shapes: p.scene.shapes.len(),
+        reconstructed_shapes: p.layout.slots.len(),
+        triangles: p.scene.triangle_count(),
+        emitters: p.scene.emitters.len(),
+        views: proj.views,
+        masked_pixels: proj.masked_pixels,
+        tiles: p.layout.tile_count,
+        covered_texels: proj.covered_texels,
+        observed_texels: proj.observed_texels,
+        filled_texels: filled,
+    };
+    let t = Instant::now();
+    report.timings.total = t_total.elapsed().as_secs_f64();
+    // OUTPUTS_HOOK: crate::output::write_outputs(&p, &geom, &state, &mut report, out)?;
+    let _ = (&geom, &out);
+    report.timings.output = t.elapsed().as_secs_f64();
+    report.timings.total = t_total.elapsed().as_secs_f64();
+    Ok(report)
 }

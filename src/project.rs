@@ -41,6 +41,71 @@ pub struct View<'a> {
     pub camera: Camera,
     pub image: &'a Image,
     pub pixels: Vec<PixelInfo>,
+    /// Values the lookups interpolate (EXPERIMENT).
+    pub q: Vec<Vec3>,
+}
+
+fn env_mode() -> &'static str {
+    static M: std::sync::OnceLock<String> = std::sync::OnceLock::new();
+    M.get_or_init(|| std::env::var("KDMAP_LOOKUP").unwrap_or_else(|_| "bilinear".into()))
+}
+fn env_f(name: &str, d: f32) -> f32 {
+    std::env::var(name).ok().and_then(|v| v.parse().ok()).unwrap_or(d)
+}
+
+/// Solve the tridiagonal (1/8, 3/4, 1/8) system (7/8 at the ends) in place.
+fn solve_run(d: &mut [Vec3]) {
+    let n = d.len();
+    if n < 2 {
+        return;
+    }
+    let a = 0.125f32;
+    let mut cp = vec![0f32; n];
+    let b0 = 0.875;
+    cp[0] = a / b0;
+    d[0] /= b0;
+    for i in 1..n {
+        let b = if i == n - 1 { 0.875 } else { 0.75 };
+        let m = b - a * cp[i - 1];
+        cp[i] = a / m;
+        let prev = d[i - 1];
+        d[i] = (d[i] - prev * a) / m;
+    }
+    for i in (0..n - 1).rev() {
+        let next = d[i + 1];
+        d[i] -= next * cp[i];
+    }
+}
+
+fn prefilter(w: usize, h: usize, px: &[PixelInfo], img: &[Vec3]) -> Vec<Vec3> {
+    let mut q = img.to_vec();
+    let same = |a: &PixelInfo, b: &PixelInfo| {
+        a.clean && b.clean && a.shape == b.shape && a.normal.dot(b.normal) > 0.99
+    };
+    for pass in 0..2 {
+        let (outer, inner) = if pass == 0 { (h, w) } else { (w, h) };
+        let idx = |o: usize, i: usize| if pass == 0 { o * w + i } else { i * w + o };
+        for o in 0..outer {
+            let mut start = 0;
+            while start < inner {
+                if !px[idx(o, start)].clean {
+                    start += 1;
+                    continue;
+                }
+                let mut end = start + 1;
+                while end < inner && same(&px[idx(o, end - 1)], &px[idx(o, end)]) {
+                    end += 1;
+                }
+                let mut run: Vec<Vec3> = (start..end).map(|i| q[idx(o, i)]).collect();
+                solve_run(&mut run);
+                for (k, i) in (start..end).enumerate() {
+                    q[idx(o, i)] = run[k];
+                }
+                start = end;
+            }
+        }
+    }
+    q
 }
 
 /// Classify every pixel of `image` as seen by `camera` (corner + center primary rays).
@@ -104,10 +169,21 @@ pub fn classify_pixels(
 impl<'a> View<'a> {
     pub fn new(scene: &Scene, accel: &Accel, camera: Camera, image: &'a Image) -> View<'a> {
         let pixels = classify_pixels(scene, accel, &camera, image);
+        let q = if env_mode() == "consistent" {
+            prefilter(
+                camera.width() as usize,
+                camera.height() as usize,
+                &pixels,
+                &image.pixels,
+            )
+        } else {
+            image.pixels.clone()
+        };
         View {
             camera,
             image,
             pixels,
+            q,
         }
     }
 
@@ -124,20 +200,27 @@ impl<'a> View<'a> {
     /// geometric normal `n`: bilinear when the four nearest pixels are clean pixels of that
     /// surface, else the containing pixel if it is, else `None`.
     pub fn sample(&self, pix: Vec2, shape: u32, n: Vec3) -> Option<Vec3> {
+        let wd = self.camera.width() as i64;
+        if env_mode() == "nearest" {
+            let (x, y) = (pix.x.floor() as i64, pix.y.floor() as i64);
+            return self
+                .usable(x, y, shape, n)
+                .then(|| self.q[(y * wd + x) as usize]);
+        }
         let fx = pix.x - 0.5;
         let fy = pix.y - 0.5;
         let (x0, y0) = (fx.floor() as i64, fy.floor() as i64);
         let (tx, ty) = (fx - x0 as f32, fy - y0 as f32);
         let quad = [(x0, y0), (x0 + 1, y0), (x0, y0 + 1), (x0 + 1, y0 + 1)];
         if quad.iter().all(|&(x, y)| self.usable(x, y, shape, n)) {
-            let g = |x: i64, y: i64| self.image.get(x as u32, y as u32);
+            let g = |x: i64, y: i64| self.q[(y * wd + x) as usize];
             let top = g(x0, y0) * (1.0 - tx) + g(x0 + 1, y0) * tx;
             let bot = g(x0, y0 + 1) * (1.0 - tx) + g(x0 + 1, y0 + 1) * tx;
             return Some(top * (1.0 - ty) + bot * ty);
         }
         let (x, y) = (pix.x.floor() as i64, pix.y.floor() as i64);
         self.usable(x, y, shape, n)
-            .then(|| self.image.get(x as u32, y as u32))
+            .then(|| self.q[(y * wd + x) as usize])
     }
 }
 
@@ -195,15 +278,27 @@ pub fn observe_texel(
         return None;
     }
     let ratio = g.area / a_pix;
-    let k = (ratio.sqrt().ceil() as u32).clamp(1, MAX_SUBSAMPLES);
     let (dx, dy) = texel_jacobian(shape.mesh, g.tri as usize, &shape.corner_uv[g.tri as usize]);
+    let kmul = env_f("KDMAP_KMUL", 1.0);
+    let (kx, ky) = if env_f("KDMAP_KAXIS", 0.0) > 0.0 {
+        let pp = view.camera.project(p)?;
+        let ex = view.camera.project(p + dx * 0.5).map(|v| (v - pp).length() * 2.0).unwrap_or(1.0);
+        let ey = view.camera.project(p + dy * 0.5).map(|v| (v - pp).length() * 2.0).unwrap_or(1.0);
+        (
+            ((ex * kmul).ceil() as u32).clamp(1, 4 * MAX_SUBSAMPLES),
+            ((ey * kmul).ceil() as u32).clamp(1, 4 * MAX_SUBSAMPLES),
+        )
+    } else {
+        let k = ((ratio.sqrt() * kmul).ceil() as u32).clamp(1, MAX_SUBSAMPLES);
+        (k, k)
+    };
     let mut sum = Vec3::ZERO;
     let mut accepted = 0u32;
-    for j in 0..k {
-        for i in 0..k {
-            let ox = (i as f32 + 0.5) / k as f32 - 0.5;
-            let oy = (j as f32 + 0.5) / k as f32 - 0.5;
-            let q = if k == 1 { p } else { p + dx * ox + dy * oy };
+    for j in 0..ky {
+        for i in 0..kx {
+            let ox = (i as f32 + 0.5) / kx as f32 - 0.5;
+            let oy = (j as f32 + 0.5) / ky as f32 - 0.5;
+            let q = if kx * ky == 1 { p } else { p + dx * ox + dy * oy };
             let v = q - cam;
             let d = v.length();
             if d <= 0.0 {
@@ -227,7 +322,7 @@ pub fn observe_texel(
     if accepted == 0 {
         return None;
     }
-    let frac = accepted as f32 / (k * k) as f32;
+    let frac = accepted as f32 / (kx * ky) as f32;
     Some((sum / accepted as f32, frac * ratio))
 }
 

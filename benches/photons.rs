@@ -1,0 +1,129 @@
+//! Photon-pass throughput (photons per second) on the Cornell box fixture, uniform albedo
+//! 0.5, with 1 and 2 threads; beside it the raw closest-hit ray rate for random rays in the
+//! same scene, so the cost of everything around the rays (emission, texel lookups, roulette,
+//! binning into tiles) is visible: `pass rate x rays per photon` vs `ray rate`.
+//!
+//! Run with `cargo bench --bench photons`. Scene preparation is outside the timed loops.
+
+use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
+use glam::Vec3;
+use kdmap::atlas::layout::TexelState;
+use kdmap::atlas::tiles::TileStore;
+use kdmap::config::Config;
+use kdmap::light::EmitterSampler;
+use kdmap::photon::{begin_pass, finish_pass, photon_pass, AlbedoTextures, PassContext, Receivers};
+use kdmap::pipeline::{build_geometry, prepare};
+use kdmap::progress::Mode;
+use kdmap::rng::Rng;
+use rayon::prelude::*;
+use std::path::Path;
+use std::time::Duration;
+
+const PHOTONS: u64 = 1 << 18;
+const BATCH: u32 = 1 << 14;
+const RAYS: usize = 1 << 16;
+
+fn bench(c: &mut Criterion) {
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/cbox/input.xml");
+    let cfg = Config::for_scene(scene);
+    let dir = tempfile::tempdir().expect("temp dir");
+    let p = prepare(&cfg, Mode::Quiet).expect("prepare");
+    let geom =
+        build_geometry(&p, &dir.path().join("geometry.tiles"), Mode::Quiet).expect("geometry");
+    let receivers = Receivers::new(&p.scene, &p.layout, &p.atlases).expect("receivers");
+    let sampler = EmitterSampler::new(&p.scene);
+    let albedo = AlbedoTextures::uniform(&p.layout, Vec3::splat(0.5));
+    let window = p.window::<TexelState>(&cfg);
+    let ctx = PassContext {
+        scene: &p.scene,
+        accel: &p.accel,
+        sampler: &sampler,
+        layout: &p.layout,
+        atlases: &p.atlases,
+        receivers: &receivers,
+        albedo: &albedo,
+        seed: 1,
+        iteration: 0,
+        photons: PHOTONS,
+        batch_size: BATCH,
+        max_depth: cfg.max_depth,
+        window,
+        group_batches: 0,
+    };
+    let mut state = TileStore::create(
+        dir.path().join("state.tiles"),
+        p.layout.tile_count as usize,
+        p.layout.tile_texels(),
+        TexelState::default(),
+    )
+    .expect("state store");
+
+    // One untimed pass for the path statistics.
+    begin_pass(&mut state, window).expect("begin");
+    let stats = photon_pass(&ctx, &mut state, 0, |_| Ok(())).expect("pass");
+    finish_pass(&geom, &mut state, window).expect("finish");
+    let rays_per_photon = stats.rays as f64 / stats.photons as f64;
+    eprintln!(
+        "cbox: {} texels in {} tiles; per photon {rays_per_photon:.3} rays, {:.3} deposits, \
+         {:.4} dropped",
+        p.layout
+            .slots
+            .iter()
+            .map(|s| s.width as u64 * s.height as u64)
+            .sum::<u64>(),
+        p.layout.tile_count,
+        stats.deposits as f64 / stats.photons as f64,
+        stats.dropped as f64 / stats.photons as f64,
+    );
+
+    // Random closest-hit rays: origins uniform in the bounds, directions uniform.
+    let (lo, hi) = p.scene.bounds();
+    let rays: Vec<(Vec3, Vec3)> = (0..RAYS as u64)
+        .map(|i| {
+            let mut r = Rng::new(5, 0, 0, i);
+            let o = lo + (hi - lo) * Vec3::new(r.f32(), r.f32(), r.f32());
+            let z = 2.0 * r.f32() - 1.0;
+            let phi = std::f32::consts::TAU * r.f32();
+            let s = (1.0 - z * z).max(0.0).sqrt();
+            (o, Vec3::new(s * phi.cos(), s * phi.sin(), z))
+        })
+        .collect();
+
+    let mut g = c.benchmark_group("photons/cbox");
+    g.sample_size(10).warm_up_time(Duration::from_secs(1));
+    for threads in [1usize, 2] {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .expect("pool");
+        g.measurement_time(Duration::from_secs(8))
+            .throughput(Throughput::Elements(PHOTONS));
+        g.bench_with_input(BenchmarkId::new("pass", threads), &threads, |b, _| {
+            b.iter(|| {
+                pool.install(|| {
+                    begin_pass(&mut state, window).expect("begin");
+                    photon_pass(&ctx, &mut state, 0, |_| Ok(())).expect("pass")
+                })
+            })
+        });
+        g.measurement_time(Duration::from_secs(3))
+            .throughput(Throughput::Elements(RAYS as u64));
+        g.bench_with_input(BenchmarkId::new("closest_ray", threads), &rays, |b, rs| {
+            b.iter(|| {
+                pool.install(|| {
+                    rs.par_chunks(1024)
+                        .map(|c| {
+                            c.iter()
+                                .filter(|(o, d)| p.accel.intersect(*o, *d, f32::INFINITY).is_some())
+                                .count()
+                        })
+                        .sum::<usize>()
+                })
+            })
+        });
+    }
+    g.finish();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);

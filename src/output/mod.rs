@@ -1,0 +1,131 @@
+//! Everything a finished run leaves for its users (`docs/contract.md`, "Output directory"):
+//!
+//! ```text
+//! <out>/textures/<id>_albedo.exr|png     recovered K_d (linear float; sRGB preview at exposure 0)
+//! <out>/maps/<id>_error.exr|png          per-texel relative error (PNG: viridis + legend)
+//! <out>/maps/<id>_colorless.exr|png      eq. (10)
+//! <out>/maps/<id>_coverage.exr|png       observation weight (0 = unobserved, filled)
+//! <out>/maps/<id>_direct.exr|png         E_d
+//! <out>/maps/<id>_indirect.exr|png       E_i
+//! <out>/maps/<id>_luminance.exr|png      L_orig
+//! <out>/renders/<sensor>.exr|png         each view re-rendered with the recovered albedo
+//! <out>/renders/<sensor>_compare.png     original | render | relative error
+//! <out>/meshes/<id>.obj (+ .mtl)         world-space meshes with atlas UVs
+//! <out>/scene.xml                        the recovered scene for Mitsuba 3
+//! <out>/report_convergence.png           RMS and max relative error per iteration
+//! <out>/report.json                      the run's report, with the paper's table; written last
+//! ```
+//!
+//! Map PNGs other than the error map use an automatic exposure (99th percentile at 0.9).
+//! Every file is written under a temporary name and renamed into place, so a crash never
+//! leaves a half-written output; `report.json` appears last, so its presence means the
+//! directory is complete.
+
+pub mod font;
+pub mod maps;
+pub mod obj;
+pub mod plot;
+pub mod renders;
+pub mod scene_xml;
+
+use crate::atlas::layout::{TexelGeom, TexelState};
+use crate::atlas::tiles::TileStore;
+use crate::pipeline::Prepared;
+use crate::render::Texture;
+use crate::report::Report;
+use crate::{Error, Result};
+use glam::Vec3;
+use std::ffi::OsString;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Write `bytes` to `<path>.tmp`, then rename it to `path`.
+pub(crate) fn write_file_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
+    let mut s = OsString::from(path.as_os_str());
+    s.push(".tmp");
+    let tmp = PathBuf::from(s);
+    if let Err(e) = std::fs::write(&tmp, bytes) {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(Error::io(path, e));
+    }
+    std::fs::rename(&tmp, path).map_err(|e| {
+        let _ = std::fs::remove_file(&tmp);
+        Error::io(path, e)
+    })
+}
+
+/// Encode `pm` as PNG and write it atomically.
+pub(crate) fn write_pixmap_png(path: &Path, pm: &tiny_skia::Pixmap) -> Result<()> {
+    let bytes = pm.encode_png().map_err(|e| {
+        Error::input(
+            path,
+            format!("cannot encode PNG: {}", e.to_string().replace('\n', " ")),
+        )
+    })?;
+    write_file_atomic(path, &bytes)
+}
+
+/// Write the whole output directory for a finished run (see the module doc): textures and
+/// maps per reconstructed shape, meshes, `scene.xml`, the re-rendered views, the convergence
+/// plot; then fill `report.table` and `report.timings.output` and write `report.json` last.
+/// The caller sets the other report fields (including `timings.total`) before calling.
+pub fn write_outputs(
+    p: &Prepared,
+    geom: &TileStore<TexelGeom>,
+    state: &TileStore<TexelState>,
+    report: &mut Report,
+    out: &Path,
+) -> Result<()> {
+    let t0 = Instant::now();
+    std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
+
+    // One error scale for every map and comparison image of the run.
+    let scale = maps::error_scale(p, state)?;
+
+    let mut radiance: Vec<Option<Vec<Vec3>>> = vec![None; p.scene.shapes.len()];
+    for slot in 0..p.layout.slots.len() {
+        let lr = maps::write_slot(p, geom, state, slot, out, &scale)?;
+        radiance[p.layout.slots[slot].shape] = Some(lr);
+    }
+
+    let meshes = out.join("meshes");
+    for (si, shape) in p.scene.shapes.iter().enumerate() {
+        obj::write_shape_mesh(&meshes, shape, p.atlases[si].as_ref())?;
+    }
+    scene_xml::write_scene_xml(out, &p.scene)?;
+
+    let textures: Vec<Option<Texture>> = radiance
+        .iter()
+        .enumerate()
+        .map(|(si, r)| {
+            let (r, a) = (r.as_ref()?, p.atlases[si].as_ref()?);
+            Some(Texture {
+                width: a.width,
+                height: a.height,
+                texels: r,
+                corner_uv: &a.corner_uv,
+            })
+        })
+        .collect();
+    let mut table = Vec::new();
+    let renders = out.join("renders");
+    for (si, path) in &p.views {
+        table.extend(renders::write_view(
+            p,
+            &textures,
+            (*si, path),
+            &renders,
+            &scale,
+        )?);
+    }
+    report.table = table;
+
+    let plot = plot::convergence_plot(&report.iterations);
+    write_pixmap_png(&out.join("report_convergence.png"), &plot)?;
+
+    report.timings.output = t0.elapsed().as_secs_f64();
+    let json_path = out.join("report.json");
+    let json = serde_json::to_string_pretty(report)
+        .map_err(|e| Error::input(&json_path, format!("cannot serialize the report: {e}")))?;
+    write_file_atomic(&json_path, json.as_bytes())
+}

@@ -1,0 +1,168 @@
+//! `meshes/<id>.obj` (+ `<id>.mtl`): each shape's world-space mesh, with the atlas UVs for
+//! reconstructed shapes, so `scene.xml` and any DCC tool can put the recovered albedo on it.
+//!
+//! UVs follow the OBJ convention (v up): texel coordinates `(x, y)` (y down) become
+//! `vt = (x / width, 1 - y / height)`. Mitsuba's OBJ loader flips v back (its default
+//! `flip_tex_coords = true`), so its bitmap lookup lands on texel `(x, y)` again. Every
+//! triangle corner gets its own `vt` (charts split vertices anyway); positions and normals
+//! stay shared. Numbers are written in Rust's shortest round-trip form, so reading the file
+//! back gives the same `f32` bits.
+
+use super::write_file_atomic;
+use crate::atlas::unwrap::ShapeAtlas;
+use crate::scene::Shape;
+use crate::{Error, Result};
+use std::fmt::Write as _;
+use std::path::Path;
+
+/// The OBJ text of `shape`, with `atlas`'s UVs if given, using material `<id>` from
+/// `<id>.mtl` when `material` is set.
+pub fn obj_text(shape: &Shape, atlas: Option<&ShapeAtlas>, material: bool) -> String {
+    let mesh = &shape.mesh;
+    let mut s = String::with_capacity(64 * (mesh.positions.len() + 3 * mesh.triangles.len()));
+    let _ = writeln!(
+        s,
+        "# kdmap: shape '{}' in world space{}",
+        shape.id,
+        if atlas.is_some() {
+            ", with the albedo atlas UVs (v up)"
+        } else {
+            ""
+        }
+    );
+    if material {
+        let _ = writeln!(s, "mtllib {}.mtl", shape.id);
+    }
+    let _ = writeln!(s, "o {}", shape.id);
+    for p in &mesh.positions {
+        let _ = writeln!(s, "v {} {} {}", p.x, p.y, p.z);
+    }
+    let normals = mesh
+        .normals
+        .as_ref()
+        .filter(|n| n.len() == mesh.positions.len());
+    if let Some(ns) = normals {
+        for n in ns {
+            let _ = writeln!(s, "vn {} {} {}", n.x, n.y, n.z);
+        }
+    }
+    if let Some(a) = atlas {
+        let (w, h) = (a.width as f64, a.height as f64);
+        for tri in &a.corner_uv {
+            for c in tri {
+                let u = (c.x as f64 / w).clamp(0.0, 1.0) as f32;
+                let v = (1.0 - c.y as f64 / h).clamp(0.0, 1.0) as f32;
+                let _ = writeln!(s, "vt {u} {v}");
+            }
+        }
+    }
+    if material {
+        let _ = writeln!(s, "usemtl {}", shape.id);
+    }
+    let uv = atlas.is_some_and(|a| a.corner_uv.len() == mesh.triangles.len());
+    for (t, tri) in mesh.triangles.iter().enumerate() {
+        s.push('f');
+        for (c, &i) in tri.iter().enumerate() {
+            let v = i + 1;
+            let vt = 3 * t + c + 1;
+            let _ = match (uv, normals.is_some()) {
+                (true, true) => write!(s, " {v}/{vt}/{v}"),
+                (true, false) => write!(s, " {v}/{vt}"),
+                (false, true) => write!(s, " {v}//{v}"),
+                (false, false) => write!(s, " {v}"),
+            };
+        }
+        s.push('\n');
+    }
+    s
+}
+
+/// The MTL text for a reconstructed shape: a white diffuse whose `map_Kd` is the albedo
+/// preview PNG (viewers treat PNG colour maps as sRGB, which the preview is).
+pub fn mtl_text(id: &str) -> String {
+    format!(
+        "# kdmap: recovered albedo of shape '{id}'\n\
+         newmtl {id}\n\
+         Ka 0 0 0\n\
+         Kd 1 1 1\n\
+         Ks 0 0 0\n\
+         illum 1\n\
+         map_Kd ../textures/{id}_albedo.png\n"
+    )
+}
+
+/// Write `<dir>/<id>.obj`, and `<dir>/<id>.mtl` for a shape with an atlas.
+pub fn write_shape_mesh(dir: &Path, shape: &Shape, atlas: Option<&ShapeAtlas>) -> Result<()> {
+    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    let material = atlas.is_some();
+    let obj = dir.join(format!("{}.obj", shape.id));
+    write_file_atomic(&obj, obj_text(shape, atlas, material).as_bytes())?;
+    if material {
+        let mtl = dir.join(format!("{}.mtl", shape.id));
+        write_file_atomic(&mtl, mtl_text(&shape.id).as_bytes())?;
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::{Mesh, Sides};
+    use glam::{Vec2, Vec3};
+
+    fn quad() -> Shape {
+        Shape {
+            id: "wall".into(),
+            kind: "obj".into(),
+            file: None,
+            mesh: Mesh {
+                positions: vec![
+                    Vec3::ZERO,
+                    Vec3::X,
+                    Vec3::new(1.0, 1.0, 0.0),
+                    Vec3::new(0.1, 1.0 / 3.0, 0.0),
+                ],
+                normals: Some(vec![Vec3::Z; 4]),
+                uvs: None,
+                triangles: vec![[0, 1, 2], [0, 2, 3]],
+            },
+            sides: Sides::Front,
+            emission: None,
+        }
+    }
+
+    #[test]
+    fn obj_has_one_vt_per_corner_with_v_up() {
+        let atlas = ShapeAtlas {
+            width: 10,
+            height: 20,
+            corner_uv: vec![
+                [
+                    Vec2::new(1.0, 1.0),
+                    Vec2::new(9.0, 1.0),
+                    Vec2::new(9.0, 19.0),
+                ],
+                [
+                    Vec2::new(1.0, 1.0),
+                    Vec2::new(9.0, 19.0),
+                    Vec2::new(1.0, 19.0),
+                ],
+            ],
+            charts: 1,
+            texel_density: 8.0,
+        };
+        let s = obj_text(&quad(), Some(&atlas), true);
+        assert!(s.contains("mtllib wall.mtl\n") && s.contains("usemtl wall\n"));
+        assert!(s.contains("\nv 0.1 0.33333334 0\n"), "{s}");
+        assert!(s.contains("\nvt 0.1 0.95\n"), "{s}");
+        assert!(s.contains("\nvt 0.9 0.05\n"), "{s}");
+        assert!(
+            s.contains("\nf 1/1/1 2/2/2 3/3/3\nf 1/4/1 3/5/3 4/6/4\n"),
+            "{s}"
+        );
+        assert_eq!(s.matches("\nvt ").count(), 6);
+        let plain = obj_text(&quad(), None, false);
+        assert!(plain.contains("\nf 1//1 2//2 3//3\n") && !plain.contains("vt"));
+        assert!(mtl_text("wall").contains("map_Kd ../textures/wall_albedo.png"));
+    }
+}

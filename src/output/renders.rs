@@ -1,0 +1,323 @@
+//! `renders/<sensor>.exr|png|_compare.png` and the paper's comparison table: every input view
+//! re-rendered from the recovered maps, side by side with its photo.
+//!
+//! A pixel is the mean of `k x k` stratified sub-pixel rays, as Mitsuba's box-filtered film
+//! is: a ray that hits a reconstructed shape reads its radiance texture
+//! `L_render = K_d / pi (E_d + E_i)` bilinearly; one that hits an emitter shape sees its
+//! known area radiance from the front and black from behind (the emitter is not
+//! reconstructed); a ray that hits nothing contributes black. Misses count in the mean, so
+//! silhouettes against the background come out partly dark, as in the photo
+//! (`render::render_view`, which averages over hits only, would brighten them). Pixels that
+//! lie wholly on emitters keep the ORIGINAL photo's value, so the light itself never shows
+//! up as reconstruction error.
+//!
+//! The table (`report.table`, the paper's "mean over a region, original vs re-rendered")
+//! takes, per view and reconstructed shape, the pixels where the view sees that shape
+//! cleanly (`project::View` classification: the whole pixel on one plane of the shape).
+
+use super::font::{draw_text, text_height, text_width};
+use super::plot::{draw_legend, legend_height, ErrorScale};
+use super::write_pixmap_png;
+use crate::camera::Camera;
+use crate::image::{read_sensor_image, write_exr_rgb, write_png_srgb, Image};
+use crate::pipeline::{auto_exposure, Prepared};
+use crate::project::{PixelInfo, View};
+use crate::render::{bilinear, Texture};
+use crate::report::ViewShapeRow;
+use crate::scene::{luminance, Scene};
+use crate::{Error, Result};
+use glam::Vec3;
+use rayon::prelude::*;
+use std::path::Path;
+use tiny_skia::{Color, Pixmap};
+
+/// Sub-pixel rays per pixel side.
+pub const SUPERSAMPLE: u32 = 4;
+
+/// What one sub-pixel ray sees.
+enum Seen {
+    Texture(Vec3),
+    Emitter(Vec3),
+    Nothing,
+}
+
+fn trace(p: &Prepared, camera: &Camera, textures: &[Option<Texture>], px: f32, py: f32) -> Seen {
+    let (o, d) = camera.ray(px, py);
+    let Some(hit) = p.accel.intersect(o, d, f32::INFINITY) else {
+        return Seen::Nothing;
+    };
+    let si = hit.shape as usize;
+    if let Some(tex) = textures.get(si).and_then(|t| t.as_ref()) {
+        let c = tex.corner_uv[hit.tri as usize];
+        let uv = c[0] * (1.0 - hit.b1 - hit.b2) + c[1] * hit.b1 + c[2] * hit.b2;
+        return Seen::Texture(bilinear(tex.texels, tex.width, tex.height, uv));
+    }
+    let shape = &p.scene.shapes[si];
+    match shape.emission {
+        Some(radiance) => {
+            let n = shape.mesh.shading_normal(hit.tri as usize, hit.b1, hit.b2);
+            Seen::Emitter(if n.dot(d) < 0.0 { radiance } else { Vec3::ZERO })
+        }
+        None => Seen::Nothing,
+    }
+}
+
+/// Re-render one view (see the module doc): `textures[shape]` is the radiance texture of each
+/// reconstructed shape; `photo` supplies the pixels that lie wholly on emitters.
+pub fn render_recovered(
+    p: &Prepared,
+    camera: &Camera,
+    textures: &[Option<Texture>],
+    photo: &Image,
+    k: u32,
+) -> Vec<Vec3> {
+    let (w, h) = (camera.width(), camera.height());
+    let k = k.max(1);
+    (0..h)
+        .into_par_iter()
+        .flat_map_iter(|y| {
+            (0..w).map(move |x| {
+                let mut sum = Vec3::ZERO;
+                let mut on_emitter = 0;
+                for j in 0..k {
+                    for i in 0..k {
+                        let px = x as f32 + (i as f32 + 0.5) / k as f32;
+                        let py = y as f32 + (j as f32 + 0.5) / k as f32;
+                        match trace(p, camera, textures, px, py) {
+                            Seen::Texture(v) => sum += v,
+                            Seen::Emitter(v) => {
+                                sum += v;
+                                on_emitter += 1;
+                            }
+                            Seen::Nothing => {}
+                        }
+                    }
+                }
+                if on_emitter == k * k && photo.is_valid(x, y) {
+                    photo.get(x, y)
+                } else {
+                    sum / (k * k) as f32
+                }
+            })
+        })
+        .collect()
+}
+
+/// CIE 1931 xy chromaticity of a linear sRGB (D65) colour. Black has none; it gets the D65
+/// white point (0.3127, 0.3290), the chromaticity of every grey.
+pub fn xy_chromaticity(rgb: [f64; 3]) -> [f64; 2] {
+    let [r, g, b] = rgb;
+    let x = 0.4124 * r + 0.3576 * g + 0.1805 * b;
+    let y = 0.2126 * r + 0.7152 * g + 0.0722 * b;
+    let z = 0.0193 * r + 0.1192 * g + 0.9505 * b;
+    let s = x + y + z;
+    if s.abs() <= 1e-300 || !s.is_finite() {
+        return [0.3127, 0.3290];
+    }
+    [x / s, y / s]
+}
+
+/// Mean and population standard deviation of luminance, and mean RGB, of `px`.
+fn stats(px: &[Vec3]) -> (f64, f64, [f64; 3]) {
+    let n = px.len().max(1) as f64;
+    let mut rgb = [0.0f64; 3];
+    let mut y = 0.0f64;
+    for v in px {
+        for k in 0..3 {
+            rgb[k] += v[k] as f64;
+        }
+        y += luminance(*v) as f64;
+    }
+    let rgb = rgb.map(|c| c / n);
+    let my = y / n;
+    let var = px
+        .iter()
+        .map(|v| (luminance(*v) as f64 - my).powi(2))
+        .sum::<f64>()
+        / n;
+    (my, var.sqrt(), rgb)
+}
+
+/// The table rows of one view: per reconstructed shape with at least one clean pixel,
+/// original (`photo`) vs re-rendered (`render`) statistics over those pixels.
+pub fn table_rows(
+    view: &str,
+    scene: &Scene,
+    pixels: &[PixelInfo],
+    photo: &[Vec3],
+    render: &[Vec3],
+) -> Vec<ViewShapeRow> {
+    let mut rows = Vec::new();
+    for (si, shape) in scene.shapes.iter().enumerate() {
+        if !shape.is_reconstructed() {
+            continue;
+        }
+        let idx: Vec<usize> = pixels
+            .iter()
+            .enumerate()
+            .filter(|(_, px)| px.clean && px.shape == si as u32)
+            .map(|(i, _)| i)
+            .collect();
+        if idx.is_empty() {
+            continue;
+        }
+        let a: Vec<Vec3> = idx.iter().map(|&i| photo[i]).collect();
+        let b: Vec<Vec3> = idx.iter().map(|&i| render[i]).collect();
+        let (ya, sa, ra) = stats(&a);
+        let (yb, sb, rb) = stats(&b);
+        rows.push(ViewShapeRow {
+            view: view.to_string(),
+            shape: shape.id.clone(),
+            pixels: idx.len() as u64,
+            mean_luminance: [ya, yb],
+            std_luminance: [sa, sb],
+            mean_rgb: [ra, rb],
+            xy: [xy_chromaticity(ra), xy_chromaticity(rb)],
+        });
+    }
+    rows
+}
+
+/// Re-render view `(sensor index, photo path)`, write its EXR, PNG and comparison PNG into
+/// `dir`, and return its table rows.
+pub fn write_view(
+    p: &Prepared,
+    textures: &[Option<Texture>],
+    (si, photo_path): (usize, &Path),
+    dir: &Path,
+    scale: &ErrorScale,
+) -> Result<Vec<ViewShapeRow>> {
+    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    let sensor = &p.scene.sensors[si];
+    let photo = read_sensor_image(photo_path, sensor)?;
+    let camera = Camera::from_sensor(sensor);
+    let view = View::new(&p.scene, &p.accel, camera.clone(), &photo);
+    let render = render_recovered(p, &camera, textures, &photo, SUPERSAMPLE);
+    let (w, h) = (sensor.width, sensor.height);
+    let exposure = auto_exposure(&photo.pixels, &photo.valid);
+    write_exr_rgb(dir.join(format!("{}.exr", sensor.id)), w, h, &render, false)?;
+    write_png_srgb(
+        dir.join(format!("{}.png", sensor.id)),
+        w,
+        h,
+        &render,
+        exposure,
+    )?;
+    let cmp = compare_image(p, &view, &photo, &render, exposure, scale);
+    write_pixmap_png(&dir.join(format!("{}_compare.png", sensor.id)), &cmp)?;
+    Ok(table_rows(
+        &sensor.id,
+        &p.scene,
+        &view.pixels,
+        &photo.pixels,
+        &render,
+    ))
+}
+
+fn srgb8(v: f32) -> u8 {
+    let v = if v.is_finite() {
+        v.clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    let e = if v <= 0.003_130_8 {
+        12.92 * v
+    } else {
+        1.055 * v.powf(1.0 / 2.4) - 0.055
+    };
+    (e * 255.0 + 0.5) as u8
+}
+
+/// original | render | relative error `|Y_render - Y_photo| / Y_photo`, titled, with the
+/// error legend under the third panel. The first two share `exposure`; error is shown where
+/// the pixel's center lies on a reconstructed shape and the photo is not black.
+fn compare_image(
+    p: &Prepared,
+    view: &View,
+    photo: &Image,
+    render: &[Vec3],
+    exposure: f32,
+    scale: &ErrorScale,
+) -> Pixmap {
+    let (w, h) = (photo.width, photo.height);
+    let gap = 4u32;
+    let font = if w >= 400 { 2 } else { 1 };
+    let title_h = text_height(font) + 8;
+    let legend_h = legend_height(font) + 4;
+    let (cw, ch) = (3 * w + 2 * gap, title_h + h + legend_h);
+    let mut pm = Pixmap::new(cw, ch).expect("image sizes come from a valid film");
+    pm.fill(Color::from_rgba8(32, 32, 32, 255));
+    let gain = exposure.exp2();
+    let err_color = |i: usize| -> [u8; 3] {
+        let s = view.pixels[i].shape;
+        let recon = p
+            .scene
+            .shapes
+            .get(s as usize)
+            .is_some_and(|sh| sh.is_reconstructed());
+        let yo = luminance(photo.pixels[i]);
+        if !recon || !photo.valid[i] || yo <= 0.0 {
+            return [0, 0, 0];
+        }
+        scale.color((luminance(render[i]) - yo).abs() / yo)
+    };
+    let data = pm.data_mut();
+    for y in 0..h {
+        for x in 0..w {
+            let i = (y * w + x) as usize;
+            let panels: [[u8; 3]; 3] = [
+                (photo.pixels[i] * gain).to_array().map(srgb8),
+                (render[i] * gain).to_array().map(srgb8),
+                err_color(i),
+            ];
+            for (k, c) in panels.iter().enumerate() {
+                let px = k as u32 * (w + gap) + x;
+                let o = 4 * ((title_h + y) * cw + px) as usize;
+                data[o..o + 4].copy_from_slice(&[c[0], c[1], c[2], 255]);
+            }
+        }
+    }
+    for (k, title) in ["ORIGINAL", "RENDER", "REL. ERROR"].iter().enumerate() {
+        let x0 = k as u32 * (w + gap) + w / 2;
+        let tx = x0 as i32 - text_width(title, font) as i32 / 2;
+        draw_text(&mut pm, tx, 4, title, font, Color::WHITE);
+    }
+    draw_legend(
+        &mut pm,
+        (2 * (w + gap)) as i32,
+        (title_h + h + 2) as i32,
+        w,
+        scale,
+        font,
+        [255, 255, 255],
+    );
+    pm
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn grey_has_the_d65_white_point_and_primaries_their_own() {
+        for g in [1e-4, 0.18, 1.0, 250.0] {
+            let [x, y] = xy_chromaticity([g; 3]);
+            assert!(
+                (x - 0.3127).abs() < 1e-4 && (y - 0.3290).abs() < 1e-4,
+                "{x} {y}"
+            );
+        }
+        let [x, y] = xy_chromaticity([1.0, 0.0, 0.0]);
+        assert!((x - 0.64).abs() < 1e-3 && (y - 0.33).abs() < 1e-3);
+        let [x, y] = xy_chromaticity([0.0, 1.0, 0.0]);
+        assert!((x - 0.30).abs() < 1e-3 && (y - 0.60).abs() < 1e-3);
+        assert_eq!(xy_chromaticity([0.0; 3]), [0.3127, 0.3290]);
+    }
+
+    #[test]
+    fn stats_are_population_mean_and_std() {
+        let (m, s, rgb) = stats(&[Vec3::splat(1.0), Vec3::splat(3.0)]);
+        assert!((m - 2.0).abs() < 1e-6 && (s - 1.0).abs() < 1e-6);
+        assert!((rgb[1] - 2.0).abs() < 1e-9);
+    }
+}

@@ -1,0 +1,510 @@
+//! Secondary illuminance `E_i` by forward light (photon) tracing with the current `K_d`
+//! (method step 6): photons leave the emitters in proportion to their power, bounce
+//! diffusely off the reconstructed surfaces, and every hit after at least one bounce deposits
+//! its flux into the atlas texel under it. Direct light is not traced here (step 3 fixed it).
+//!
+//! # A pass, for the caller
+//!
+//! ```text
+//! Receivers::new(..)            once per run (texel/triangle -> chart tables)
+//! AlbedoTextures::gather(..)    per pass: current K_d per slot, gutter dilated
+//! begin_pass(state)             accum := 0
+//! photon_pass(ctx, state, 0, on_group)   accum += photon flux, batch by batch
+//! finish_pass(geom, state)      accum := accum / bin_area  (irradiance, "E_i traced")
+//! smooth_accum(..)              optional box filter within charts (smoothing_radius)
+//! ```
+//!
+//! Between `photon_pass` and `finish_pass`, `TexelState::accum` holds the summed photon flux
+//! (scene power units) that landed in the texel's square on its chart; after `finish_pass` it
+//! holds the traced secondary irradiance `E_i` (flux / `bin_area`), which the solver reads.
+//! `TexelState::e_i` is left to the solver.
+//!
+//! # Determinism
+//!
+//! Photon `i` of batch `b` in iteration `it` draws every random number from
+//! `Rng::new(seed, it, b, i)`. Batches are traced in parallel, each into its own deposit list
+//! in photon order; a group of batches is then binned per tile and added to `accum` in batch
+//! order, then photon order. Every texel therefore sees the same sequence of f32 additions
+//! whatever the thread count, the group size, or where a pass was interrupted and resumed
+//! (`first_batch`): the result is bit-identical.
+//!
+//! # Unbiased bins
+//!
+//! A hit is deposited into texel `floor(uv)` only if that texel is covered *and* its center
+//! lies on the same chart as the hit triangle; otherwise it is dropped. `TexelGeom::bin_area`
+//! is exactly the part of the texel's square on the center's chart, so `accum / bin_area` is
+//! an unbiased irradiance estimate for every covered texel, borders included.
+
+mod smooth;
+mod trace;
+
+#[cfg(test)]
+mod tests;
+
+pub use smooth::{smooth_accum, smooth_within_charts};
+pub use trace::{trace_photon, PathCounts};
+
+use crate::accel::Accel;
+use crate::atlas::layout::{Layout, TexelGeom, TexelState};
+use crate::atlas::texels::{dilate, TexelMap, NONE};
+use crate::atlas::tiles::TileStore;
+use crate::atlas::unwrap::ShapeAtlas;
+use crate::light::EmitterSampler;
+use crate::scene::Scene;
+use crate::{Error, Result};
+use glam::{Vec2, Vec3};
+use rayon::prelude::*;
+use std::sync::Mutex;
+use std::time::Instant;
+
+/// One slot's albedo texture: `width x height` linear RGB, row-major, row 0 = top, in the
+/// slot's atlas texel coordinates. Gutter texels should hold dilated values (hits in the
+/// uncovered border texels of a chart read them).
+#[derive(Debug, Clone, PartialEq)]
+pub struct AlbedoTexture {
+    pub width: u32,
+    pub height: u32,
+    pub texels: Vec<Vec3>,
+}
+
+/// The current `K_d` of every reconstructed shape, in memory, one texture per layout slot.
+///
+/// Photons read the texel under the hit (nearest), not a bilinear blend: the solver's `K_d`
+/// of a texel is the mean albedo over its square (it divides the texel's mean radiance by its
+/// mean irradiance), so a photon reflecting anywhere in that square should see exactly that
+/// value; this keeps each texel's reflected energy consistent with the solver's model, and it
+/// costs one memory access instead of four (the lookups miss the cache on large textures).
+#[derive(Debug, Clone, PartialEq)]
+pub struct AlbedoTextures {
+    pub slots: Vec<AlbedoTexture>,
+}
+
+impl AlbedoTextures {
+    /// Checks that there is one texture per slot of `layout`, of the slot's size.
+    pub fn new(layout: &Layout, slots: Vec<AlbedoTexture>) -> Result<Self> {
+        if slots.len() != layout.slots.len() {
+            return Err(Error::Config(format!(
+                "albedo textures: {} given for {} reconstructed shapes",
+                slots.len(),
+                layout.slots.len()
+            )));
+        }
+        for (i, (t, s)) in slots.iter().zip(&layout.slots).enumerate() {
+            if (t.width, t.height) != (s.width, s.height)
+                || t.texels.len() != t.width as usize * t.height as usize
+                || t.width == 0
+                || t.height == 0
+            {
+                return Err(Error::Config(format!(
+                    "albedo texture of slot {i}: {}x{} with {} texels, the atlas is {}x{}",
+                    t.width,
+                    t.height,
+                    t.texels.len(),
+                    s.width,
+                    s.height
+                )));
+            }
+        }
+        Ok(AlbedoTextures { slots })
+    }
+
+    /// The same albedo everywhere (tests, benchmarks, a first pass).
+    pub fn uniform(layout: &Layout, kd: Vec3) -> Self {
+        AlbedoTextures {
+            slots: layout
+                .slots
+                .iter()
+                .map(|s| AlbedoTexture {
+                    width: s.width,
+                    height: s.height,
+                    texels: vec![kd; s.width as usize * s.height as usize],
+                })
+                .collect(),
+        }
+    }
+
+    /// `K_d` of every slot assembled from `state` (`TexelState::k_d` of covered texels), the
+    /// gutter filled by `dilate_passes` passes of [`dilate`] (use the atlas padding or more).
+    pub fn gather(
+        layout: &Layout,
+        receivers: &Receivers,
+        state: &TileStore<TexelState>,
+        dilate_passes: u32,
+    ) -> Result<Self> {
+        let ts = layout.tile_size;
+        let mut out = Vec::with_capacity(layout.slots.len());
+        for (slot, st) in layout.slots.iter().enumerate() {
+            let (w, h) = (st.width as usize, st.height as usize);
+            let mut vals = vec![Vec3::ZERO; w * h];
+            for ty in 0..st.tiles_y {
+                for tx in 0..st.tiles_x {
+                    let tile = (st.first_tile + ty * st.tiles_x + tx) as usize;
+                    let recs = state.read_tile(tile)?;
+                    for (off, r) in recs.iter().enumerate() {
+                        let (x, y) = (tx * ts + off as u32 % ts, ty * ts + off as u32 / ts);
+                        if x < st.width && y < st.height {
+                            vals[y as usize * w + x as usize] = Vec3::from_array(r.k_d);
+                        }
+                    }
+                }
+            }
+            let covered: Vec<bool> = receivers.slots[slot]
+                .texel_chart
+                .iter()
+                .map(|&c| c != NONE)
+                .collect();
+            for (v, &c) in vals.iter_mut().zip(&covered) {
+                if !c {
+                    *v = Vec3::ZERO;
+                }
+            }
+            dilate(&mut vals, &covered, st.width, st.height, dilate_passes)?;
+            out.push(AlbedoTexture {
+                width: st.width,
+                height: st.height,
+                texels: vals,
+            });
+        }
+        AlbedoTextures::new(layout, out)
+    }
+
+    /// `K_d` of `slot` at continuous texel coordinates `uv`: the texel containing `uv`,
+    /// clamped to the texture.
+    #[inline]
+    pub fn lookup(&self, slot: usize, uv: Vec2) -> Vec3 {
+        let t = &self.slots[slot];
+        let x = (uv.x.floor() as i64).clamp(0, t.width as i64 - 1) as usize;
+        let y = (uv.y.floor() as i64).clamp(0, t.height as i64 - 1) as usize;
+        t.texels[y * t.width as usize + x]
+    }
+}
+
+/// Per slot, which chart each texel's center and each triangle lie on: what decides whether
+/// a photon hit is deposited (see the module docs) and what smoothing must not cross.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SlotCharts {
+    pub width: u32,
+    pub height: u32,
+    /// Per texel (row-major), the chart owning its center, or [`NONE`] (not covered).
+    pub texel_chart: Vec<u32>,
+    /// Per mesh triangle, its chart, or [`NONE`] (no texel-space area).
+    pub tri_chart: Vec<u32>,
+}
+
+/// The surfaces photons can land on: shape -> slot, and each slot's chart tables. Built once
+/// per run (it rasterizes every atlas's texel centers); 4 bytes per texel and per triangle.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Receivers {
+    /// Per scene shape, its layout slot (`None`: emitter or otherwise not reconstructed; a
+    /// photon hitting it is absorbed).
+    pub slot_of_shape: Vec<Option<usize>>,
+    pub slots: Vec<SlotCharts>,
+}
+
+impl Receivers {
+    /// `atlases[shape]` must be the atlas of every slot's shape, of the slot's size.
+    pub fn new(scene: &Scene, layout: &Layout, atlases: &[Option<ShapeAtlas>]) -> Result<Self> {
+        let mut slot_of_shape = vec![None; scene.shapes.len()];
+        let mut slots = Vec::with_capacity(layout.slots.len());
+        for (slot, st) in layout.slots.iter().enumerate() {
+            let shape = scene.shapes.get(st.shape).ok_or_else(|| {
+                Error::Config(format!(
+                    "layout slot {slot} names shape {}, the scene has {}",
+                    st.shape,
+                    scene.shapes.len()
+                ))
+            })?;
+            let atlas = atlases
+                .get(st.shape)
+                .and_then(|a| a.as_ref())
+                .filter(|a| (a.width, a.height) == (st.width, st.height))
+                .ok_or_else(|| {
+                    Error::Config(format!(
+                        "shape '{}' has no {}x{} atlas for its slot",
+                        shape.id, st.width, st.height
+                    ))
+                })?;
+            if atlas.corner_uv.len() != shape.mesh.triangles.len() {
+                return Err(Error::Config(format!(
+                    "shape '{}': atlas has {} triangles, the mesh {}",
+                    shape.id,
+                    atlas.corner_uv.len(),
+                    shape.mesh.triangles.len()
+                )));
+            }
+            let map = TexelMap::new(&shape.mesh, atlas);
+            let texel_chart = map
+                .owners()
+                .par_iter()
+                .map(|&o| {
+                    if o == NONE {
+                        NONE
+                    } else {
+                        map.chart_of(o).unwrap_or(NONE)
+                    }
+                })
+                .collect();
+            let tri_chart = (0..shape.mesh.triangles.len() as u32)
+                .map(|t| map.chart_of(t).unwrap_or(NONE))
+                .collect();
+            slot_of_shape[st.shape] = Some(slot);
+            slots.push(SlotCharts {
+                width: st.width,
+                height: st.height,
+                texel_chart,
+                tri_chart,
+            });
+        }
+        Ok(Receivers {
+            slot_of_shape,
+            slots,
+        })
+    }
+
+    /// The slot of scene shape `shape`, if photons can land on it.
+    #[inline]
+    pub fn slot_of_shape(&self, shape: usize) -> Option<usize> {
+        self.slot_of_shape.get(shape).copied().flatten()
+    }
+}
+
+/// Everything a photon pass reads. Borrowed, immutable and `Sync`.
+#[derive(Clone, Copy)]
+pub struct PassContext<'a> {
+    pub scene: &'a Scene,
+    pub accel: &'a Accel,
+    pub sampler: &'a EmitterSampler,
+    pub layout: &'a Layout,
+    /// Per scene shape, its atlas (`corner_uv` maps hits to texels).
+    pub atlases: &'a [Option<ShapeAtlas>],
+    pub receivers: &'a Receivers,
+    pub albedo: &'a AlbedoTextures,
+    pub seed: u64,
+    /// Solver iteration: part of every photon's random key.
+    pub iteration: u64,
+    /// Photons in the whole pass (`N`; each carries `1/N` of its emitted flux).
+    pub photons: u64,
+    /// Photons per batch; the last batch may be partial.
+    pub batch_size: u32,
+    /// Most diffuse bounces per path (0 = nothing is deposited).
+    pub max_depth: u32,
+    /// Tiles per mapped window of the state store.
+    pub window: usize,
+    /// Batches traced before their deposits are added (bounds memory; the checkpoint
+    /// granularity). 0 = `max(16, 2 x threads)`. Never changes the result.
+    pub group_batches: usize,
+}
+
+impl PassContext<'_> {
+    /// Number of batches in the pass.
+    pub fn batch_count(&self) -> u64 {
+        self.photons.div_ceil(self.batch_size.max(1) as u64)
+    }
+
+    /// Photons in batch `b` (the last one may be partial; 0 past the end).
+    pub fn batch_len(&self, b: u64) -> u64 {
+        let bs = self.batch_size as u64;
+        self.photons.saturating_sub(b.saturating_mul(bs)).min(bs)
+    }
+
+    fn check(&self, state: &TileStore<TexelState>, first_batch: u64) -> Result<()> {
+        let bad = |m: String| Err(Error::Config(format!("photon pass: {m}")));
+        if self.batch_size == 0 {
+            return bad("batch_size must be > 0".into());
+        }
+        if self.window == 0 {
+            return bad("window of 0 tiles".into());
+        }
+        if state.tile_count() != self.layout.tile_count as usize
+            || state.tile_texels() != self.layout.tile_texels()
+        {
+            return bad(format!(
+                "state store has {} tiles of {} texels, the layout {} of {}",
+                state.tile_count(),
+                state.tile_texels(),
+                self.layout.tile_count,
+                self.layout.tile_texels()
+            ));
+        }
+        if self.albedo.slots.len() != self.layout.slots.len()
+            || self.receivers.slots.len() != self.layout.slots.len()
+            || self.receivers.slot_of_shape.len() != self.scene.shapes.len()
+        {
+            return bad("albedo textures or receivers do not match the layout".into());
+        }
+        for st in &self.layout.slots {
+            if self
+                .atlases
+                .get(st.shape)
+                .and_then(|a| a.as_ref())
+                .is_none()
+            {
+                return bad(format!("shape {} has no atlas", st.shape));
+            }
+        }
+        if first_batch > self.batch_count() {
+            return bad(format!(
+                "first batch {first_batch} is past the last ({} batches)",
+                self.batch_count()
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// One photon hit's contribution: flux (scene power units, already divided by `N`) into
+/// texel `offset` of tile `tile`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Deposit {
+    pub tile: u32,
+    pub offset: u32,
+    pub flux: [f32; 3],
+}
+
+/// What a call of [`photon_pass`] did (this call only, not earlier parts of a resumed pass).
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
+pub struct PassStats {
+    pub batches: u64,
+    pub photons: u64,
+    /// Closest-hit rays cast.
+    pub rays: u64,
+    /// Hits deposited into covered texels.
+    pub deposits: u64,
+    /// Hits after a bounce that landed in an uncovered texel (or another chart's) and were
+    /// dropped, as the bin areas require.
+    pub dropped: u64,
+    pub seconds: f64,
+}
+
+/// Sets `accum` of every texel to zero: call before batch 0 of a pass (not on resume).
+pub fn begin_pass(state: &mut TileStore<TexelState>, window: usize) -> Result<()> {
+    state.for_each_tile_mut(window, |_, recs| {
+        recs.iter_mut().for_each(|r| r.accum = [0.0; 3])
+    })
+}
+
+/// Traces batches `first_batch..` of the pass and adds their flux to `TexelState::accum`.
+///
+/// Batches run in groups of `ctx.group_batches`, in parallel on the current rayon pool;
+/// after each group's deposits are added, `on_group(batches_done)` is called (batches
+/// `0..batches_done` are then in `accum`: a checkpoint may save the state and resume later
+/// with `first_batch = batches_done`). An error from `on_group` stops the pass. The caller
+/// zeroes `accum` before batch 0 ([`begin_pass`]) and converts it to irradiance after the
+/// last ([`finish_pass`]).
+pub fn photon_pass(
+    ctx: &PassContext,
+    state: &mut TileStore<TexelState>,
+    first_batch: u64,
+    mut on_group: impl FnMut(u64) -> Result<()>,
+) -> Result<PassStats> {
+    ctx.check(state, first_batch)?;
+    let t0 = Instant::now();
+    let batches = ctx.batch_count();
+    let group = match ctx.group_batches {
+        0 => (2 * rayon::current_num_threads()).max(16),
+        g => g,
+    } as u64;
+    let mut stats = PassStats::default();
+    let mut b = first_batch;
+    while b < batches {
+        let end = (b + group).min(batches);
+        let outs: Vec<(Vec<Deposit>, PathCounts)> = (0..(end - b) as usize)
+            .into_par_iter()
+            .map(|k| trace_batch(ctx, b + k as u64))
+            .collect();
+        for (d, c) in &outs {
+            stats.rays += c.rays;
+            stats.deposits += d.len() as u64;
+            stats.dropped += c.dropped;
+        }
+        stats.photons += (b..end).map(|i| ctx.batch_len(i)).sum::<u64>();
+        stats.batches += end - b;
+        add_deposits(&outs, state, ctx.window)?;
+        on_group(end)?;
+        b = end;
+    }
+    stats.seconds = t0.elapsed().as_secs_f64();
+    Ok(stats)
+}
+
+/// All photons of batch `b`, their deposits in photon order.
+pub fn trace_batch(ctx: &PassContext, b: u64) -> (Vec<Deposit>, PathCounts) {
+    let n = ctx.batch_len(b);
+    let mut out = Vec::with_capacity(n as usize * 2);
+    let mut counts = PathCounts::default();
+    for i in 0..n {
+        counts += trace_photon(ctx, b, i, &mut out);
+    }
+    (out, counts)
+}
+
+/// Bins a group's deposits by tile (a stable counting sort: batch order, then photon order,
+/// within each tile) and adds them to `accum`, one tile per task.
+fn add_deposits(
+    outs: &[(Vec<Deposit>, PathCounts)],
+    state: &mut TileStore<TexelState>,
+    window: usize,
+) -> Result<()> {
+    let tiles = state.tile_count();
+    let mut start = vec![0usize; tiles + 1];
+    for d in outs.iter().flat_map(|o| &o.0) {
+        start[d.tile as usize + 1] += 1;
+    }
+    for i in 0..tiles {
+        start[i + 1] += start[i];
+    }
+    let mut next = start.clone();
+    let mut sorted = vec![(0u32, [0.0f32; 3]); start[tiles]];
+    for d in outs.iter().flat_map(|o| &o.0) {
+        let at = &mut next[d.tile as usize];
+        sorted[*at] = (d.offset, d.flux);
+        *at += 1;
+    }
+    state.for_each_tile_mut(window, |t, recs| {
+        for &(off, f) in &sorted[start[t]..start[t + 1]] {
+            let a = &mut recs[off as usize].accum;
+            a[0] += f[0];
+            a[1] += f[1];
+            a[2] += f[2];
+        }
+    })
+}
+
+/// Converts one tile's summed flux into irradiance: `accum := accum / bin_area` for covered
+/// texels with a positive bin, 0 elsewhere. Pure; see [`finish_pass`].
+pub fn finish_tile(geom: &[TexelGeom], state: &mut [TexelState]) {
+    for (g, s) in geom.iter().zip(state.iter_mut()) {
+        s.accum = if g.covered() && g.bin_area > 0.0 {
+            let inv = 1.0 / g.bin_area;
+            s.accum.map(|a| a * inv)
+        } else {
+            [0.0; 3]
+        };
+    }
+}
+
+/// [`finish_tile`] over every tile: after it, `TexelState::accum` is the traced `E_i`.
+pub fn finish_pass(
+    geom: &TileStore<TexelGeom>,
+    state: &mut TileStore<TexelState>,
+    window: usize,
+) -> Result<()> {
+    if geom.tile_count() != state.tile_count() || geom.tile_texels() != state.tile_texels() {
+        return Err(Error::Config(format!(
+            "finish_pass: geometry store has {} tiles of {}, state {} of {}",
+            geom.tile_count(),
+            geom.tile_texels(),
+            state.tile_count(),
+            state.tile_texels()
+        )));
+    }
+    let err: Mutex<Option<Error>> = Mutex::new(None);
+    state.for_each_tile_mut(window, |t, recs| match geom.read_tile(t) {
+        Ok(g) => finish_tile(&g, recs),
+        Err(e) => *err.lock().unwrap_or_else(|e| e.into_inner()) = Some(e),
+    })?;
+    match err.into_inner().unwrap_or_else(|e| e.into_inner()) {
+        Some(e) => Err(e),
+        None => Ok(()),
+    }
+}

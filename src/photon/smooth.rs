@@ -1,0 +1,120 @@
+//! Optional smoothing of the traced `E_i` (config `smoothing_radius`): secondary light varies
+//! slowly over a surface (method step 4), so averaging a texel with its neighbours trades a
+//! little blur for less photon noise. The filter never crosses a chart border: texels that
+//! are adjacent in the atlas but not on the surface would mix unrelated light.
+
+use super::Receivers;
+use crate::atlas::layout::{Layout, TexelGeom, TexelState};
+use crate::atlas::texels::NONE;
+use crate::atlas::tiles::TileStore;
+use crate::{Error, Result};
+use glam::{DVec3, Vec3};
+use rayon::prelude::*;
+
+/// Box filter of radius `radius` texels over one slot's texture (row-major `width x height`):
+/// each texel with a chart gets the `weights`-weighted mean of `values` over the texels of
+/// its own chart within `[x - r, x + r] x [y - r, y + r]`. With `values` = irradiance and
+/// `weights` = bin area this is total flux / total area over the window, the same estimator
+/// as one texel's on a larger bin. Texels without a chart ([`NONE`]) keep their value.
+/// `radius = 0` returns `values` unchanged. Cost `O(texels x (2r + 1)^2)`.
+pub fn smooth_within_charts(
+    values: &[Vec3],
+    weights: &[f32],
+    charts: &[u32],
+    width: u32,
+    height: u32,
+    radius: u32,
+) -> Result<Vec<Vec3>> {
+    let (w, h) = (width as usize, height as usize);
+    if values.len() != w * h || weights.len() != w * h || charts.len() != w * h {
+        return Err(Error::Config(format!(
+            "smoothing: {} values, {} weights and {} charts for a {width}x{height} texture",
+            values.len(),
+            weights.len(),
+            charts.len()
+        )));
+    }
+    let mut out = values.to_vec();
+    if radius == 0 || w == 0 {
+        return Ok(out);
+    }
+    let r = radius as usize;
+    out.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+        let (y0, y1) = (y.saturating_sub(r), (y + r + 1).min(h));
+        for (x, o) in row.iter_mut().enumerate() {
+            let c = charts[y * w + x];
+            if c == NONE {
+                continue;
+            }
+            let (x0, x1) = (x.saturating_sub(r), (x + r + 1).min(w));
+            let (mut s, mut sw) = (DVec3::ZERO, 0.0f64);
+            for ny in y0..y1 {
+                for j in ny * w + x0..ny * w + x1 {
+                    if charts[j] == c {
+                        let wt = weights[j] as f64;
+                        s += values[j].as_dvec3() * wt;
+                        sw += wt;
+                    }
+                }
+            }
+            if sw > 0.0 {
+                *o = (s / sw).as_vec3();
+            }
+        }
+    });
+    Ok(out)
+}
+
+/// [`smooth_within_charts`] applied to the traced `E_i` in `TexelState::accum` (after
+/// [`super::finish_pass`]), weighted by `TexelGeom::bin_area`, slot by slot (one slot's
+/// texture in memory at a time). `radius = 0` does nothing.
+pub fn smooth_accum(
+    layout: &Layout,
+    receivers: &Receivers,
+    geom: &TileStore<TexelGeom>,
+    state: &mut TileStore<TexelState>,
+    radius: u32,
+) -> Result<()> {
+    if radius == 0 {
+        return Ok(());
+    }
+    let ts = layout.tile_size;
+    for (slot, st) in layout.slots.iter().enumerate() {
+        let (w, n) = (st.width as usize, st.width as usize * st.height as usize);
+        let tiles: Vec<(u32, u32, usize)> = (0..st.tiles_y)
+            .flat_map(|ty| (0..st.tiles_x).map(move |tx| (tx, ty)))
+            .map(|(tx, ty)| (tx, ty, (st.first_tile + ty * st.tiles_x + tx) as usize))
+            .collect();
+        // texel (x, y) of the slot -> index in its tile, if inside the texture
+        let texels = |tx: u32, ty: u32| {
+            (0..ts * ts).filter_map(move |off| {
+                let (x, y) = (tx * ts + off % ts, ty * ts + off / ts);
+                (x < st.width && y < st.height)
+                    .then_some((off as usize, y as usize * w + x as usize))
+            })
+        };
+        let mut vals = vec![Vec3::ZERO; n];
+        let mut wts = vec![0.0f32; n];
+        for &(tx, ty, tile) in &tiles {
+            let (s, g) = (state.read_tile(tile)?, geom.read_tile(tile)?);
+            for (off, i) in texels(tx, ty) {
+                vals[i] = Vec3::from_array(s[off].accum);
+                wts[i] = if g[off].covered() {
+                    g[off].bin_area
+                } else {
+                    0.0
+                };
+            }
+        }
+        let charts = &receivers.slots[slot].texel_chart;
+        let smoothed = smooth_within_charts(&vals, &wts, charts, st.width, st.height, radius)?;
+        for &(tx, ty, tile) in &tiles {
+            let mut s = state.read_tile(tile)?;
+            for (off, i) in texels(tx, ty) {
+                s[off].accum = smoothed[i].to_array();
+            }
+            state.write_tile(tile, &s)?;
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,149 @@
+//! One photon's path, a pure function of (seed, iteration, batch, index): emission, diffuse
+//! bounces with Russian roulette on `K_d`, and a deposit at every hit after the first bounce.
+//! Kept apart from the batching so a single photon can be replayed and tested.
+
+use super::{Deposit, PassContext};
+use crate::accel::offset_origin;
+use crate::atlas::texels::NONE;
+use crate::rng::Rng;
+use crate::scene::Sides;
+use glam::Vec3;
+use std::f32::consts::TAU;
+use std::ops::AddAssign;
+
+/// Lowest Russian-roulette survival probability: a dark surface still passes a few photons
+/// on (with a larger weight) instead of making its neighbours' `E_i` rest on rare events.
+pub const MIN_SURVIVAL: f32 = 0.05;
+
+/// Counters of one or more photon paths.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct PathCounts {
+    /// Closest-hit rays cast.
+    pub rays: u64,
+    /// Hits after a bounce dropped because their texel is not on the hit's chart.
+    pub dropped: u64,
+}
+
+impl AddAssign for PathCounts {
+    fn add_assign(&mut self, o: Self) {
+        self.rays += o.rays;
+        self.dropped += o.dropped;
+    }
+}
+
+/// Traces photon `index` of batch `batch` and appends its deposits to `out`, in path order.
+///
+/// At each hit, in order:
+/// 1. A shape without a slot (an emitter) absorbs. So does a one-sided (`Sides::Front`)
+///    surface hit from behind its shading normal, and any hit where the shading and
+///    geometric normals disagree about the side (grazing; a shading-normal artifact).
+/// 2. After at least one bounce, the flux is deposited into the texel under the hit (if that
+///    texel's center is on the hit's chart; dropped otherwise).
+/// 3. After `max_depth` bounces the path ends.
+/// 4. Russian roulette with survival `q = clamp(max K_d, MIN_SURVIVAL, 1)`, flux `*= K_d / q`.
+/// 5. A cosine-weighted direction about the shading normal on the incident side; a direction
+///    that would cross the geometric surface ends the path (absorbed).
+pub fn trace_photon(
+    ctx: &PassContext,
+    batch: u64,
+    index: u64,
+    out: &mut Vec<Deposit>,
+) -> PathCounts {
+    let mut counts = PathCounts::default();
+    let mut rng = Rng::new(ctx.seed, ctx.iteration, batch, index);
+    let Some(ph) = ctx.sampler.sample_photon(&mut rng) else {
+        return counts;
+    };
+    let mut flux = ph.flux * (1.0 / ctx.photons as f64) as f32;
+    let (mut o, mut d) = (ph.origin, ph.dir);
+    let mut bounces = 0u32;
+    loop {
+        counts.rays += 1;
+        let Some(hit) = ctx.accel.intersect(o, d, f32::INFINITY) else {
+            break;
+        };
+        let si = hit.shape as usize;
+        let Some(slot) = ctx.receivers.slot_of_shape(si) else {
+            break;
+        };
+        let shape = &ctx.scene.shapes[si];
+        let (t, b1, b2) = (hit.tri as usize, hit.b1, hit.b2);
+        let ng = shape.mesh.face_normal_raw(t).normalize_or_zero();
+        let ns = shape.mesh.shading_normal(t, b1, b2);
+        let (cg, cs) = (d.dot(ng), d.dot(ns));
+        // Same side by both normals (also rejects zeros and NaN).
+        if positive(cg * cs).is_none() {
+            break;
+        }
+        if shape.sides == Sides::Front && cs >= 0.0 {
+            break;
+        }
+        let Some(atlas) = ctx.atlases[si].as_ref() else {
+            break;
+        };
+        let [u0, u1, u2] = atlas.corner_uv[t];
+        let b0 = 1.0 - b1 - b2;
+        let uv = u0 * b0 + u1 * b1 + u2 * b2;
+        if bounces > 0 {
+            let charts = &ctx.receivers.slots[slot];
+            let (fx, fy) = (uv.x.floor(), uv.y.floor());
+            let tc = charts.tri_chart.get(t).copied().unwrap_or(NONE);
+            let inside = fx >= 0.0
+                && fy >= 0.0
+                && fx < charts.width as f32
+                && fy < charts.height as f32
+                && tc != NONE;
+            let (x, y) = (fx as u32, fy as u32);
+            if inside && charts.texel_chart[y as usize * charts.width as usize + x as usize] == tc {
+                let (tile, offset) = ctx.layout.locate(slot, x, y);
+                out.push(Deposit {
+                    tile,
+                    offset,
+                    flux: flux.to_array(),
+                });
+            } else {
+                counts.dropped += 1;
+            }
+        }
+        if bounces >= ctx.max_depth {
+            break;
+        }
+        let kd = ctx.albedo.lookup(slot, uv);
+        let Some(kmax) = positive(kd.max_element()) else {
+            break;
+        };
+        let q = kmax.clamp(MIN_SURVIVAL, 1.0);
+        if rng.f32() >= q {
+            break;
+        }
+        flux *= kd / q;
+        let n_in = if cs < 0.0 { ns } else { -ns };
+        let dir = cosine_dir(n_in, &mut rng);
+        // Leaving on the incident side of the geometric surface: dir.ng has cg's opposite sign.
+        if positive(-dir.dot(ng) * cg).is_none() {
+            break;
+        }
+        let [p0, p1, p2] = shape.mesh.triangle(t);
+        let p = p0 * b0 + p1 * b1 + p2 * b2;
+        o = offset_origin(p, ng, dir);
+        d = dir;
+        bounces += 1;
+    }
+    counts
+}
+
+/// `Some(x)` if `x > 0` (so not NaN).
+#[inline]
+fn positive(x: f32) -> Option<f32> {
+    (x > 0.0).then_some(x)
+}
+
+/// A cosine-weighted unit direction about unit `n` (Malley's method).
+#[inline]
+fn cosine_dir(n: Vec3, rng: &mut Rng) -> Vec3 {
+    let r2 = rng.f32();
+    let phi = TAU * rng.f32();
+    let r = r2.sqrt();
+    let (u, v) = n.any_orthonormal_pair();
+    (u * (r * phi.cos()) + v * (r * phi.sin()) + n * (1.0 - r2).max(0.0).sqrt()).normalize()
+}

@@ -1,0 +1,345 @@
+//! The per-texel solver, method steps 4-9: initial E_i, K_d from eqs. (3)-(5) with the bound
+//! correction, the comparison (6)-(7) and the update (8)-(9). Every texel is an independent
+//! one-parameter problem, so each function here is a pure pass over one tile's records;
+//! statistics come back per tile and are summed in tile order (bit-identical for any thread
+//! count). Unobserved texels get K_d from observed neighbours of the same chart.
+
+use crate::atlas::layout::{flags, TexelGeom, TexelState};
+use crate::config::UpdateRule;
+use crate::scene::luminance;
+use glam::Vec3;
+use std::f32::consts::PI;
+
+/// The physical upper bound of K_d used by the correction of eq. (5).
+pub const KD_MAX: f32 = 1.0;
+
+fn v(a: [f32; 3]) -> Vec3 {
+    Vec3::from_array(a)
+}
+
+/// Step 4: the initial secondary irradiance, a share of the direct irradiance, or where a
+/// texel has no direct light, a share of the scene's mean irradiance `mean_e`.
+pub fn init_indirect_tile(state: &mut [TexelState], geom: &[TexelGeom], share: f32, mean_e: Vec3) {
+    for (s, g) in state.iter_mut().zip(geom) {
+        if !g.covered() {
+            continue;
+        }
+        let ed = v(s.e_d);
+        let ei = if ed.max_element() > 0.0 {
+            ed * share
+        } else {
+            mean_e * share
+        };
+        s.e_i = ei.to_array();
+    }
+}
+
+/// Eqs. (3)-(5) for one channel: `K_d = pi L / (E_d + E_i)`, and where that exceeds the bound
+/// `K_d0`, `K_d = K_d0` with `E_i = (pi L - K_d0 E_d) / K_d0`. Returns `(K_d, E_i, clamped)`.
+pub fn kd_channel(l: f32, e_d: f32, e_i: f32) -> (f32, f32, bool) {
+    let pl = PI * l.max(0.0);
+    let e_i = e_i.max(0.0);
+    let e = e_d + e_i;
+    if pl == 0.0 {
+        return (0.0, e_i, false);
+    }
+    if e > 0.0 && pl / e <= KD_MAX {
+        return (pl / e, e_i, false);
+    }
+    (KD_MAX, ((pl - KD_MAX * e_d) / KD_MAX).max(0.0), true)
+}
+
+/// K_d of every observed texel of a tile from its current E_i (eqs. 3-5); E_i is corrected
+/// where the bound applies. Returns how many texels were clamped.
+pub fn kd_tile(state: &mut [TexelState], geom: &[TexelGeom]) -> u64 {
+    let mut clamped = 0;
+    for (s, g) in state.iter_mut().zip(geom) {
+        if !g.covered() || s.flags & flags::OBSERVED == 0 {
+            continue;
+        }
+        let mut any = false;
+        for c in 0..3 {
+            let (kd, ei, cl) = kd_channel(s.l_orig[c], s.e_d[c], s.e_i[c]);
+            s.k_d[c] = kd;
+            s.e_i[c] = ei;
+            any |= cl;
+        }
+        clamped += any as u64;
+    }
+    clamped
+}
+
+/// Error statistics of one tile, summed over observed texels.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct ErrorSums {
+    pub texels: u64,
+    pub sum_rel: f64,
+    pub sum_rel2: f64,
+    pub max_rel: f64,
+    pub sum_f2: f64,
+}
+
+impl ErrorSums {
+    pub fn add(&mut self, o: &ErrorSums) {
+        self.texels += o.texels;
+        self.sum_rel += o.sum_rel;
+        self.sum_rel2 += o.sum_rel2;
+        self.max_rel = self.max_rel.max(o.max_rel);
+        self.sum_f2 += o.sum_f2;
+    }
+    pub fn rms_rel(&self) -> f64 {
+        (self.sum_rel2 / self.texels.max(1) as f64).sqrt()
+    }
+    pub fn mean_rel(&self) -> f64 {
+        self.sum_rel / self.texels.max(1) as f64
+    }
+    pub fn rms_residual(&self) -> f64 {
+        (self.sum_f2 / self.texels.max(1) as f64).sqrt()
+    }
+}
+
+/// Steps 7 and 9 for one tile. `accum` holds the photon-traced secondary irradiance of this
+/// iteration. Compares `L_render = K_d/pi (E_d + E_i_traced)` with `L_orig` (eqs. 6-7: the
+/// per-texel relative luminance error goes to `error`), then sets the next E_i:
+/// `Paper`: `E_i = E_i_traced + alpha_n K_d/pi F` (eqs. 8-9 with `F = L_orig - L_render`);
+/// `FixedPoint`: `E_i = E_i_traced`; `Relaxed`: `E_i += beta (E_i_traced - E_i)`.
+/// Unobserved texels just take the traced E_i.
+pub fn compare_update_tile(
+    state: &mut [TexelState],
+    geom: &[TexelGeom],
+    rule: UpdateRule,
+    alpha_n: f32,
+    beta: f32,
+) -> ErrorSums {
+    let mut sums = ErrorSums::default();
+    for (s, g) in state.iter_mut().zip(geom) {
+        if !g.covered() {
+            continue;
+        }
+        let traced = v(s.accum);
+        let kd = v(s.k_d);
+        let l_render = kd / PI * (v(s.e_d) + traced);
+        let l_orig = v(s.l_orig);
+        let f = l_orig - l_render;
+        if s.flags & flags::OBSERVED != 0 {
+            let yo = luminance(l_orig) as f64;
+            let fy = luminance(f) as f64;
+            let rel = if yo > 0.0 { fy.abs() / yo } else { 0.0 };
+            s.error = rel as f32;
+            sums.texels += 1;
+            sums.sum_rel += rel;
+            sums.sum_rel2 += rel * rel;
+            sums.max_rel = sums.max_rel.max(rel);
+            sums.sum_f2 += fy * fy;
+            let next = match rule {
+                UpdateRule::Paper => traced + alpha_n * kd / PI * f,
+                UpdateRule::FixedPoint => traced,
+                UpdateRule::Relaxed => v(s.e_i) + beta * (traced - v(s.e_i)),
+            };
+            s.e_i = next.max(Vec3::ZERO).to_array();
+        } else {
+            s.error = 0.0;
+            s.e_i = traced.to_array();
+        }
+    }
+    sums
+}
+
+/// `alpha_n = alpha_0 / (1 + n)`.
+pub fn alpha(alpha0: f32, n: u32) -> f32 {
+    alpha0 / (1.0 + n as f32)
+}
+
+/// Fill the K_d of unobserved surface texels of one texture from observed neighbours of the
+/// same chart (repeated 8-neighbour averaging, chart by chart), and any texel still without a
+/// value from the mean of the observed texels (the shape's mean). `chart[i]` is the texel's
+/// chart (None for gutter); `observed[i]` marks texels with a measured K_d. Returns the mask
+/// of texels that were filled.
+pub fn fill_unobserved(
+    kd: &mut [Vec3],
+    observed: &[bool],
+    chart: &[Option<u32>],
+    width: u32,
+    height: u32,
+) -> Vec<bool> {
+    let (w, h) = (width as i64, height as i64);
+    let mut known: Vec<bool> = observed.to_vec();
+    let mut filled = vec![false; kd.len()];
+    loop {
+        let mut changes = Vec::new();
+        for y in 0..h {
+            for x in 0..w {
+                let i = (y * w + x) as usize;
+                let Some(c) = chart[i] else { continue };
+                if known[i] {
+                    continue;
+                }
+                let (mut sum, mut n) = (Vec3::ZERO, 0u32);
+                for dy in -1..=1 {
+                    for dx in -1..=1 {
+                        let (nx, ny) = (x + dx, y + dy);
+                        if nx < 0 || ny < 0 || nx >= w || ny >= h {
+                            continue;
+                        }
+                        let j = (ny * w + nx) as usize;
+                        if known[j] && chart[j] == Some(c) {
+                            sum += kd[j];
+                            n += 1;
+                        }
+                    }
+                }
+                if n > 0 {
+                    changes.push((i, sum / n as f32));
+                }
+            }
+        }
+        if changes.is_empty() {
+            break;
+        }
+        for (i, val) in changes {
+            kd[i] = val;
+            known[i] = true;
+            filled[i] = true;
+        }
+    }
+    // Charts with no observed texel at all: the shape's mean.
+    let (mut sum, mut n) = (Vec3::ZERO, 0u32);
+    for (i, &o) in observed.iter().enumerate() {
+        if o {
+            sum += kd[i];
+            n += 1;
+        }
+    }
+    let mean = if n > 0 {
+        sum / n as f32
+    } else {
+        Vec3::splat(0.5)
+    };
+    for i in 0..kd.len() {
+        if chart[i].is_some() && !known[i] {
+            kd[i] = mean;
+            filled[i] = true;
+        }
+    }
+    filled
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn kd_inverts_the_rendering_equation_and_respects_the_bound() {
+        // L = K_d/pi (E_d + E_i) with K_d = 0.4
+        let (ed, ei) = (3.0, 1.0);
+        let l = 0.4 / PI * (ed + ei);
+        let (kd, e, c) = kd_channel(l, ed, ei);
+        assert!((kd - 0.4).abs() < 1e-6 && e == ei && !c);
+        // too little irradiance for what is seen: K_d lands on the bound, E_i corrected
+        let l = 2.0 / PI * (ed + ei);
+        let (kd, e, c) = kd_channel(l, ed, ei);
+        assert!(c && kd == KD_MAX);
+        assert!(
+            (KD_MAX / PI * (ed + e) - l).abs() < 1e-5,
+            "corrected E_i must reproduce L"
+        );
+        // black texel
+        assert_eq!(kd_channel(0.0, ed, ei), (0.0, ei, false));
+        // no light at all but seen lit: bound, E_i = pi L
+        let (kd, e, c) = kd_channel(0.5, 0.0, 0.0);
+        assert!(c && kd == KD_MAX && (e - PI * 0.5).abs() < 1e-6);
+    }
+
+    fn texel(l: Vec3, ed: Vec3, traced: Vec3, kd: Vec3) -> (TexelState, TexelGeom) {
+        let s = TexelState {
+            l_orig: l.to_array(),
+            e_d: ed.to_array(),
+            accum: traced.to_array(),
+            k_d: kd.to_array(),
+            weight: 1.0,
+            flags: flags::OBSERVED,
+            ..Default::default()
+        };
+        let g = TexelGeom {
+            flags: flags::COVERED,
+            area: 1.0,
+            bin_area: 1.0,
+            ..Default::default()
+        };
+        (s, g)
+    }
+
+    #[test]
+    fn fixed_point_converges_to_the_true_albedo_in_a_furnace() {
+        // A closed furnace of albedo rho lit by E_d: the traced secondary irradiance given
+        // the current K_d is E_d * K_d / (1 - K_d); the photo shows rho/pi (E_d + E_i*).
+        // The fixed-point map E_i -> traced(K_d(E_i)) has slope -rho/(1-rho) here, so it
+        // contracts for rho < 1/2 (open scenes feed back far less than a furnace).
+        let rho = 0.3f32;
+        let ed = Vec3::splat(2.0);
+        let ei_true = ed * rho / (1.0 - rho);
+        let l = Vec3::splat(rho / PI) * (ed + ei_true);
+        let (mut s, g) = texel(l, ed, Vec3::ZERO, Vec3::ZERO);
+        let mut st = [s];
+        init_indirect_tile(&mut st, &[g], 0.5, Vec3::ZERO);
+        let mut errs = Vec::new();
+        for n in 0..12 {
+            kd_tile(&mut st, &[g]);
+            let kd = st[0].k_d[0];
+            st[0].accum = (ed * kd / (1.0 - kd)).to_array(); // the exact "photon pass"
+            let e = compare_update_tile(&mut st, &[g], UpdateRule::FixedPoint, alpha(2.0, n), 1.0);
+            errs.push(e.max_rel);
+        }
+        kd_tile(&mut st, &[g]);
+        s = st[0];
+        assert!((s.k_d[0] - rho).abs() < 1e-4, "K_d {} vs {rho}", s.k_d[0]);
+        assert!(errs.last().unwrap() < &1e-4, "{errs:?}");
+        assert!(errs[0] > errs[3], "error must shrink: {errs:?}");
+    }
+
+    #[test]
+    fn paper_update_moves_e_i_along_the_residual() {
+        let (mut s, g) = texel(
+            Vec3::splat(1.0),
+            Vec3::splat(1.0),
+            Vec3::splat(2.0),
+            Vec3::splat(0.5),
+        );
+        s.e_i = [9.0; 3];
+        let mut st = [s];
+        let sums = compare_update_tile(&mut st, &[g], UpdateRule::Paper, 2.0, 1.0);
+        let l_render = 0.5 / PI * (1.0 + 2.0);
+        let f = 1.0 - l_render;
+        let want = 2.0 + 2.0 * 0.5 / PI * f;
+        assert!(
+            (st[0].e_i[0] - want).abs() < 1e-5,
+            "{} vs {want}",
+            st[0].e_i[0]
+        );
+        assert!((sums.max_rel - f.abs() as f64).abs() < 1e-5);
+        assert_eq!(sums.texels, 1);
+    }
+
+    #[test]
+    fn unobserved_texels_fill_from_their_own_chart_only() {
+        // 4x1 texture: two charts [0,1] and [2,3]; texel 0 observed red, texel 3 observed blue
+        let mut kd = vec![Vec3::X, Vec3::ZERO, Vec3::ZERO, Vec3::Z];
+        let observed = [true, false, false, true];
+        let chart = [Some(0), Some(0), Some(1), Some(1)];
+        let filled = fill_unobserved(&mut kd, &observed, &chart, 4, 1);
+        assert_eq!(kd, vec![Vec3::X, Vec3::X, Vec3::Z, Vec3::Z]);
+        assert_eq!(filled, vec![false, true, true, false]);
+        // a chart nobody saw takes the shape's mean
+        let mut kd = vec![Vec3::X, Vec3::ZERO, Vec3::ZERO];
+        let filled = fill_unobserved(
+            &mut kd,
+            &[true, false, false],
+            &[Some(0), None, Some(1)],
+            3,
+            1,
+        );
+        assert_eq!(kd[2], Vec3::X);
+        assert_eq!(kd[1], Vec3::ZERO, "gutter untouched");
+        assert_eq!(filled, vec![false, false, true]);
+    }
+}

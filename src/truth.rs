@@ -1,0 +1,258 @@
+//! Ground-truth albedo for measuring accuracy (tests, benchmarks, the nightly harness): the
+//! `reflectance` of each shape's diffuse BSDF in a Mitsuba `truth.xml`, either a constant RGB
+//! or an sRGB-encoded bitmap on the mesh's own UVs, evaluated where a texel lies. Never an
+//! input of a reconstruction.
+
+use crate::error::{Error, Result};
+use crate::scene::{Mesh, Rgb};
+use glam::{Vec2, Vec3};
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+/// One shape's true reflectance.
+#[derive(Debug, Clone)]
+pub enum Reflectance {
+    Constant(Rgb),
+    /// Linear RGB texels (decoded from sRGB), row 0 = top, looked up at the mesh UVs.
+    Bitmap {
+        width: u32,
+        height: u32,
+        texels: Vec<Vec3>,
+    },
+}
+
+/// The true reflectance of every shape id that has one.
+#[derive(Debug, Clone, Default)]
+pub struct Truth {
+    pub shapes: HashMap<String, Reflectance>,
+}
+
+fn srgb_to_linear(c: f32) -> f32 {
+    if c <= 0.04045 {
+        c / 12.92
+    } else {
+        ((c + 0.055) / 1.055).powf(2.4)
+    }
+}
+
+fn parse_rgb(path: &Path, s: &str) -> Result<Rgb> {
+    let v: Vec<f32> = s
+        .split([',', ' '])
+        .filter(|t| !t.is_empty())
+        .map(|t| t.parse::<f32>())
+        .collect::<std::result::Result<_, _>>()
+        .map_err(|e| Error::input(path, format!("bad rgb value '{s}': {e}")))?;
+    match v.as_slice() {
+        [x] => Ok(Vec3::splat(*x)),
+        [r, g, b] => Ok(Vec3::new(*r, *g, *b)),
+        _ => Err(Error::input(path, format!("bad rgb value '{s}'"))),
+    }
+}
+
+fn load_bitmap(path: &Path) -> Result<Reflectance> {
+    let pm = tiny_skia::Pixmap::load_png(path)
+        .map_err(|e| Error::input(path, format!("cannot read PNG: {e}")))?;
+    let texels = pm
+        .pixels()
+        .iter()
+        .map(|p| {
+            let c = p.demultiply();
+            Vec3::new(
+                srgb_to_linear(c.red() as f32 / 255.0),
+                srgb_to_linear(c.green() as f32 / 255.0),
+                srgb_to_linear(c.blue() as f32 / 255.0),
+            )
+        })
+        .collect();
+    Ok(Reflectance::Bitmap {
+        width: pm.width(),
+        height: pm.height(),
+        texels,
+    })
+}
+
+impl Truth {
+    /// Read the diffuse reflectance of every `<shape id>` in a Mitsuba truth file.
+    pub fn load(path: &Path) -> Result<Truth> {
+        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        let doc = roxmltree::Document::parse(&text)
+            .map_err(|e| Error::input(path, format!("malformed XML: {e}")))?;
+        let dir = path
+            .parent()
+            .map(Path::to_path_buf)
+            .unwrap_or_else(|| PathBuf::from("."));
+        let mut shapes = HashMap::new();
+        for shape in doc.descendants().filter(|n| n.has_tag_name("shape")) {
+            let Some(id) = shape.attribute("id") else {
+                continue;
+            };
+            let Some(bsdf) = shape
+                .descendants()
+                .find(|n| n.has_tag_name("bsdf") && n.attribute("type") == Some("diffuse"))
+            else {
+                continue;
+            };
+            for c in bsdf
+                .children()
+                .filter(|c| c.attribute("name") == Some("reflectance"))
+            {
+                let r = match c.tag_name().name() {
+                    "rgb" | "spectrum" | "float" => {
+                        Reflectance::Constant(parse_rgb(path, c.attribute("value").unwrap_or(""))?)
+                    }
+                    "texture" => {
+                        let f = c
+                            .children()
+                            .find(|n| n.attribute("name") == Some("filename"))
+                            .and_then(|n| n.attribute("value"))
+                            .ok_or_else(|| {
+                                Error::input(path, format!("shape '{id}': bitmap without filename"))
+                            })?;
+                        load_bitmap(&dir.join(f))?
+                    }
+                    _ => continue,
+                };
+                shapes.insert(id.to_string(), r);
+            }
+        }
+        Ok(Truth { shapes })
+    }
+}
+
+impl Reflectance {
+    /// The true albedo at barycentrics `(b1, b2)` of triangle `tri` of `mesh` (whose UVs,
+    /// v up, are the ones the truth texture was painted on). Bilinear, repeating, like
+    /// Mitsuba's bitmap texture.
+    pub fn eval(&self, mesh: &Mesh, tri: usize, b1: f32, b2: f32) -> Rgb {
+        match self {
+            Reflectance::Constant(c) => *c,
+            Reflectance::Bitmap {
+                width,
+                height,
+                texels,
+            } => {
+                let Some(uvs) = &mesh.uvs else {
+                    return Vec3::ZERO;
+                };
+                let [a, b, c] = mesh.triangles[tri];
+                let uv: Vec2 =
+                    uvs[a as usize] * (1.0 - b1 - b2) + uvs[b as usize] * b1 + uvs[c as usize] * b2;
+                let (w, h) = (*width as i64, *height as i64);
+                let fx = uv.x * w as f32 - 0.5;
+                let fy = (1.0 - uv.y) * h as f32 - 0.5;
+                let (x0, y0) = (fx.floor() as i64, fy.floor() as i64);
+                let (tx, ty) = (fx - x0 as f32, fy - y0 as f32);
+                let g = |x: i64, y: i64| texels[(y.rem_euclid(h) * w + x.rem_euclid(w)) as usize];
+                let top = g(x0, y0) * (1.0 - tx) + g(x0 + 1, y0) * tx;
+                let bot = g(x0, y0 + 1) * (1.0 - tx) + g(x0 + 1, y0 + 1) * tx;
+                top * (1.0 - ty) + bot * ty
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn srgb_decode_endpoints() {
+        assert_eq!(srgb_to_linear(0.0), 0.0);
+        assert!((srgb_to_linear(1.0) - 1.0).abs() < 1e-6);
+        assert!((srgb_to_linear(0.5) - 0.21404).abs() < 1e-4);
+    }
+
+    #[test]
+    fn reads_constants_and_bitmaps_of_the_fixture() {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures");
+        let t = Truth::load(&root.join("cbox/truth.xml")).unwrap();
+        match &t.shapes["left"] {
+            Reflectance::Constant(c) => assert_eq!(*c, Vec3::new(0.63, 0.065, 0.05)),
+            other => panic!("{other:?}"),
+        }
+        let t = Truth::load(&root.join("cbox-tex/truth.xml")).unwrap();
+        match &t.shapes["right"] {
+            Reflectance::Bitmap { width, height, .. } => assert_eq!((*width, *height), (256, 171)),
+            other => panic!("{other:?}"),
+        }
+    }
+}
+
+/// Accuracy of one shape's recovered albedo against the truth, over its observed texels.
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct ShapeAccuracy {
+    pub shape: String,
+    pub texels: u64,
+    /// Mean over texels of `sum_c |K_d - K_true| / sum_c K_true`.
+    pub mean_rel_error: f64,
+    /// Mean recovered and true RGB over the texels.
+    pub mean_kd: [f64; 3],
+    pub mean_truth: [f64; 3],
+}
+
+/// Barycentrics `(b1, b2)` of point `p` in triangle `tri` of `mesh`.
+fn barycentrics(mesh: &Mesh, tri: usize, p: Vec3) -> (f32, f32) {
+    let [a, b, c] = mesh.triangle(tri);
+    let (e1, e2, d) = (b - a, c - a, p - a);
+    let (d11, d12, d22) = (e1.dot(e1), e1.dot(e2), e2.dot(e2));
+    let den = d11 * d22 - d12 * d12;
+    if den == 0.0 {
+        return (0.0, 0.0);
+    }
+    let (p1, p2) = (d.dot(e1), d.dot(e2));
+    ((d22 * p1 - d12 * p2) / den, (d11 * p2 - d12 * p1) / den)
+}
+
+impl Truth {
+    /// Compare the recovered `K_d` of every reconstructed shape that has a truth with it,
+    /// over observed texels (those a camera saw), shape by shape.
+    pub fn accuracy(
+        &self,
+        p: &crate::pipeline::Prepared,
+        geom: &crate::atlas::tiles::TileStore<crate::atlas::layout::TexelGeom>,
+        state: &crate::atlas::tiles::TileStore<crate::atlas::layout::TexelState>,
+    ) -> Result<Vec<ShapeAccuracy>> {
+        use crate::atlas::layout::flags;
+        let mut out = Vec::new();
+        for st in &p.layout.slots {
+            let shape = &p.scene.shapes[st.shape];
+            let Some(r) = self.shapes.get(&shape.id) else {
+                continue;
+            };
+            let mut acc = ShapeAccuracy {
+                shape: shape.id.clone(),
+                ..Default::default()
+            };
+            for t in st.first_tile..st.first_tile + st.tiles_x * st.tiles_y {
+                let g = geom.read_tile(t as usize)?;
+                let s = state.read_tile(t as usize)?;
+                for (g, s) in g.iter().zip(&s) {
+                    if !g.covered() || s.flags & flags::OBSERVED == 0 {
+                        continue;
+                    }
+                    let (b1, b2) = barycentrics(&shape.mesh, g.tri as usize, g.p());
+                    let k_true = r.eval(&shape.mesh, g.tri as usize, b1, b2);
+                    let kd = Vec3::from_array(s.k_d);
+                    let den = (k_true.x + k_true.y + k_true.z) as f64;
+                    if den <= 0.0 {
+                        continue;
+                    }
+                    acc.mean_rel_error += (kd - k_true).abs().element_sum() as f64 / den;
+                    for c in 0..3 {
+                        acc.mean_kd[c] += kd[c] as f64;
+                        acc.mean_truth[c] += k_true[c] as f64;
+                    }
+                    acc.texels += 1;
+                }
+            }
+            let n = acc.texels.max(1) as f64;
+            acc.mean_rel_error /= n;
+            for c in 0..3 {
+                acc.mean_kd[c] /= n;
+                acc.mean_truth[c] /= n;
+            }
+            out.push(acc);
+        }
+        Ok(out)
+    }
+}

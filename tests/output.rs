@@ -1,0 +1,531 @@
+//! The output directory (`docs/contract.md`) checked end to end on the Cornell box: the real
+//! projection gives L_orig, then a synthetic but exactly consistent solver state
+//! (known K_d per shape, E_d + E_i = pi L_orig / K_d) goes through `write_outputs`, and every
+//! file is read back and compared with what it must hold.
+
+use glam::{Vec2, Vec3};
+use kdmap::atlas::layout::{flags, TexelGeom, TexelState};
+use kdmap::atlas::tiles::TileStore;
+use kdmap::camera::Camera;
+use kdmap::config::Config;
+use kdmap::image::{read_exr, read_sensor_image};
+use kdmap::output::renders::xy_chromaticity;
+use kdmap::output::write_outputs;
+use kdmap::pipeline::{gather, run_projection, state_dir, Prepared};
+use kdmap::progress::Mode;
+use kdmap::project::View;
+use kdmap::report::{IterationStats, Report};
+use kdmap::scene::{luminance, mitsuba, Emitter};
+use std::f32::consts::PI;
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+
+/// The albedo each shape is given (the truth on the coloured walls).
+fn k_d_of(id: &str) -> Vec3 {
+    match id {
+        "left" => Vec3::new(0.63, 0.065, 0.05),
+        "right" => Vec3::new(0.14, 0.45, 0.091),
+        "floor" => Vec3::new(0.5, 0.5, 0.5),
+        _ => Vec3::new(0.725, 0.71, 0.68),
+    }
+}
+
+/// A synthetic relative error per texel, so the error map has something to show.
+fn error_of(x: u32, y: u32) -> f32 {
+    0.0005 * ((x + 2 * y) % 50) as f32
+}
+
+struct Run {
+    _dir: tempfile::TempDir,
+    out: PathBuf,
+    p: Prepared,
+    geom: TileStore<TexelGeom>,
+    state: TileStore<TexelState>,
+    report: Report,
+}
+
+/// Project the cbox photos, make the state consistent, write the outputs: once for all tests.
+fn run() -> &'static Run {
+    static RUN: OnceLock<Run> = OnceLock::new();
+    RUN.get_or_init(|| {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/cbox");
+        let mut cfg = Config::for_scene(root.join("input.xml"));
+        cfg.atlas.texels_per_unit = 32.0;
+        let dir = tempfile::tempdir().unwrap();
+        let proj = dir.path().join("proj");
+        let (p, _) = run_projection(&cfg, &proj, Mode::Quiet).unwrap();
+        let geom = TileStore::<TexelGeom>::open(state_dir(&proj).join("geometry.tiles")).unwrap();
+        let mut state =
+            TileStore::<TexelState>::open(state_dir(&proj).join("state.tiles")).unwrap();
+        for t in 0..p.layout.tile_count as usize {
+            let g = geom.read_tile(t).unwrap();
+            let mut st = state.read_tile(t).unwrap();
+            for (off, (g, s)) in g.iter().zip(st.iter_mut()).enumerate() {
+                let Some((slot, x, y)) = p.layout.texel_of(t as u32, off as u32) else {
+                    continue;
+                };
+                if !g.covered() {
+                    continue;
+                }
+                let kd = k_d_of(&p.scene.shapes[p.layout.slots[slot].shape].id);
+                s.k_d = kd.to_array();
+                s.flags |= flags::COVERED;
+                if s.flags & flags::OBSERVED != 0 {
+                    let e = Vec3::from_array(s.l_orig) * PI / kd;
+                    s.e_d = (e * 0.75).to_array();
+                    s.e_i = (e * 0.25).to_array();
+                    s.error = error_of(x, y);
+                } else {
+                    s.e_d = [1.0, 1.5, 2.0];
+                    s.e_i = [0.5; 3];
+                    s.flags |= flags::FILLED;
+                }
+            }
+            state.write_tile(t, &st).unwrap();
+        }
+        let mut report = Report::new(cfg.clone());
+        report.stopped_by = "max_iterations".into();
+        report.iterations = (0..4)
+            .map(|i| IterationStats {
+                iteration: i,
+                rms_rel_error: 0.1 / 4f64.powi(i as i32),
+                max_rel_error: 0.5 / 3f64.powi(i as i32),
+                ..Default::default()
+            })
+            .collect();
+        // KDMAP_OUTPUT_DIR=<dir> keeps the written directory for a look (and for
+        // tools/check_scene_mitsuba.py).
+        let out = std::env::var_os("KDMAP_OUTPUT_DIR")
+            .map(PathBuf::from)
+            .unwrap_or_else(|| dir.path().join("out"));
+        write_outputs(&p, &geom, &state, &mut report, &out).unwrap();
+        Run {
+            _dir: dir,
+            out,
+            p,
+            geom,
+            state,
+            report,
+        }
+    })
+}
+
+fn recon_ids(p: &Prepared) -> Vec<String> {
+    p.layout
+        .slots
+        .iter()
+        .map(|s| p.scene.shapes[s.shape].id.clone())
+        .collect()
+}
+
+#[test]
+fn every_contract_file_exists() {
+    let r = run();
+    let mut want = vec![
+        "scene.xml".to_string(),
+        "report.json".into(),
+        "report_convergence.png".into(),
+    ];
+    for id in recon_ids(&r.p) {
+        for f in [
+            format!("textures/{id}_albedo.exr"),
+            format!("textures/{id}_albedo.png"),
+            format!("maps/{id}_error.exr"),
+            format!("maps/{id}_error.png"),
+            format!("maps/{id}_colorless.exr"),
+            format!("maps/{id}_coverage.exr"),
+            format!("maps/{id}_direct.exr"),
+            format!("maps/{id}_indirect.exr"),
+            format!("maps/{id}_luminance.exr"),
+            format!("meshes/{id}.obj"),
+            format!("meshes/{id}.mtl"),
+        ] {
+            want.push(f);
+        }
+    }
+    want.push("meshes/light.obj".into());
+    for (si, _) in &r.p.views {
+        let id = &r.p.scene.sensors[*si].id;
+        want.push(format!("renders/{id}.exr"));
+        want.push(format!("renders/{id}.png"));
+        want.push(format!("renders/{id}_compare.png"));
+    }
+    for f in &want {
+        assert!(r.out.join(f).is_file(), "missing {f}");
+    }
+    // nothing left half-written
+    for d in ["", "textures", "maps", "renders", "meshes"] {
+        for e in std::fs::read_dir(r.out.join(d)).unwrap() {
+            let name = e.unwrap().file_name().to_string_lossy().to_string();
+            assert!(!name.ends_with(".tmp"), "{d}/{name}");
+        }
+    }
+}
+
+/// Per slot: (state records in texture order, covered mask).
+fn texture_state(r: &Run, slot: usize) -> (Vec<TexelState>, Vec<bool>) {
+    // gather one field at a time and stitch the records back together
+    let p = &r.p;
+    let g = |f: fn(&TexelState) -> Vec3| gather(p, slot, &r.state, &r.geom, f).unwrap();
+    let (kd, cov) = g(|s| Vec3::from_array(s.k_d));
+    let (ed, _) = g(|s| Vec3::from_array(s.e_d));
+    let (ei, _) = g(|s| Vec3::from_array(s.e_i));
+    let (lo, _) = g(|s| Vec3::from_array(s.l_orig));
+    let (misc, _) = g(|s| Vec3::new(s.weight, s.error, s.flags as f32));
+    let recs = (0..kd.len())
+        .map(|i| TexelState {
+            k_d: kd[i].to_array(),
+            e_d: ed[i].to_array(),
+            e_i: ei[i].to_array(),
+            l_orig: lo[i].to_array(),
+            weight: misc[i].x,
+            error: misc[i].y,
+            flags: misc[i].z as u32,
+            ..Default::default()
+        })
+        .collect();
+    (recs, cov)
+}
+
+#[test]
+fn maps_hold_the_state_and_eq_10() {
+    let r = run();
+    for (slot, id) in recon_ids(&r.p).iter().enumerate() {
+        let (recs, cov) = texture_state(r, slot);
+        let st = r.p.layout.slots[slot];
+        let read = |name: &str| {
+            let img = read_exr(r.out.join(name)).unwrap();
+            assert_eq!((img.width, img.height), (st.width, st.height), "{name}");
+            img.pixels
+        };
+        let albedo = read(&format!("textures/{id}_albedo.exr"));
+        let colorless = read(&format!("maps/{id}_colorless.exr"));
+        let error = read(&format!("maps/{id}_error.exr"));
+        let coverage = read(&format!("maps/{id}_coverage.exr"));
+        let direct = read(&format!("maps/{id}_direct.exr"));
+        let indirect = read(&format!("maps/{id}_indirect.exr"));
+        let lum = read(&format!("maps/{id}_luminance.exr"));
+        let mut n = 0;
+        for (i, s) in recs.iter().enumerate() {
+            if !cov[i] {
+                continue;
+            }
+            n += 1;
+            let kd = Vec3::from_array(s.k_d);
+            assert_eq!(albedo[i], kd, "{id} texel {i}");
+            assert_eq!(kd, k_d_of(id));
+            assert_eq!(direct[i], Vec3::from_array(s.e_d));
+            assert_eq!(indirect[i], Vec3::from_array(s.e_i));
+            assert_eq!(coverage[i], Vec3::splat(s.weight));
+            // eq. (10) by hand, in double precision
+            let l_render: Vec<f64> = (0..3)
+                .map(|c| s.k_d[c] as f64 / std::f64::consts::PI * (s.e_d[c] + s.e_i[c]) as f64)
+                .collect();
+            let sum: f64 = s.k_d.iter().map(|&k| k as f64).sum();
+            for c in 0..3 {
+                let want = l_render[c] / (s.k_d[c] as f64 / sum);
+                let got = colorless[i][c] as f64;
+                assert!(
+                    (got - want).abs() <= 1e-5 * want.abs().max(1e-6),
+                    "{id} texel {i} channel {c}: {got} vs {want}"
+                );
+            }
+            if s.flags & flags::OBSERVED != 0 {
+                assert_eq!(error[i], Vec3::splat(s.error));
+                assert_eq!(lum[i], Vec3::from_array(s.l_orig));
+                assert!(s.weight > 0.0);
+            } else {
+                assert_eq!(error[i], Vec3::ZERO, "unobserved texels have no error");
+                assert_eq!(coverage[i], Vec3::ZERO);
+            }
+        }
+        assert!(n > 0, "{id} has covered texels");
+        // Gutter next to the charts is dilated: every texel with a covered 8-neighbour holds
+        // an albedo, never the black background.
+        let (w, h) = (st.width as i64, st.height as i64);
+        for y in 0..h {
+            for x in 0..w {
+                let i = (y * w + x) as usize;
+                let near = (-1..=1).any(|dy: i64| {
+                    (-1..=1).any(|dx: i64| {
+                        let (nx, ny) = (x + dx, y + dy);
+                        nx >= 0 && ny >= 0 && nx < w && ny < h && cov[(ny * w + nx) as usize]
+                    })
+                });
+                if near {
+                    assert!(
+                        albedo[i].min_element() > 0.0,
+                        "{id} gutter texel ({x}, {y})"
+                    );
+                }
+            }
+        }
+        // The error preview is larger than the map: the legend bar sits under it.
+        let png = std::fs::read(r.out.join(format!("maps/{id}_error.png"))).unwrap();
+        let pm = tiny_skia::Pixmap::decode_png(&png).unwrap();
+        assert!(pm.height() > st.height && pm.width() >= st.width);
+    }
+}
+
+#[test]
+fn rerender_of_a_consistent_state_gives_back_the_photos() {
+    let r = run();
+    let p = &r.p;
+    let back = p.scene.shapes.iter().position(|s| s.id == "back").unwrap() as u32;
+    for (si, path) in &p.views {
+        let sensor = &p.scene.sensors[*si];
+        let photo = read_sensor_image(path, sensor).unwrap();
+        let render = read_exr(r.out.join(format!("renders/{}.exr", sensor.id))).unwrap();
+        let view = View::new(&p.scene, &p.accel, Camera::from_sensor(sensor), &photo);
+        let (w, h) = (photo.width as i64, photo.height as i64);
+        let on_back = |x: i64, y: i64| {
+            x >= 0 && y >= 0 && x < w && y < h && {
+                let px = &view.pixels[(y * w + x) as usize];
+                px.clean && px.shape == back
+            }
+        };
+        // As tests/projection.rs: means over 8x8 blocks of pixels inside the back wall
+        // (photo noise is ~2% per pixel).
+        const B: i64 = 8;
+        let (mut sum, mut n) = (0.0f64, 0usize);
+        for by in 0..h / B {
+            for bx in 0..w / B {
+                let inside = (by * B - 1..=(by + 1) * B)
+                    .all(|y| (bx * B - 1..=(bx + 1) * B).all(|x| on_back(x, y)));
+                if !inside {
+                    continue;
+                }
+                let (mut a, mut b) = (0.0f64, 0.0f64);
+                for y in by * B..(by + 1) * B {
+                    for x in bx * B..(bx + 1) * B {
+                        let i = (y * w + x) as usize;
+                        a += luminance(render.pixels[i]) as f64;
+                        b += luminance(photo.pixels[i]) as f64;
+                    }
+                }
+                sum += (a - b).abs() / b;
+                n += 1;
+            }
+        }
+        let mean = sum / n.max(1) as f64;
+        eprintln!(
+            "{}: back wall, mean relative difference of 8x8 block means {:.3}% over {n} blocks",
+            sensor.id,
+            100.0 * mean
+        );
+        assert!(n >= 100, "{}: only {n} blocks", sensor.id);
+        assert!(mean < 0.01, "{}: {:.3}%", sensor.id, 100.0 * mean);
+
+        // The table row agrees: mean luminance and chromaticity of the back wall.
+        let row = r
+            .report
+            .table
+            .iter()
+            .find(|row| row.view == sensor.id && row.shape == "back")
+            .expect("a table row for the back wall");
+        let [yo, yr] = row.mean_luminance;
+        assert!((yr - yo).abs() / yo < 0.005, "{row:?}");
+        for k in 0..2 {
+            assert!((row.xy[0][k] - row.xy[1][k]).abs() < 2e-3, "{row:?}");
+        }
+        // Pixels wholly on the light keep the photo's value.
+        let light = p.scene.shapes.iter().position(|s| s.id == "light").unwrap() as u32;
+        for (i, px) in view.pixels.iter().enumerate() {
+            if px.clean && px.shape == light {
+                assert_eq!(render.pixels[i], photo.pixels[i]);
+            }
+        }
+    }
+}
+
+#[test]
+fn report_json_has_the_table_with_consistent_chromaticities() {
+    let r = run();
+    let text = std::fs::read_to_string(r.out.join("report.json")).unwrap();
+    let back: Report = serde_json::from_str(&text).unwrap();
+    // serde_json's default float parsing may differ in the last bit: compare with a tolerance.
+    assert_eq!(back.table.len(), r.report.table.len());
+    assert_eq!(back.iterations.len(), r.report.iterations.len());
+    let near = |a: f64, b: f64| (a - b).abs() <= 1e-12 * a.abs().max(b.abs()).max(1e-300);
+    for (a, b) in back.table.iter().zip(&r.report.table) {
+        assert_eq!((&a.view, &a.shape, a.pixels), (&b.view, &b.shape, b.pixels));
+        for k in 0..2 {
+            assert!(near(a.mean_luminance[k], b.mean_luminance[k]));
+            assert!(near(a.std_luminance[k], b.std_luminance[k]));
+            assert!((0..3).all(|c| near(a.mean_rgb[k][c], b.mean_rgb[k][c])));
+            assert!((0..2).all(|c| near(a.xy[k][c], b.xy[k][c])));
+        }
+    }
+    assert!(back.timings.output > 0.0);
+    // every view sees the back wall, the left and right walls
+    for (si, _) in &r.p.views {
+        let v = &r.p.scene.sensors[*si].id;
+        for shape in ["back", "left", "right"] {
+            assert!(
+                back.table
+                    .iter()
+                    .any(|row| &row.view == v && row.shape == shape),
+                "{v}/{shape}"
+            );
+        }
+    }
+    for row in &back.table {
+        assert!(row.pixels > 0 && row.shape != "light");
+        for k in 0..2 {
+            let xy = xy_chromaticity(row.mean_rgb[k]);
+            assert!(
+                (0..2).all(|c| (row.xy[k][c] - xy[c]).abs() < 1e-12),
+                "{row:?}"
+            );
+            let y = 0.2126 * row.mean_rgb[k][0]
+                + 0.7152 * row.mean_rgb[k][1]
+                + 0.0722 * row.mean_rgb[k][2];
+            assert!(
+                (y - row.mean_luminance[k]).abs() <= 1e-6 * y.max(1e-9),
+                "{row:?}"
+            );
+            assert!(row.std_luminance[k] >= 0.0);
+        }
+    }
+    // the red wall is red, the green wall green
+    let left = back.table.iter().find(|r| r.shape == "left").unwrap();
+    assert!(left.xy[0][0] > 0.45, "{left:?}");
+    let right = back.table.iter().find(|r| r.shape == "right").unwrap();
+    assert!(right.xy[0][1] > 0.45, "{right:?}");
+    // pure grey -> D65 white
+    let [x, y] = xy_chromaticity([0.37; 3]);
+    assert!(
+        (x - 0.3127).abs() < 1e-4 && (y - 0.3290).abs() < 1e-4,
+        "{x} {y}"
+    );
+}
+
+#[test]
+fn scene_xml_round_trips_through_the_loader() {
+    let r = run();
+    let a = &r.p.scene;
+    let xml = r.out.join("scene.xml");
+    let b = mitsuba::load(&xml).unwrap();
+    let close = |x: Vec3, y: Vec3| (x - y).abs().max_element() <= 1e-5;
+    assert_eq!(a.shapes.len(), b.shapes.len());
+    for (s, t) in a.shapes.iter().zip(&b.shapes) {
+        assert_eq!(s.id, t.id);
+        assert_eq!(s.sides, t.sides);
+        assert_eq!(s.emission, t.emission);
+        assert_eq!(s.mesh.triangles.len(), t.mesh.triangles.len());
+        for tri in 0..s.mesh.triangles.len() {
+            let (p, q) = (s.mesh.triangle(tri), t.mesh.triangle(tri));
+            assert!((0..3).all(|c| close(p[c], q[c])), "{} {tri}", s.id);
+            assert!(close(
+                s.mesh.shading_normal(tri, 0.3, 0.3),
+                t.mesh.shading_normal(tri, 0.3, 0.3)
+            ));
+        }
+    }
+    assert_eq!(a.sensors.len(), b.sensors.len());
+    for (s, t) in a.sensors.iter().zip(&b.sensors) {
+        assert_eq!(
+            (&s.id, s.fov_axis, s.width, s.height),
+            (&t.id, t.fov_axis, t.width, t.height)
+        );
+        assert!((s.fov - t.fov).abs() <= 1e-5);
+        assert!(s.to_world.abs_diff_eq(t.to_world, 1e-5), "{}", s.id);
+    }
+    assert_eq!(a.emitters.len(), b.emitters.len());
+    match (&a.emitters[0], &b.emitters[0]) {
+        (
+            Emitter::Area {
+                shape: i,
+                radiance: x,
+            },
+            Emitter::Area {
+                shape: j,
+                radiance: y,
+            },
+        ) => assert!(i == j && close(*x, *y)),
+        e => panic!("{e:?}"),
+    }
+    // Every file the scene names exists, relative to it; albedo textures are raw bitmaps.
+    let text = std::fs::read_to_string(&xml).unwrap();
+    let doc = roxmltree_lite_filenames(&text);
+    assert!(!doc.is_empty());
+    for f in doc {
+        assert!(r.out.join(&f).is_file(), "scene.xml names missing {f}");
+    }
+    for id in recon_ids(&r.p) {
+        assert!(text.contains(&format!(
+            "<string name=\"filename\" value=\"textures/{id}_albedo.exr\"/><boolean name=\"raw\" value=\"true\"/>"
+        )));
+    }
+}
+
+/// The `filename` values in an XML text (enough for our own output).
+fn roxmltree_lite_filenames(text: &str) -> Vec<String> {
+    let key = "name=\"filename\" value=\"";
+    text.match_indices(key)
+        .map(|(i, _)| {
+            let rest = &text[i + key.len()..];
+            rest[..rest.find('"').unwrap()].to_string()
+        })
+        .collect()
+}
+
+#[test]
+fn obj_uvs_map_corners_back_to_their_texels() {
+    let r = run();
+    for st in &r.p.layout.slots {
+        let shape = &r.p.scene.shapes[st.shape];
+        let atlas = r.p.atlases[st.shape].as_ref().unwrap();
+        let text = std::fs::read_to_string(r.out.join(format!("meshes/{}.obj", shape.id))).unwrap();
+        let nums = |l: &str| -> Vec<f32> {
+            l.split_whitespace()
+                .skip(1)
+                .map(|v| v.parse().unwrap())
+                .collect()
+        };
+        let v: Vec<Vec3> = text
+            .lines()
+            .filter(|l| l.starts_with("v "))
+            .map(|l| Vec3::from_slice(&nums(l)))
+            .collect();
+        let vt: Vec<Vec2> = text
+            .lines()
+            .filter(|l| l.starts_with("vt "))
+            .map(|l| Vec2::from_slice(&nums(l)))
+            .collect();
+        assert!(text.contains(&format!("mtllib {}.mtl", shape.id)));
+        let faces: Vec<&str> = text.lines().filter(|l| l.starts_with("f ")).collect();
+        assert_eq!(faces.len(), shape.mesh.triangles.len());
+        assert_eq!(
+            v, shape.mesh.positions,
+            "{}: positions written exactly",
+            shape.id
+        );
+        for uv in &vt {
+            assert!(
+                (0.0..=1.0).contains(&uv.x) && (0.0..=1.0).contains(&uv.y),
+                "{uv}"
+            );
+        }
+        for (t, f) in faces.iter().enumerate() {
+            for (c, corner) in f.split_whitespace().skip(1).enumerate() {
+                let idx: Vec<usize> = corner.split('/').map(|s| s.parse().unwrap()).collect();
+                assert_eq!(idx[0] as u32 - 1, shape.mesh.triangles[t][c]);
+                let uv = vt[idx[1] - 1];
+                let texel = Vec2::new(
+                    uv.x * atlas.width as f32,
+                    (1.0 - uv.y) * atlas.height as f32,
+                );
+                let want = atlas.corner_uv[t][c];
+                assert!(
+                    (texel - want).abs().max_element() < 1e-3,
+                    "{} triangle {t} corner {c}: {texel} vs {want}",
+                    shape.id
+                );
+            }
+        }
+        let mtl = std::fs::read_to_string(r.out.join(format!("meshes/{}.mtl", shape.id))).unwrap();
+        let map = mtl.lines().find_map(|l| l.strip_prefix("map_Kd ")).unwrap();
+        assert!(r.out.join("meshes").join(map).is_file(), "{map}");
+    }
+}
