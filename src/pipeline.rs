@@ -612,14 +612,16 @@ pub fn reconstruct(cfg: &Config, out: &Path, mode: Mode) -> Result<Report> {
         begin_pass(&mut state, window)?;
         let stage = Stage::new(
             mode,
-            &format!("photons {}", n + 1),
-            ctx.batch_count(),
-            "batches",
+            &format!("photons {}/{}", n + 1, cfg.iterations),
+            cfg.photons,
+            "photons",
         );
         let mut last = 0u64;
+        let batch = cfg.batch_size as u64;
         let pass = photon_pass(&ctx, &mut state, 0, |done| {
-            stage.inc(done - last);
-            last = done;
+            let photons = (done * batch).min(cfg.photons);
+            stage.inc(photons - last);
+            last = photons;
             Ok(())
         })?;
         stage.finish();
@@ -693,11 +695,7 @@ pub fn reconstruct(cfg: &Config, out: &Path, mode: Mode) -> Result<Report> {
         observed_texels: proj.observed_texels,
         filled_texels: filled,
     };
-    let t = Instant::now();
     report.timings.total = t_total.elapsed().as_secs_f64();
-    // OUTPUTS_HOOK: crate::output::write_outputs(&p, &geom, &state, &mut report, out)?;
-    let _ = (&geom, &out);
-    report.timings.output = t.elapsed().as_secs_f64();
-    report.timings.total = t_total.elapsed().as_secs_f64();
+    crate::output::write_outputs(&p, &geom, &state, &mut report, out)?;
     Ok(report)
 }

@@ -179,6 +179,13 @@ impl<'a> View<'a> {
         } else {
             image.pixels.clone()
         };
+        let neg = q.iter().filter(|v| v.min_element() < 0.0).count();
+        eprintln!("view {}: {neg} prefiltered pixels with a negative channel", camera.id);
+        let q = if std::env::var("KDMAP_CLAMP").is_ok() {
+            q.into_iter().map(|v| v.max(Vec3::ZERO)).collect()
+        } else {
+            q
+        };
         View {
             camera,
             image,

@@ -19,6 +19,9 @@ fn run(scene: &str, photons: u64, iterations: u32) -> Vec<kdmap::truth::ShapeAcc
     if let Ok(v) = std::env::var("KDMAP_DENSITY") {
         cfg.atlas.texels_per_unit = v.parse().unwrap();
     }
+    if let Ok(v) = std::env::var("KDMAP_SMOOTH") {
+        cfg.smoothing_radius = v.parse().unwrap();
+    }
     if let Ok(v) = std::env::var("KDMAP_UPDATE") {
         cfg.update = match v.as_str() {
             "paper" => kdmap::config::UpdateRule::Paper,

@@ -129,6 +129,13 @@ fn reprojection_error(scene_dir: &str, cfg: &Config) -> Vec<(String, f64, usize)
         "{stats:?}"
     );
 
+    if let Ok(keep) = std::env::var("KDMAP_KEEP") {
+        std::fs::create_dir_all(&keep).unwrap();
+        for e in std::fs::read_dir(out.path().join("maps")).unwrap() {
+            let e = e.unwrap();
+            std::fs::copy(e.path(), Path::new(&keep).join(e.file_name())).unwrap();
+        }
+    }
     // Read the written maps back, as a user would.
     let mut maps = Vec::new();
     for st in &p.layout.slots {
@@ -173,7 +180,30 @@ fn reprojection_error(scene_dir: &str, cfg: &Config) -> Vec<(String, f64, usize)
         let photo: Image = read_sensor_image(path, sensor).unwrap();
         let cam = Camera::from_sensor(sensor);
         let view = View::new(&p.scene, &p.accel, cam.clone(), &photo);
-        let render = render_view(&p.accel, &cam, &textures, render_k);
+        let mut render = render_view(&p.accel, &cam, &textures, render_k);
+        if std::env::var("KDMAP_DIRECT").is_ok() {
+            for y in 0..photo.height {
+                for x in 0..photo.width {
+                    let i = (y * photo.width + x) as usize;
+                    let pi = view.pixels[i];
+                    let mut s = Vec3::ZERO;
+                    let mut c = 0;
+                    for j in 0..4 {
+                        for k in 0..4 {
+                            let pix = glam::Vec2::new(
+                                x as f32 + (k as f32 + 0.5) / 4.0,
+                                y as f32 + (j as f32 + 0.5) / 4.0,
+                            );
+                            if let Some(v) = view.sample(pix, pi.shape, pi.normal) {
+                                s += v;
+                                c += 1;
+                            }
+                        }
+                    }
+                    render[i] = (c > 0).then(|| s / c as f32);
+                }
+            }
+        }
         let (w, h) = (photo.width as i64, photo.height as i64);
         let clean = |x: i64, y: i64| {
             x >= 0 && y >= 0 && x < w && y < h && view.pixels[(y * w + x) as usize].clean
@@ -227,8 +257,20 @@ fn reprojection_error(scene_dir: &str, cfg: &Config) -> Vec<(String, f64, usize)
             sensor.id,
             100.0 * px_sum / px_n.max(1) as f64
         );
+        if std::env::var("KDMAP_SIGNED").is_ok() {
+            for i in 0..(w * h) as usize {
+                let (x, y) = (i as i64 % w, i as i64 / w);
+                diff[i] = match usable(x, y) {
+                    Some((r, q)) if q > 1e-4 => {
+                        let e = ((r - q) / q) as f32 * 5.0;
+                        Vec3::new(e.max(0.0), (-e).max(0.0), 0.0)
+                    }
+                    _ => Vec3::new(0.0, 0.0, 0.2),
+                };
+            }
+        }
         let mean = sum / n.max(1) as f64;
-        if mean >= 0.01 {
+        if mean >= 0.01 || std::env::var("KDMAP_PNG").is_ok() {
             let dir = std::env::var("CARGO_TARGET_TMPDIR").unwrap_or_else(|_| ".".into());
             let f = Path::new(&dir).join(format!("reproj_{scene_dir}_{}.png", sensor.id));
             write_png_srgb(&f, w as u32, h as u32, &diff, 0.0).unwrap();

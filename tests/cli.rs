@@ -1,0 +1,167 @@
+//! The `kdmap reconstruct` binary end to end: results are bit-identical whatever the thread
+//! count, and bad input gets one clear line and a non-zero exit, never a panic.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn fixture(scene: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/fixtures")
+        .join(scene)
+}
+
+fn kdmap(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_kdmap"))
+        .args(args)
+        .output()
+        .expect("run kdmap")
+}
+
+/// Every file under `dir/sub` with its bytes, sorted by name.
+fn files(dir: &Path, sub: &str) -> Vec<(String, Vec<u8>)> {
+    let mut v: Vec<_> = std::fs::read_dir(dir.join(sub))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .map(|p| {
+            (
+                p.file_name().unwrap().to_string_lossy().into_owned(),
+                std::fs::read(&p).unwrap(),
+            )
+        })
+        .collect();
+    v.sort();
+    v
+}
+
+fn one_line_error(out: &std::process::Output) -> String {
+    assert!(!out.status.success(), "expected failure");
+    let err = String::from_utf8_lossy(&out.stderr);
+    let lines: Vec<&str> = err.lines().filter(|l| l.starts_with("error:")).collect();
+    assert_eq!(lines.len(), 1, "stderr: {err}");
+    assert!(!err.contains("panicked"), "stderr: {err}");
+    lines[0].to_string()
+}
+
+#[test]
+fn results_are_bit_identical_for_1_and_2_threads() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = fixture("cbox").join("input.xml");
+    let mut outs = Vec::new();
+    for threads in ["1", "2"] {
+        let out = tmp.path().join(format!("t{threads}"));
+        let o = kdmap(&[
+            "reconstruct",
+            scene.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--photons",
+            "100000",
+            "--iterations",
+            "2",
+            "--threads",
+            threads,
+        ]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        outs.push(out);
+    }
+    for sub in ["textures", "maps", "renders", "meshes"] {
+        let (a, b) = (files(&outs[0], sub), files(&outs[1], sub));
+        assert!(!a.is_empty(), "{sub} is empty");
+        assert_eq!(a.len(), b.len(), "{sub}");
+        for (x, y) in a.iter().zip(&b) {
+            assert_eq!(x.0, y.0);
+            assert!(x.1 == y.1, "{sub}/{} differs between 1 and 2 threads", x.0);
+        }
+    }
+    assert_eq!(
+        std::fs::read(outs[0].join("scene.xml")).unwrap(),
+        std::fs::read(outs[1].join("scene.xml")).unwrap()
+    );
+}
+
+#[test]
+fn photo_of_the_wrong_size_is_refused_naming_it() {
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg = tmp.path().join("run.toml");
+    // a 64x64 image from the bad-input fixtures stands in for a 256x256 sensor's photo
+    let small = tmp.path().join("small.exr");
+    kdmap::image::write_exr_rgb(&small, 64, 64, &vec![glam::Vec3::splat(0.5); 64 * 64], true)
+        .unwrap();
+    std::fs::write(
+        &cfg,
+        format!(
+            "scene = {:?}\n[views]\ncam_train_0 = {:?}\n",
+            fixture("cbox").join("input.xml"),
+            small
+        ),
+    )
+    .unwrap();
+    let o = kdmap(&[
+        "reconstruct",
+        cfg.to_str().unwrap(),
+        "--out",
+        tmp.path().join("out").to_str().unwrap(),
+    ]);
+    let e = one_line_error(&o);
+    assert!(
+        e.contains("small.exr") && e.contains("64x64") && e.contains("256x256"),
+        "{e}"
+    );
+}
+
+#[test]
+fn impossible_settings_and_bad_config_are_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = fixture("cbox").join("input.xml");
+    let o = kdmap(&[
+        "reconstruct",
+        scene.to_str().unwrap(),
+        "--out",
+        tmp.path().join("o").to_str().unwrap(),
+        "--photons",
+        "0",
+    ]);
+    let e = one_line_error(&o);
+    assert!(e.contains("photons"), "{e}");
+
+    let cfg = tmp.path().join("run.toml");
+    std::fs::write(&cfg, "scene = \"x.xml\"\n[solver]\niterations = \"many\"\n").unwrap();
+    let o = kdmap(&[
+        "reconstruct",
+        cfg.to_str().unwrap(),
+        "--out",
+        tmp.path().join("o").to_str().unwrap(),
+    ]);
+    let e = one_line_error(&o);
+    assert!(e.contains("run.toml") && e.contains("line 3"), "{e}");
+
+    let o = kdmap(&[
+        "reconstruct",
+        "/nonexistent/scene.xml",
+        "--out",
+        tmp.path().join("o").to_str().unwrap(),
+    ]);
+    let e = one_line_error(&o);
+    assert!(e.contains("/nonexistent/scene.xml"), "{e}");
+}
+
+#[test]
+fn unwritable_output_is_a_clear_error() {
+    let tmp = tempfile::tempdir().unwrap();
+    // a regular file where the output directory should be
+    let blocker = tmp.path().join("out");
+    std::fs::write(&blocker, "not a directory").unwrap();
+    let scene = fixture("cbox").join("input.xml");
+    let o = kdmap(&[
+        "reconstruct",
+        scene.to_str().unwrap(),
+        "--out",
+        blocker.to_str().unwrap(),
+        "--photons",
+        "1000",
+        "--iterations",
+        "1",
+    ]);
+    let e = one_line_error(&o);
+    assert!(e.contains("out"), "{e}");
+}
