@@ -166,7 +166,7 @@ impl Config {
             photons: 10_000_000,
             batch_size: 65_536,
             max_depth: 64,
-            smoothing_radius: 0,
+            smoothing_radius: 1,
             iterations: 6,
             tolerance: 0.005,
             alpha0: 2.0,

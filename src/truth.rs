@@ -183,8 +183,12 @@ mod tests {
 pub struct ShapeAccuracy {
     pub shape: String,
     pub texels: u64,
-    /// Mean over texels of `sum_c |K_d - K_true| / sum_c K_true`.
+    /// Mean over texels of `sum_c |K_d - K_true| / sum_c K_true`. Dominated by dark texels
+    /// on textured shapes, where a small absolute error is a large relative one.
     pub mean_rel_error: f64,
+    /// Relative L1 error of the whole texture: `sum |K_d - K_true| / sum K_true` over texels
+    /// and channels.
+    pub rel_l1_error: f64,
     /// Mean recovered and true RGB over the texels.
     pub mean_kd: [f64; 3],
     pub mean_truth: [f64; 3],
@@ -223,6 +227,7 @@ impl Truth {
                 shape: shape.id.clone(),
                 ..Default::default()
             };
+            let mut sum_true = 0.0f64;
             for t in st.first_tile..st.first_tile + st.tiles_x * st.tiles_y {
                 let g = geom.read_tile(t as usize)?;
                 let s = state.read_tile(t as usize)?;
@@ -237,7 +242,10 @@ impl Truth {
                     if den <= 0.0 {
                         continue;
                     }
-                    acc.mean_rel_error += (kd - k_true).abs().element_sum() as f64 / den;
+                    let diff = (kd - k_true).abs().element_sum() as f64;
+                    acc.mean_rel_error += diff / den;
+                    acc.rel_l1_error += diff;
+                    sum_true += den;
                     for c in 0..3 {
                         acc.mean_kd[c] += kd[c] as f64;
                         acc.mean_truth[c] += k_true[c] as f64;
@@ -247,6 +255,7 @@ impl Truth {
             }
             let n = acc.texels.max(1) as f64;
             acc.mean_rel_error /= n;
+            acc.rel_l1_error /= sum_true.max(f64::MIN_POSITIVE);
             for c in 0..3 {
                 acc.mean_kd[c] /= n;
                 acc.mean_truth[c] /= n;
