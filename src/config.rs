@@ -255,11 +255,12 @@ impl Config {
             c.update = match u.as_str() {
                 "paper" => UpdateRule::Paper,
                 "fixed_point" => UpdateRule::FixedPoint,
+                "relaxed" => UpdateRule::Relaxed,
                 other => {
                     return Err(Error::input(
                         path,
                         format!(
-                            "solver.update = \"{other}\": expected \"paper\" or \"fixed_point\""
+                            "solver.update = \"{other}\": expected \"relaxed\", \"paper\" or \"fixed_point\""
                         ),
                     ))
                 }

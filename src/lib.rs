@@ -11,6 +11,7 @@
 pub mod accel;
 pub mod atlas;
 pub mod camera;
+pub mod checkpoint;
 pub mod config;
 pub mod error;
 pub mod image;

@@ -52,6 +52,11 @@ enum Command {
         #[arg(long)]
         resume: bool,
     },
+    /// Print where a run's checkpoint stands: stage, iteration, batch, errors so far, time.
+    InspectCheckpoint {
+        /// The run's output directory (the one given to `reconstruct --out`).
+        out: PathBuf,
+    },
     /// Steps 1-2 of the method on their own: unwrap the atlas, project every photo onto it and
     /// write the luminance and coverage maps to `<out>/maps/` (with PNG previews).
     Project {
@@ -118,6 +123,7 @@ fn run(command: Command) -> anyhow::Result<()> {
             out,
             threads,
         } => project(&input, &out, threads),
+        Command::InspectCheckpoint { out } => inspect_checkpoint(&out),
     }
 }
 
@@ -137,16 +143,23 @@ fn reconstruct(
     ov: &kdmap::config::Overrides,
     resume: bool,
 ) -> anyhow::Result<()> {
-    if resume {
-        anyhow::bail!("--resume: checkpoints are not implemented yet; run without --resume");
-    }
     let cfg = kdmap::config::Config::load(input, ov)?;
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(cfg.threads)
         .build()
         .context("starting worker threads")?;
-    let report =
-        pool.install(|| kdmap::pipeline::reconstruct(&cfg, out, kdmap::progress::Mode::Auto))?;
+    let (report, start) = pool.install(|| {
+        kdmap::pipeline::reconstruct_resumable(&cfg, out, kdmap::progress::Mode::Auto, resume)
+    })?;
+    if start == kdmap::pipeline::Start::AlreadyFinished {
+        println!(
+            "already finished ({} iterations, {}): nothing to do; results: {}",
+            report.iterations.len(),
+            report.stopped_by,
+            out.display()
+        );
+        return Ok(());
+    }
     let last = report.iterations.last();
     println!(
         "reconstructed {} shapes from {} views in {} iterations ({}): relative error rms {:.3}%, max {:.2}%; {:.1} s",
@@ -159,6 +172,64 @@ fn reconstruct(
         report.timings.total
     );
     println!("results: {}", out.display());
+    Ok(())
+}
+
+fn inspect_checkpoint(out: &Path) -> anyhow::Result<()> {
+    use kdmap::checkpoint::Stage;
+    let dir = kdmap::pipeline::state_dir(out);
+    let (m, notes) = kdmap::checkpoint::load(&dir);
+    for n in &notes {
+        eprintln!("note: {n}");
+    }
+    let Some(m) = m else {
+        anyhow::bail!("{}: no usable checkpoint", dir.display());
+    };
+    let s = &m.report.settings;
+    let mut t = String::new();
+    let _ = writeln!(t, "checkpoint {} in {}", m.seq, dir.display());
+    let _ = writeln!(t, "inputs hash {:016x}", m.inputs_hash);
+    let stage = match m.stage {
+        Stage::Direct => "projection and direct light done; iteration 1 not begun".to_string(),
+        Stage::Pass {
+            iteration,
+            batches_done,
+            photons,
+            ..
+        } => format!(
+            "iteration {}/{}: photon pass at batch {batches_done}/{} ({photons} of {} photons)",
+            iteration + 1,
+            s.iterations,
+            s.photons.div_ceil(u64::from(s.batch_size.max(1))),
+            s.photons
+        ),
+        Stage::Iterations {
+            iterations_done,
+            stopped,
+        } => format!(
+            "{iterations_done}/{} iterations done{}",
+            s.iterations,
+            if stopped {
+                "; solver stopped, outputs pending"
+            } else {
+                ""
+            }
+        ),
+        Stage::Finished => format!("finished ({})", m.report.stopped_by),
+    };
+    let _ = writeln!(t, "stage: {stage}");
+    for it in &m.report.iterations {
+        let _ = writeln!(
+            t,
+            "  iteration {}: relative error rms {:.3}%, mean {:.3}%, max {:.2}%",
+            it.iteration + 1,
+            100.0 * it.rms_rel_error,
+            100.0 * it.mean_rel_error,
+            100.0 * it.max_rel_error
+        );
+    }
+    let _ = writeln!(t, "time spent: {:.1} s", m.seconds);
+    print!("{t}");
     Ok(())
 }
 

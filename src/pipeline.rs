@@ -550,48 +550,195 @@ pub fn fill_unobserved_all(
     Ok(filled_total)
 }
 
-/// The whole method, steps 1-9, then every output of the contract. Returns the report.
+/// The whole method, steps 1-9, then every output of the contract, from scratch. Returns the
+/// report.
 pub fn reconstruct(cfg: &Config, out: &Path, mode: Mode) -> Result<Report> {
+    reconstruct_resumable(cfg, out, mode, false).map(|(r, _)| r)
+}
+
+/// How a run started (see [`reconstruct_resumable`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Start {
+    /// From scratch.
+    Fresh,
+    /// From a checkpoint (its sequence number).
+    Resumed(u64),
+    /// The checkpoint says the run had finished: nothing was done, the report is the
+    /// finished run's.
+    AlreadyFinished,
+}
+
+/// [`reconstruct`] with checkpoints in `<out>/checkpoint` (after projection and direct light,
+/// after each iteration, every `checkpoint_every_batches` photon batches) and, if `resume`,
+/// continuing from the newest good checkpoint there. A resumed run's outputs are
+/// bit-identical to an uninterrupted run's; a checkpoint of other inputs or settings is
+/// refused.
+pub fn reconstruct_resumable(
+    cfg: &Config,
+    out: &Path,
+    mode: Mode,
+    resume: bool,
+) -> Result<(Report, Start)> {
+    use crate::checkpoint::{self as ck, ProjCounts, Stage as Ck, Writer};
     let t_total = Instant::now();
-    let mut report = Report::new(cfg.clone());
     let t = Instant::now();
     let p = prepare(cfg, mode)?;
-    report.timings.load = t.elapsed().as_secs_f64();
+    let load_s = t.elapsed().as_secs_f64();
     let dir = state_dir(out);
     std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
-    let t = Instant::now();
-    let geom = build_geometry(&p, &dir.join("geometry.tiles"), mode)?;
-    report.timings.atlas = t.elapsed().as_secs_f64();
-    let mut state = TileStore::create(
-        dir.join("state.tiles"),
-        p.layout.tile_count as usize,
-        p.layout.tile_texels(),
-        TexelState::default(),
-    )?;
-    let t = Instant::now();
-    let proj = project_all(&p, cfg, &geom, &mut state, mode)?;
-    report.timings.projection = t.elapsed().as_secs_f64();
-    let window = p.window::<TexelState>(cfg);
+    let photos: Vec<PathBuf> = p.views.iter().map(|v| v.1.clone()).collect();
+    let hash = ck::inputs_hash(cfg, &photos)?;
+    let mut loaded = None;
+    if resume {
+        let (m, notes) = ck::load_for_resume(&dir)?;
+        for n in &notes {
+            note(mode, n);
+        }
+        match m {
+            Some(m) if m.inputs_hash != hash => {
+                return Err(Error::input(
+                    dir.join(ck::MANIFEST),
+                    "--resume: this checkpoint was made with other inputs or settings \
+                     (scene, meshes, photos, or a setting that changes the result); resume \
+                     with the original ones, or run without --resume to start over",
+                ));
+            }
+            Some(m) if m.stage == Ck::Finished => {
+                return Ok((m.report, Start::AlreadyFinished));
+            }
+            Some(m) => loaded = Some(m),
+            None => note(
+                mode,
+                &format!("no usable checkpoint in {}: starting fresh", dir.display()),
+            ),
+        }
+    }
+    if loaded.is_none() {
+        Writer::clear(&dir)?;
+    }
 
     let t = Instant::now();
-    let mean_e = direct_all(&p, cfg, &geom, &mut state, mode)?;
-    report.timings.direct = t.elapsed().as_secs_f64();
-    let share = cfg.initial_indirect_share;
-    map_tiles(&mut state, &geom, window, |_, g, s| {
-        init_indirect_tile(s, g, share, mean_e)
-    })?;
+    let geom = build_geometry(&p, &dir.join("geometry.tiles"), mode)?;
+    let atlas_s = t.elapsed().as_secs_f64();
+    let state_path = dir.join("state.tiles");
+    let window = p.window::<TexelState>(cfg);
+    let (mut report, mut state, proj, stage, prior_s, mut writer, start);
+    match loaded {
+        None => {
+            report = Report::new(cfg.clone());
+            report.timings.load = load_s;
+            report.timings.atlas = atlas_s;
+            state = TileStore::create(
+                &state_path,
+                p.layout.tile_count as usize,
+                p.layout.tile_texels(),
+                TexelState::default(),
+            )?;
+            let t = Instant::now();
+            let ps = project_all(&p, cfg, &geom, &mut state, mode)?;
+            report.timings.projection = t.elapsed().as_secs_f64();
+            proj = ProjCounts {
+                views: ps.views,
+                masked_pixels: ps.masked_pixels,
+                covered_texels: ps.covered_texels,
+                observed_texels: ps.observed_texels,
+            };
+
+            let t = Instant::now();
+            let mean_e = direct_all(&p, cfg, &geom, &mut state, mode)?;
+            report.timings.direct = t.elapsed().as_secs_f64();
+            let share = cfg.initial_indirect_share;
+            map_tiles(&mut state, &geom, window, |_, g, s| {
+                init_indirect_tile(s, g, share, mean_e)
+            })?;
+            report.stopped_by = "max_iterations".into();
+            stage = Ck::Direct;
+            prior_s = 0.0;
+            writer = Writer::new(&dir, hash, 0);
+            writer.write(
+                &state_path,
+                stage,
+                proj,
+                &report,
+                t_total.elapsed().as_secs_f64(),
+            )?;
+            start = Start::Fresh;
+        }
+        Some(m) => {
+            ck::restore(&dir, &m, &state_path)?;
+            state = TileStore::open(&state_path)?;
+            if state.tile_count() != p.layout.tile_count as usize
+                || state.tile_texels() != p.layout.tile_texels()
+            {
+                return Err(Error::input(
+                    &state_path,
+                    "checkpoint state does not match the atlas layout",
+                ));
+            }
+            report = m.report.clone();
+            report.settings = cfg.clone();
+            proj = m.projection;
+            stage = m.stage;
+            prior_s = m.seconds;
+            writer = Writer::new(&dir, hash, m.seq);
+            let at = match stage {
+                Ck::Pass {
+                    iteration,
+                    batches_done,
+                    ..
+                } => format!("iteration {}, batch {batches_done}", iteration + 1),
+                Ck::Iterations {
+                    iterations_done, ..
+                } => format!("after iteration {iterations_done}"),
+                _ => "after projection and direct light".into(),
+            };
+            note(mode, &format!("resuming from checkpoint {} ({at})", m.seq));
+            start = Start::Resumed(m.seq);
+        }
+    }
+    let elapsed = |t: &Instant| prior_s + t.elapsed().as_secs_f64();
 
     let receivers = Receivers::new(&p.scene, &p.layout, &p.atlases)?;
     let sampler = EmitterSampler::new(&p.scene);
-    report.stopped_by = "max_iterations".into();
-    for n in 0..cfg.iterations {
+    let (first_iteration, mut in_pass, stopped) = match stage {
+        Ck::Direct | Ck::Finished => (0, None, false),
+        Ck::Pass {
+            iteration,
+            batches_done,
+            clamped,
+            photon_seconds,
+            update_seconds,
+            ..
+        } => (
+            iteration,
+            Some((batches_done, clamped, photon_seconds, update_seconds)),
+            false,
+        ),
+        Ck::Iterations {
+            iterations_done,
+            stopped,
+        } => (iterations_done, None, stopped),
+    };
+    let every = cfg.checkpoint_every_batches.max(1) as u64;
+    let n_end = if stopped {
+        first_iteration
+    } else {
+        cfg.iterations
+    };
+    for n in first_iteration..n_end {
         let t = Instant::now();
-        let clamped: u64 = map_tiles(&mut state, &geom, window, |_, g, s| kd_tile(s, g))?
-            .iter()
-            .sum();
-        fill_unobserved_all(&p, &receivers, &geom, &mut state)?;
+        let (clamped, mut update_s, first_batch, prior_photon_s) = match in_pass.take() {
+            Some((b, clamped, ps, us)) => (clamped, us, b, ps),
+            None => {
+                let clamped: u64 = map_tiles(&mut state, &geom, window, |_, g, s| kd_tile(s, g))?
+                    .iter()
+                    .sum();
+                fill_unobserved_all(&p, &receivers, &geom, &mut state)?;
+                (clamped, 0.0, 0, 0.0)
+            }
+        };
         let albedo = AlbedoTextures::gather(&p.layout, &receivers, &state, cfg.atlas.padding + 2)?;
-        let mut update_s = t.elapsed().as_secs_f64();
+        update_s += t.elapsed().as_secs_f64();
 
         let ctx = PassContext {
             scene: &p.scene,
@@ -609,19 +756,43 @@ pub fn reconstruct(cfg: &Config, out: &Path, mode: Mode) -> Result<Report> {
             window,
             group_batches: 0,
         };
-        begin_pass(&mut state, window)?;
+        if first_batch == 0 {
+            begin_pass(&mut state, window)?;
+        }
         let stage = Stage::new(
             mode,
             &format!("photons {}/{}", n + 1, cfg.iterations),
             cfg.photons,
             "photons",
         );
-        let mut last = 0u64;
         let batch = cfg.batch_size as u64;
-        let pass = photon_pass(&ctx, &mut state, 0, |done| {
-            let photons = (done * batch).min(cfg.photons);
+        let batches = ctx.batch_count();
+        let photons_of = |done: u64| done.saturating_mul(batch).min(cfg.photons);
+        let mut last = photons_of(first_batch);
+        stage.inc(last);
+        let mut last_ck = first_batch;
+        let t_pass = Instant::now();
+        let pass = photon_pass(&ctx, &mut state, first_batch, |done| {
+            let photons = photons_of(done);
             stage.inc(photons - last);
             last = photons;
+            if done < batches && done - last_ck >= every {
+                writer.write(
+                    &state_path,
+                    Ck::Pass {
+                        iteration: n,
+                        batches_done: done,
+                        clamped,
+                        photons,
+                        photon_seconds: prior_photon_s + t_pass.elapsed().as_secs_f64(),
+                        update_seconds: update_s,
+                    },
+                    proj,
+                    &report,
+                    elapsed(&t_total),
+                )?;
+                last_ck = done;
+            }
             Ok(())
         })?;
         stage.finish();
@@ -647,6 +818,8 @@ pub fn reconstruct(cfg: &Config, out: &Path, mode: Mode) -> Result<Report> {
             e.add(s);
         }
         update_s += t.elapsed().as_secs_f64();
+        let photons = photons_of(first_batch) + pass.photons;
+        let photon_seconds = prior_photon_s + pass.seconds;
         let it = IterationStats {
             iteration: n,
             rms_rel_error: e.rms_rel(),
@@ -654,12 +827,12 @@ pub fn reconstruct(cfg: &Config, out: &Path, mode: Mode) -> Result<Report> {
             max_rel_error: e.max_rel,
             rms_residual: e.rms_residual(),
             clamped_texels: clamped,
-            photons: pass.photons,
-            photon_seconds: pass.seconds,
-            photons_per_second: pass.photons as f64 / pass.seconds.max(1e-9),
+            photons,
+            photon_seconds,
+            photons_per_second: photons as f64 / photon_seconds.max(1e-9),
             update_seconds: update_s,
         };
-        report.timings.photons += pass.seconds;
+        report.timings.photons += photon_seconds;
         report.timings.update += update_s;
         if mode == Mode::Auto {
             eprintln!(
@@ -675,6 +848,18 @@ pub fn reconstruct(cfg: &Config, out: &Path, mode: Mode) -> Result<Report> {
         report.iterations.push(it);
         if done {
             report.stopped_by = "tolerance".into();
+        }
+        writer.write(
+            &state_path,
+            Ck::Iterations {
+                iterations_done: n + 1,
+                stopped: done || n + 1 == cfg.iterations,
+            },
+            proj,
+            &report,
+            elapsed(&t_total),
+        )?;
+        if done {
             break;
         }
     }
@@ -695,7 +880,16 @@ pub fn reconstruct(cfg: &Config, out: &Path, mode: Mode) -> Result<Report> {
         observed_texels: proj.observed_texels,
         filled_texels: filled,
     };
-    report.timings.total = t_total.elapsed().as_secs_f64();
+    report.timings.total = elapsed(&t_total);
     crate::output::write_outputs(&p, &geom, &state, &mut report, out)?;
-    Ok(report)
+    writer.write(&state_path, Ck::Finished, proj, &report, elapsed(&t_total))?;
+    note(
+        mode,
+        &format!(
+            "checkpoints: {:.1} MB written in {:.2} s",
+            writer.bytes_written as f64 / 1e6,
+            writer.seconds
+        ),
+    );
+    Ok((report, start))
 }

@@ -1,0 +1,224 @@
+//! Checkpoint and resume, end to end on the real binary: runs killed with SIGKILL at several
+//! moments and resumed end with textures and maps bit-identical to an uninterrupted run;
+//! resuming with other settings is refused, a finished run resumed is a no-op, and a corrupt
+//! manifest is reported in one line and the run falls back to the previous checkpoint.
+
+use kdmap::checkpoint::{decode, Manifest, Stage, MANIFEST};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+fn scene() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/cbox/input.xml")
+}
+
+/// A small run config: coarse atlas, few area samples, small batches and a checkpoint after
+/// every group of batches, so a photon pass has many checkpoints.
+fn write_config(dir: &Path) -> PathBuf {
+    let p = dir.join("run.toml");
+    let text = format!(
+        "scene = {:?}\n[atlas]\ntexels_per_unit = 24.0\n[direct]\narea_samples = 4\n\
+         [photons]\nbatch_size = 1024\n[run]\ncheckpoint_every_batches = 1\n",
+        scene().to_str().unwrap()
+    );
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+fn args<'a>(cfg: &'a Path, out: &'a Path, photons: &'a str) -> Vec<&'a str> {
+    vec![
+        "reconstruct",
+        cfg.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--photons",
+        photons,
+        "--iterations",
+        "3",
+    ]
+}
+
+fn run(a: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_kdmap"))
+        .args(a)
+        .output()
+        .expect("run kdmap")
+}
+
+fn spawn(a: &[&str]) -> Child {
+    Command::new(env!("CARGO_BIN_EXE_kdmap"))
+        .args(a)
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("spawn kdmap")
+}
+
+fn manifest(out: &Path) -> Option<Manifest> {
+    let bytes = std::fs::read(out.join("checkpoint").join(MANIFEST)).ok()?;
+    decode(&bytes).ok()
+}
+
+/// Runs kdmap with `a` and SIGKILLs it as soon as `when(out)` holds (or lets it finish).
+/// Returns whether it was killed.
+fn kill_when(a: &[&str], out: &Path, when: impl Fn(&Path) -> bool) -> bool {
+    let mut child = spawn(a);
+    let t0 = Instant::now();
+    loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            assert!(status.success(), "kdmap failed: {status}");
+            return false;
+        }
+        if when(out) {
+            child.kill().unwrap(); // SIGKILL
+            child.wait().unwrap();
+            return true;
+        }
+        assert!(t0.elapsed() < Duration::from_secs(120), "kdmap hangs");
+        std::thread::sleep(Duration::from_millis(2));
+    }
+}
+
+/// Every file under `dir/sub` with its bytes, sorted by name.
+fn files(dir: &Path, sub: &str) -> Vec<(String, Vec<u8>)> {
+    let mut v: Vec<_> = std::fs::read_dir(dir.join(sub))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .map(|p| {
+            (
+                p.file_name().unwrap().to_string_lossy().into_owned(),
+                std::fs::read(&p).unwrap(),
+            )
+        })
+        .collect();
+    v.sort();
+    v
+}
+
+fn assert_same_outputs(a: &Path, b: &Path) {
+    for sub in ["textures", "maps"] {
+        let (fa, fb) = (files(a, sub), files(b, sub));
+        assert!(!fa.is_empty());
+        assert_eq!(
+            fa.iter().map(|f| &f.0).collect::<Vec<_>>(),
+            fb.iter().map(|f| &f.0).collect::<Vec<_>>()
+        );
+        for (x, y) in fa.iter().zip(&fb) {
+            assert!(x.1 == y.1, "{sub}/{} differs after resume", x.0);
+        }
+    }
+}
+
+#[test]
+fn killed_and_resumed_runs_match_an_uninterrupted_run_bit_for_bit() {
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg = write_config(tmp.path());
+    let full = tmp.path().join("full");
+    let o = run(&args(&cfg, &full, "200000"));
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+
+    let out = tmp.path().join("killed");
+    let a = args(&cfg, &out, "200000");
+    let mut resume = a.clone();
+    resume.push("--resume");
+
+    // 1. During projection / direct light: the geometry exists, no checkpoint yet.
+    let ck = out.join("checkpoint");
+    let mut kills = Vec::new();
+    kills.push(kill_when(&a, &out, |_| {
+        ck.join("state.tiles").exists() && !ck.join(MANIFEST).exists()
+    }));
+
+    // 2. During iteration 1's photon pass (a mid-pass checkpoint was just written).
+    let mid_pass = |o: &Path| {
+        matches!(
+            manifest(o).map(|m| m.stage),
+            Some(Stage::Pass { iteration: 0, batches_done, .. }) if batches_done >= 32
+        )
+    };
+    kills.push(kill_when(&resume, &out, mid_pass));
+    let seq = manifest(&out).map_or(0, |m| m.seq);
+
+    // Resuming with a setting that changes the result is refused, leaving the checkpoint.
+    let mut other = args(&cfg, &out, "300000");
+    other.push("--resume");
+    let o = run(&other);
+    assert_eq!(o.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&o.stderr);
+    let lines: Vec<&str> = err.lines().filter(|l| l.starts_with("error:")).collect();
+    assert_eq!(lines.len(), 1, "{err}");
+    assert!(lines[0].contains("other inputs or settings"), "{err}");
+    assert!(manifest(&out).is_some_and(|m| m.seq == seq));
+
+    // 3. Right after a checkpoint write (the end-of-iteration one), with 1 thread.
+    let mut one = resume.clone();
+    one.extend(["--threads", "1"]);
+    kills.push(kill_when(&one, &out, |o| {
+        manifest(o).is_some_and(|m| matches!(m.stage, Stage::Iterations { .. }))
+    }));
+
+    // 4. Soon after a checkpoint during iteration 3's pass.
+    kills.push(kill_when(&resume, &out, |o| {
+        manifest(o).is_some_and(|m| matches!(m.stage, Stage::Pass { iteration: 2, .. }))
+    }));
+    // Every moment is reached long before the run ends (projection and each pass take
+    // hundreds of milliseconds; the manifest is polled every 2 ms).
+    assert_eq!(kills, [true; 4], "a run ended before its kill moment");
+
+    // A corrupt manifest: one line about it, then the previous checkpoint is used.
+    let mpath = ck.join(MANIFEST);
+    if mpath.exists() {
+        let mut bytes = std::fs::read(&mpath).unwrap();
+        let n = bytes.len();
+        bytes[n - 10] ^= 0x55;
+        std::fs::write(&mpath, bytes).unwrap();
+        let o = run(&resume);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let err = String::from_utf8_lossy(&o.stderr);
+        let notes: Vec<&str> = err
+            .lines()
+            .filter(|l| l.contains("unusable checkpoint"))
+            .collect();
+        assert_eq!(notes.len(), 1, "{err}");
+        assert!(notes[0].contains("checksum"), "{err}");
+        assert!(err.contains("resuming from checkpoint"), "{err}");
+    } else {
+        let o = run(&resume);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    }
+    assert!(manifest(&out).is_some_and(|m| m.stage == Stage::Finished));
+    assert_same_outputs(&full, &out);
+
+    // A finished run resumed is a no-op.
+    let before = std::fs::metadata(out.join("report.json"))
+        .unwrap()
+        .modified()
+        .unwrap();
+    let o = run(&resume);
+    assert!(o.status.success());
+    assert!(String::from_utf8_lossy(&o.stdout).contains("already finished"));
+    let after = std::fs::metadata(out.join("report.json"))
+        .unwrap()
+        .modified()
+        .unwrap();
+    assert_eq!(before, after);
+    assert_same_outputs(&full, &out);
+}
+
+#[test]
+fn resume_without_a_checkpoint_starts_fresh_with_a_note() {
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg = write_config(tmp.path());
+    let out = tmp.path().join("out");
+    let mut a = args(&cfg, &out, "20000");
+    a.push("--resume");
+    let o = run(&a);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("no usable checkpoint"), "{err}");
+    let o = run(&["inspect-checkpoint", out.to_str().unwrap()]);
+    assert!(o.status.success());
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(text.contains("finished"), "{text}");
+    assert!(text.contains("iteration 3: relative error"), "{text}");
+}
