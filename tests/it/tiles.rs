@@ -274,7 +274,7 @@ fn missing_file_is_an_io_error_naming_it() {
 
 // ---------------------------------------------------------------------------------------
 // Bounded-RSS measurement. Run with:
-//   cargo test --release --test tiles -- --ignored --nocapture rss_bounded
+//   cargo test --release --test it tiles::rss_bounded -- --ignored --nocapture
 // The test re-executes its own binary so the child's peak RSS (VmHWM) covers only the
 // store work. KDMAP_RSS_BUDGET_MIB (default 64) sets the budget; the store is 4x that.
 // KDMAP_RSS_DIR (default the target tmp dir) says where the store file goes.
@@ -382,7 +382,7 @@ fn rss_bounded_with_state_4x_budget() -> TestResult {
     let out = std::process::Command::new(std::env::current_exe()?)
         .args([
             "--exact",
-            "rss_bounded_with_state_4x_budget",
+            "tiles::rss_bounded_with_state_4x_budget",
             "--ignored",
             "--nocapture",
             "--test-threads=1",

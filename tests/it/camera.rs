@@ -34,7 +34,7 @@ fn fixture_images() -> Vec<PathBuf> {
 }
 
 /// Re-encode the fixture photos as half-float EXR to keep the repository small (run once with
-/// `cargo test --test camera -- --ignored reencode_fixtures_as_half`; idempotent).
+/// `cargo test --test it camera::reencode_fixtures_as_half -- --ignored`; idempotent).
 #[test]
 #[ignore]
 fn reencode_fixtures_as_half() {

@@ -140,7 +140,7 @@ fn cbox_tex_albedo_is_recovered() {
 
 /// The full-size target: 1e7 photons, 6 iterations, at most 3% mean error and the
 /// uniform walls' mean RGB within 1%. About a minute each on 2 cores:
-/// `cargo test --release --test accuracy -- --ignored --nocapture`.
+/// `cargo test --release --test it accuracy:: -- --ignored --nocapture`.
 #[test]
 #[ignore = "full size, ~1 min per scene; run for the README figures"]
 fn full_size_cbox() {

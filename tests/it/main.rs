@@ -1,0 +1,10 @@
+//! The integration tests, in one binary (as ripgrep does): each module is one area; one binary
+//! links once, which keeps `cargo test --release` (full LTO per test binary) fast enough for CI.
+
+mod accuracy;
+mod camera;
+mod cli;
+mod import;
+mod output;
+mod resume;
+mod tiles;
