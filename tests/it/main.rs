@@ -6,5 +6,6 @@ mod camera;
 mod cli;
 mod import;
 mod output;
+mod projection;
 mod resume;
 mod tiles;
