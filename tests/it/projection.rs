@@ -109,7 +109,7 @@ fn textures<'a>(p: &'a Prepared, maps: &'a [Option<Image>]) -> Vec<Option<Textur
 /// Per-pixel residuals are dominated by the photo's Monte Carlo noise (about 2% per pixel at
 /// 1024 spp, white), so blocks of 8 x 8 pixels whose 3 x 3 neighbourhoods are all clean are
 /// compared by their means (noise about 0.25% per block); the per-pixel figure is printed for
-/// reference. On failure an x10 error image is written (to `CARGO_TARGET_TMPDIR`).
+/// reference. On failure an x10 error image is written to `target/tmp` (`CARGO_TARGET_TMPDIR`).
 fn reprojection_error(
     label: &str,
     p: &Prepared,
@@ -178,8 +178,8 @@ fn reprojection_error(
             100.0 * px_sum / px_n.max(1) as f64
         );
         if mean >= 0.01 {
-            let dir = std::env::var("CARGO_TARGET_TMPDIR").unwrap_or_else(|_| ".".into());
-            let f = Path::new(&dir).join(format!("reproj_{label}_{}.png", sensor.id));
+            let dir = env!("CARGO_TARGET_TMPDIR");
+            let f = Path::new(dir).join(format!("reproj_{label}_{}.png", sensor.id));
             write_png_srgb(&f, w as u32, h as u32, &diff, 0.0).unwrap();
             eprintln!("wrote the error image (x10) to {}", f.display());
         }
