@@ -17,8 +17,8 @@ fn kdmap(args: &[&str]) -> std::process::Output {
         .expect("run kdmap")
 }
 
-/// Every file under `dir/sub` with its bytes, sorted by name.
-fn files(dir: &Path, sub: &str) -> Vec<(String, Vec<u8>)> {
+/// Every file under `dir/sub` with its bytes, sorted by name (also used by `resume`).
+pub(crate) fn files(dir: &Path, sub: &str) -> Vec<(String, Vec<u8>)> {
     let mut v: Vec<_> = std::fs::read_dir(dir.join(sub))
         .unwrap()
         .map(|e| e.unwrap().path())

@@ -79,21 +79,7 @@ fn kill_when(a: &[&str], out: &Path, when: impl Fn(&Path) -> bool) -> bool {
     }
 }
 
-/// Every file under `dir/sub` with its bytes, sorted by name.
-fn files(dir: &Path, sub: &str) -> Vec<(String, Vec<u8>)> {
-    let mut v: Vec<_> = std::fs::read_dir(dir.join(sub))
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .map(|p| {
-            (
-                p.file_name().unwrap().to_string_lossy().into_owned(),
-                std::fs::read(&p).unwrap(),
-            )
-        })
-        .collect();
-    v.sort();
-    v
-}
+use super::cli::files;
 
 fn assert_same_outputs(a: &Path, b: &Path) {
     for sub in ["textures", "maps"] {
