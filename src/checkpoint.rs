@@ -22,6 +22,26 @@
 //!
 //! Checksums are hand-written 64-bit FNV-1a: they guard against torn writes and bit rot, not
 //! adversaries, and the crate needs no extra dependency for them.
+//!
+//! A write that fails (disk full, unwritable directory) removes its temporary file and
+//! returns a one-line [`Error::Io`] naming the file; the previous checkpoint is untouched
+//! (snapshots are deleted only after the new manifest is durable), so `--resume` continues
+//! from it once there is room.
+//!
+//! # Fault injection (test hook)
+//!
+//! The environment variable `KDMAP_FAULT` is read once per process, at the first
+//! checkpoint or output write; unset (or with an unknown value) it has no effect. It exists
+//! for the crash and disk-full tests (`tests/it/resume.rs`, `tests/it/diskfull.rs`):
+//!
+//! - `pause-in-checkpoint:N`: during the N-th checkpoint write of the process (1-based),
+//!   once half of the snapshot's bytes are in its temporary file (before fsync and rename),
+//!   create `<checkpoint dir>/fault.paused` and sleep forever (the test then SIGKILLs);
+//! - `pause-in-manifest:N`: the same, once half of the N-th manifest is in `progress.new`;
+//! - `enospc-after-bytes:N`: once the process has written N bytes in total through
+//!   checkpoint snapshots (and their restore on resume), manifests and output files
+//!   (`output::write_file_atomic`, the EXR/PNG writers of [`crate::image`]), every such
+//!   write fails with `ENOSPC` (os error 28) as a full disk would.
 
 use crate::config::Config;
 use crate::error::{Error, Result};
@@ -30,6 +50,79 @@ use serde::{Deserialize, Serialize};
 use std::fs::File;
 use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::OnceLock;
+
+/// A fault injected by `KDMAP_FAULT` (module doc, "Fault injection").
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Fault {
+    PauseInCheckpoint(u64),
+    PauseInManifest(u64),
+    EnospcAfterBytes(u64),
+}
+
+/// The fault `KDMAP_FAULT` asks for, parsed once.
+fn fault() -> Option<Fault> {
+    static FAULT: OnceLock<Option<Fault>> = OnceLock::new();
+    *FAULT.get_or_init(|| {
+        let v = std::env::var("KDMAP_FAULT").ok()?;
+        let (kind, n) = v.trim().split_once(':')?;
+        let n: u64 = n.trim().parse().ok()?;
+        match kind.trim() {
+            "pause-in-checkpoint" => Some(Fault::PauseInCheckpoint(n)),
+            "pause-in-manifest" => Some(Fault::PauseInManifest(n)),
+            "enospc-after-bytes" => Some(Fault::EnospcAfterBytes(n)),
+            _ => None,
+        }
+    })
+}
+
+/// Checkpoint writes ([`Writer::write`] calls) begun by this process.
+static CHECKPOINT_WRITES: AtomicU64 = AtomicU64::new(0);
+/// Bytes written through [`write_counted`] and [`count_written`] by this process (counted
+/// only under `enospc-after-bytes`).
+static BYTES_WRITTEN: AtomicU64 = AtomicU64::new(0);
+
+/// The error a full disk gives.
+fn enospc() -> std::io::Error {
+    std::io::Error::from_raw_os_error(28) // ENOSPC
+}
+
+/// `w.write_all(bytes)` for checkpoint and output files: under `enospc-after-bytes:N`, the
+/// bytes beyond the process's N-th are not written and the write fails with `ENOSPC`.
+pub(crate) fn write_counted(w: &mut impl Write, bytes: &[u8]) -> std::io::Result<()> {
+    if let Some(Fault::EnospcAfterBytes(limit)) = fault() {
+        let len = bytes.len() as u64;
+        let before = BYTES_WRITTEN.fetch_add(len, Ordering::SeqCst);
+        if before.saturating_add(len) > limit {
+            let room = limit.saturating_sub(before).min(len) as usize;
+            w.write_all(&bytes[..room])?;
+            return Err(enospc());
+        }
+    }
+    w.write_all(bytes)
+}
+
+/// For a file of `len` bytes written by a library (the EXR encoder) rather than through
+/// [`write_counted`]: counts it, and under `enospc-after-bytes:N` fails with `ENOSPC` if
+/// it takes the process past N bytes. The caller removes the file on error.
+pub(crate) fn count_written(len: u64) -> std::io::Result<()> {
+    if let Some(Fault::EnospcAfterBytes(limit)) = fault() {
+        let before = BYTES_WRITTEN.fetch_add(len, Ordering::SeqCst);
+        if before.saturating_add(len) > limit {
+            return Err(enospc());
+        }
+    }
+    Ok(())
+}
+
+/// Under a pause fault: create `<dir>/fault.paused` and sleep forever.
+fn pause_forever(dir: &Path) -> ! {
+    let _ = std::fs::write(dir.join("fault.paused"), b"");
+    loop {
+        std::thread::sleep(std::time::Duration::from_secs(3600));
+    }
+}
 
 /// Manifest format version this build reads and writes.
 pub const VERSION: u32 = 1;
@@ -216,20 +309,42 @@ fn sync_dir(dir: &Path) -> Result<()> {
         .map_err(|e| Error::io(dir, e))
 }
 
-/// Copy `from` to `to` (through `<to>.tmp`, fsynced, renamed), returning its length and FNV-1a.
-fn copy_hashed(from: &Path, to: &Path) -> Result<(u64, u64)> {
+/// Copy `from` to `to` (through `<to>.tmp`, fsynced, renamed), returning its length and
+/// FNV-1a. On error the temporary file is removed. With `pause_dir`, pause (test hook) once
+/// half of the bytes are written.
+fn copy_hashed(from: &Path, to: &Path, pause_dir: Option<&Path>) -> Result<(u64, u64)> {
     let tmp = to.with_extension("tmp");
     let mut src = File::open(from).map_err(|e| Error::io(from, e))?;
-    let mut dst = File::create(&tmp).map_err(|e| Error::io(&tmp, e))?;
-    let (len, sum) = pump(&mut src, from, Some((&mut dst, &tmp)))?;
-    dst.sync_all().map_err(|e| Error::io(&tmp, e))?;
-    drop(dst);
-    std::fs::rename(&tmp, to).map_err(|e| Error::io(to, e))?;
-    Ok((len, sum))
+    let pause = match pause_dir {
+        Some(dir) => {
+            let len = src.metadata().map_err(|e| Error::io(from, e))?.len();
+            Some((dir, len / 2))
+        }
+        None => None,
+    };
+    let copied = (|| {
+        let mut dst = File::create(&tmp).map_err(|e| Error::io(&tmp, e))?;
+        let (len, sum) = pump(&mut src, from, Some((&mut dst, &tmp)), pause)?;
+        dst.sync_all().map_err(|e| Error::io(&tmp, e))?;
+        drop(dst);
+        std::fs::rename(&tmp, to).map_err(|e| Error::io(to, e))?;
+        Ok((len, sum))
+    })();
+    if copied.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    copied
 }
 
-/// Read `src` to its end, hashing, optionally writing everything to `dst`.
-fn pump(src: &mut File, from: &Path, mut dst: Option<(&mut File, &Path)>) -> Result<(u64, u64)> {
+/// Read `src` to its end, hashing, optionally writing everything to `dst` (through
+/// [`write_counted`]); with `pause = Some((dir, at))`, [`pause_forever`] once `at` bytes
+/// are written.
+fn pump(
+    src: &mut File,
+    from: &Path,
+    mut dst: Option<(&mut File, &Path)>,
+    pause: Option<(&Path, u64)>,
+) -> Result<(u64, u64)> {
     let mut buf = vec![0u8; 1 << 20];
     let mut h = Fnv::default();
     let mut len = 0u64;
@@ -240,7 +355,15 @@ fn pump(src: &mut File, from: &Path, mut dst: Option<(&mut File, &Path)>) -> Res
         }
         h.update(&buf[..n]);
         if let Some((d, p)) = dst.as_mut() {
-            d.write_all(&buf[..n]).map_err(|e| Error::io(*p, e))?;
+            let chunk = &buf[..n];
+            if let Some((dir, at)) = pause {
+                if at < len + n as u64 {
+                    let half = &chunk[..at.saturating_sub(len) as usize];
+                    write_counted(*d, half).map_err(|e| Error::io(*p, e))?;
+                    pause_forever(dir);
+                }
+            }
+            write_counted(*d, chunk).map_err(|e| Error::io(*p, e))?;
         }
         len += n as u64;
     }
@@ -301,12 +424,14 @@ impl Writer {
         seconds: f64,
     ) -> Result<()> {
         let t0 = std::time::Instant::now();
+        let nth = CHECKPOINT_WRITES.fetch_add(1, Ordering::SeqCst) + 1;
         let seq = self.seq + 1;
         let snapshot = if stage == Stage::Finished {
             None
         } else {
             let file = format!("state.{seq}.tiles");
-            let (bytes, fnv1a) = copy_hashed(state_path, &self.dir.join(&file))?;
+            let pause = (fault() == Some(Fault::PauseInCheckpoint(nth))).then_some(&*self.dir);
+            let (bytes, fnv1a) = copy_hashed(state_path, &self.dir.join(&file), pause)?;
             self.bytes_written += bytes;
             Some(Snapshot { file, bytes, fnv1a })
         };
@@ -323,10 +448,18 @@ impl Writer {
         self.bytes_written += bytes.len() as u64;
         let cur = self.dir.join(MANIFEST);
         let tmp = self.dir.join("progress.new");
-        {
-            let mut f = File::create(&tmp).map_err(|e| Error::io(&tmp, e))?;
-            f.write_all(&bytes).map_err(|e| Error::io(&tmp, e))?;
-            f.sync_all().map_err(|e| Error::io(&tmp, e))?;
+        let pause = fault() == Some(Fault::PauseInManifest(nth));
+        let written = File::create(&tmp).and_then(|mut f| {
+            if pause {
+                write_counted(&mut f, &bytes[..bytes.len() / 2])?;
+                pause_forever(&self.dir);
+            }
+            write_counted(&mut f, &bytes)?;
+            f.sync_all()
+        });
+        if let Err(e) = written {
+            let _ = std::fs::remove_file(&tmp);
+            return Err(Error::io(&tmp, e));
         }
         // A kill between these renames leaves only progress.prev.json: loading falls back.
         if cur.exists() {
@@ -369,7 +502,7 @@ fn load_one(dir: &Path, name: &str) -> std::result::Result<Manifest, String> {
     if let Some(s) = &m.snapshot {
         let p = dir.join(&s.file);
         let mut f = File::open(&p).map_err(|e| format!("{}: {e}", p.display()))?;
-        let (len, sum) = pump(&mut f, &p, None).map_err(|e| e.to_string())?;
+        let (len, sum) = pump(&mut f, &p, None, None).map_err(|e| e.to_string())?;
         if len != s.bytes || sum != s.fnv1a {
             return Err(format!(
                 "{}: snapshot does not match its manifest ({len} bytes, checksum {sum:016x}; expected {} bytes, {:016x})",
@@ -424,7 +557,7 @@ pub fn restore(dir: &Path, m: &Manifest, state_path: &Path) -> Result<()> {
         .snapshot
         .as_ref()
         .ok_or_else(|| Error::Config("checkpoint has no state snapshot".into()))?;
-    let (len, sum) = copy_hashed(&dir.join(&s.file), state_path)?;
+    let (len, sum) = copy_hashed(&dir.join(&s.file), state_path, None)?;
     if len != s.bytes || sum != s.fnv1a {
         return Err(Error::input(
             dir.join(&s.file),

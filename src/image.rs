@@ -225,6 +225,12 @@ fn write_atomic(
             format!("cannot write: {}", one_line(&msg)),
         ));
     }
+    // The `KDMAP_FAULT=enospc-after-bytes:N` test hook (crate::checkpoint) counts the file.
+    let counted = std::fs::metadata(&tmp).and_then(|m| crate::checkpoint::count_written(m.len()));
+    if let Err(e) = counted {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(Error::io(path, e));
+    }
     std::fs::rename(&tmp, path).map_err(|e| {
         let _ = std::fs::remove_file(&tmp);
         Error::io(path, e)

@@ -4,6 +4,7 @@
 mod accuracy;
 mod camera;
 mod cli;
+mod diskfull;
 mod import;
 mod output;
 mod projection;

@@ -1,7 +1,9 @@
 //! Checkpoint and resume, end to end on the real binary: runs killed with SIGKILL at several
 //! moments and resumed end with textures and maps bit-identical to an uninterrupted run;
 //! resuming with other settings is refused, a finished run resumed is a no-op, and a corrupt
-//! manifest is reported in one line and the run falls back to the previous checkpoint.
+//! manifest is reported in one line and the run falls back to the previous checkpoint. Runs
+//! killed exactly inside a checkpoint write (paused there by the `KDMAP_FAULT` test hook, half
+//! of the snapshot or of the manifest written) resume bit-identically too.
 
 use kdmap::checkpoint::{decode, Manifest, Stage, MANIFEST};
 use std::path::{Path, PathBuf};
@@ -25,6 +27,25 @@ fn write_config(dir: &Path) -> PathBuf {
     p
 }
 
+/// [`write_config`] without projection refinement (3 passes that dominate a small run and
+/// that checkpoints never see): a run takes about 2 s in release.
+pub(super) fn write_fast_config(dir: &Path) -> PathBuf {
+    let p = write_config(dir);
+    let text = std::fs::read_to_string(&p).unwrap();
+    let text = text.replace("[direct]", "[projection]\nrefine_passes = 0\n[direct]");
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+/// The arguments of the fault tests: 20 photon batches per pass, 2 threads (photon groups of
+/// 16 batches), so the checkpoints are, in order: 1 after direct light, then per iteration
+/// one mid-pass (16 batches) and one at its end (2..=7), and 8 when finished.
+pub(super) fn fast_args<'a>(cfg: &'a Path, out: &'a Path) -> Vec<&'a str> {
+    let mut a = args(cfg, out, "20000");
+    a.extend(["--threads", "2"]);
+    a
+}
+
 fn args<'a>(cfg: &'a Path, out: &'a Path, photons: &'a str) -> Vec<&'a str> {
     vec![
         "reconstruct",
@@ -38,7 +59,7 @@ fn args<'a>(cfg: &'a Path, out: &'a Path, photons: &'a str) -> Vec<&'a str> {
     ]
 }
 
-fn run(a: &[&str]) -> Output {
+pub(super) fn run(a: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_kdmap"))
         .args(a)
         .output()
@@ -54,7 +75,7 @@ fn spawn(a: &[&str]) -> Child {
         .expect("spawn kdmap")
 }
 
-fn manifest(out: &Path) -> Option<Manifest> {
+pub(super) fn manifest(out: &Path) -> Option<Manifest> {
     let bytes = std::fs::read(out.join("checkpoint").join(MANIFEST)).ok()?;
     decode(&bytes).ok()
 }
@@ -81,7 +102,7 @@ fn kill_when(a: &[&str], out: &Path, when: impl Fn(&Path) -> bool) -> bool {
 
 use super::cli::files;
 
-fn assert_same_outputs(a: &Path, b: &Path) {
+pub(super) fn assert_same_outputs(a: &Path, b: &Path) {
     for sub in ["textures", "maps"] {
         let (fa, fb) = (files(a, sub), files(b, sub));
         assert!(!fa.is_empty());
@@ -207,4 +228,79 @@ fn resume_without_a_checkpoint_starts_fresh_with_a_note() {
     let text = String::from_utf8_lossy(&o.stdout);
     assert!(text.contains("finished"), "{text}");
     assert!(text.contains("iteration 3: relative error"), "{text}");
+}
+
+/// Runs kdmap with `KDMAP_FAULT=fault`, waits until the hook has paused it inside a checkpoint
+/// write (its marker file appears) and SIGKILLs it there.
+fn kill_paused(a: &[&str], out: &Path, fault: &str) {
+    let marker = out.join("checkpoint").join("fault.paused");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_kdmap"))
+        .args(a)
+        .env("KDMAP_FAULT", fault)
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("spawn kdmap");
+    let t0 = Instant::now();
+    while !marker.exists() {
+        if let Some(status) = child.try_wait().unwrap() {
+            panic!("kdmap ended ({status}) without pausing at {fault}");
+        }
+        assert!(
+            t0.elapsed() < Duration::from_secs(120),
+            "kdmap never paused at {fault}"
+        );
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    child.kill().unwrap(); // SIGKILL
+    child.wait().unwrap();
+}
+
+#[test]
+fn runs_killed_inside_a_checkpoint_write_resume_bit_for_bit() {
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg = write_fast_config(tmp.path());
+    let full = tmp.path().join("full");
+    let o = run(&fast_args(&cfg, &full));
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let state_len = std::fs::metadata(full.join("checkpoint/state.tiles"))
+        .unwrap()
+        .len();
+
+    // (hook, checkpoint the kill leaves current): checkpoint 4 is iteration 2's mid-pass one,
+    // checkpoint 3 the end of iteration 1 (resuming from 2 continues a photon pass).
+    for (fault, last_good) in [("pause-in-checkpoint:4", 3), ("pause-in-manifest:3", 2)] {
+        let out = tmp.path().join(fault.replace(':', "-"));
+        let a = fast_args(&cfg, &out);
+        kill_paused(&a, &out, fault);
+
+        // What the kill left: the last good checkpoint and a half-written temporary file.
+        let ck = out.join("checkpoint");
+        assert_eq!(manifest(&out).map(|m| m.seq), Some(last_good), "{fault}");
+        if fault.starts_with("pause-in-checkpoint") {
+            let half = std::fs::metadata(ck.join("state.4.tmp")).unwrap().len();
+            assert_eq!(half, state_len / 2, "{fault}");
+            assert!(!ck.join("state.4.tiles").exists());
+        } else {
+            let torn = std::fs::read(ck.join("progress.new")).unwrap();
+            assert!(decode(&torn).is_err(), "{fault}: progress.new is whole");
+            assert!(ck.join("state.3.tiles").exists());
+        }
+
+        // Resume without the hook, removing nothing.
+        let mut resume = a.clone();
+        resume.push("--resume");
+        let o = run(&resume);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(o.status.success(), "{fault}: {err}");
+        assert!(
+            err.contains(&format!("resuming from checkpoint {last_good} ")),
+            "{fault}: {err}"
+        );
+        assert!(!err.contains("unusable checkpoint"), "{fault}: {err}");
+        assert!(manifest(&out).is_some_and(|m| m.stage == Stage::Finished));
+        assert_same_outputs(&full, &out);
+        // Later checkpoints removed the half-written copy.
+        assert!(!ck.join("state.4.tmp").exists(), "{fault}");
+    }
 }
