@@ -20,6 +20,8 @@ pub struct RawConfig {
     #[serde(default)]
     pub atlas: RawAtlas,
     #[serde(default)]
+    pub projection: RawProjection,
+    #[serde(default)]
     pub direct: RawDirect,
     #[serde(default)]
     pub photons: RawPhotons,
@@ -37,6 +39,12 @@ pub struct RawAtlas {
     pub use_mesh_uvs: Option<bool>,
     pub tile_size: Option<u32>,
     pub max_texture_size: Option<u32>,
+}
+
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawProjection {
+    pub refine_passes: Option<u32>,
 }
 
 #[derive(Debug, Clone, Default, Deserialize)]
@@ -112,6 +120,9 @@ pub struct AtlasConfig {
     pub max_texture_size: u32,
 }
 
+/// Most refinement passes a config may ask for (each costs about one projection).
+pub const MAX_REFINE_PASSES: u32 = 64;
+
 /// Every setting of a run, validated.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Config {
@@ -119,6 +130,8 @@ pub struct Config {
     /// Sensor id -> image path. Empty means "the scene's `images/<id>.exr`".
     pub views: BTreeMap<String, PathBuf>,
     pub atlas: AtlasConfig,
+    /// Iterative back-projection passes after the weighted-mean projection (0 = off).
+    pub refine_passes: u32,
     /// Stratified samples per emitter triangle for area-light visibility.
     pub area_samples: u32,
     /// Light paths (photons) traced per iteration.
@@ -162,6 +175,7 @@ impl Config {
                 tile_size: 64,
                 max_texture_size: 8192,
             },
+            refine_passes: crate::project::REFINE_PASSES,
             area_samples: 64,
             photons: 10_000_000,
             batch_size: 65_536,
@@ -239,6 +253,7 @@ impl Config {
         set(&mut c.atlas.use_mesh_uvs, a.use_mesh_uvs);
         set(&mut c.atlas.tile_size, a.tile_size);
         set(&mut c.atlas.max_texture_size, a.max_texture_size);
+        set(&mut c.refine_passes, raw.projection.refine_passes);
         set(&mut c.area_samples, raw.direct.area_samples);
         let p = raw.photons;
         set(&mut c.photons, p.per_iteration);
@@ -293,6 +308,12 @@ impl Config {
             return Err(format!(
                 "atlas.max_texture_size = {}: must be 1..=65536 texels",
                 a.max_texture_size
+            ));
+        }
+        if self.refine_passes > MAX_REFINE_PASSES {
+            return Err(format!(
+                "projection.refine_passes = {}: must be 0..={MAX_REFINE_PASSES}",
+                self.refine_passes
             ));
         }
         if self.area_samples == 0 {
@@ -406,6 +427,21 @@ mod tests {
         let mut c = Config::for_scene("s.xml".into());
         c.iterations = 0;
         assert!(c.validate().unwrap_err().contains("iterations"));
+        let mut c = Config::for_scene("s.xml".into());
+        c.refine_passes = MAX_REFINE_PASSES + 1;
+        assert!(c.validate().unwrap_err().contains("refine_passes"));
+    }
+
+    #[test]
+    fn projection_section_sets_refine_passes() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("run.toml");
+        std::fs::write(&p, "scene = \"s.xml\"\n[projection]\nrefine_passes = 1\n").unwrap();
+        let c = Config::load(&p, &Overrides::default()).unwrap();
+        assert_eq!(c.refine_passes, 1);
+        std::fs::write(&p, "scene = \"s.xml\"\n[projection]\nrefine = 1\n").unwrap();
+        let e = Config::load(&p, &Overrides::default()).unwrap_err().to_string();
+        assert!(e.contains("refine"), "{e}");
     }
 
     #[test]

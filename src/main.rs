@@ -57,6 +57,15 @@ enum Command {
         /// The run's output directory (the one given to `reconstruct --out`).
         out: PathBuf,
     },
+    /// Score a finished run against the true albedo (a Mitsuba `truth.xml`): per shape, the
+    /// mean relative and relative L1 albedo error over observed texels; writes
+    /// `<out>/accuracy/` (accuracy.json, truth and difference PNGs).
+    Accuracy {
+        /// The run's output directory.
+        out: PathBuf,
+        /// The Mitsuba scene holding the true reflectances.
+        truth: PathBuf,
+    },
     /// Steps 1-2 of the method on their own: unwrap the atlas, project every photo onto it and
     /// write the luminance and coverage maps to `<out>/maps/` (with PNG previews).
     Project {
@@ -124,6 +133,7 @@ fn run(command: Command) -> anyhow::Result<()> {
             threads,
         } => project(&input, &out, threads),
         Command::InspectCheckpoint { out } => inspect_checkpoint(&out),
+        Command::Accuracy { out, truth } => accuracy(&out, &truth),
     }
 }
 
@@ -172,6 +182,44 @@ fn reconstruct(
         report.timings.total
     );
     println!("results: {}", out.display());
+    Ok(())
+}
+
+fn accuracy(out: &Path, truth: &Path) -> anyhow::Result<()> {
+    let rep = kdmap::output::accuracy::score_run(out, truth)?;
+    let mut t = String::new();
+    let _ = writeln!(
+        t,
+        "{:<16} {:>8} {:>10} {:>10}  mean K_d vs true",
+        "shape", "texels", "mean rel", "rel L1"
+    );
+    for a in &rep.shapes {
+        let _ = writeln!(
+            t,
+            "{:<16} {:>8} {:>9.2}% {:>9.2}%  [{:.4}, {:.4}, {:.4}] vs [{:.4}, {:.4}, {:.4}]",
+            a.shape,
+            a.texels,
+            100.0 * a.mean_rel_error,
+            100.0 * a.rel_l1_error,
+            a.mean_kd[0],
+            a.mean_kd[1],
+            a.mean_kd[2],
+            a.mean_truth[0],
+            a.mean_truth[1],
+            a.mean_truth[2]
+        );
+    }
+    let _ = writeln!(
+        t,
+        "scene: mean relative albedo error {:.2}%, relative L1 {:.2}% ({})",
+        100.0 * rep.mean_rel_error,
+        100.0 * rep.rel_l1_error,
+        out.join("accuracy").join("accuracy.json").display()
+    );
+    let mut o = std::io::stdout().lock();
+    o.write_all(t.as_bytes())
+        .and_then(|()| o.flush())
+        .context("writing to stdout")?;
     Ok(())
 }
 

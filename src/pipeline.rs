@@ -295,7 +295,7 @@ pub fn project_all(
         stage.inc(1);
     }
     state.for_each_tile_mut(window, |_, st| finish_tile(st))?;
-    crate::project::refine(p, geom, state, window, crate::project::REFINE_PASSES, mode)?;
+    crate::project::refine(p, geom, state, window, cfg.refine_passes, mode)?;
     stage.finish();
     let counts = Mutex::new((0u64, 0u64));
     let err: Mutex<Option<Error>> = Mutex::new(None);

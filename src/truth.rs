@@ -154,12 +154,91 @@ impl Reflectance {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::atlas::unwrap::ShapeAtlas;
 
     #[test]
     fn srgb_decode_endpoints() {
         assert_eq!(srgb_to_linear(0.0), 0.0);
         assert!((srgb_to_linear(1.0) - 1.0).abs() < 1e-6);
         assert!((srgb_to_linear(0.5) - 0.21404).abs() < 1e-4);
+    }
+
+    /// A unit square (two triangles) whose mesh UVs equal its positions, unwrapped onto a
+    /// `n x n` atlas flipped vertically (atlas y down, UV v up), and a `m x m` bitmap.
+    fn square(n: u32, m: u32, texel: impl Fn(u32, u32) -> f32) -> (Mesh, ShapeAtlas, Reflectance) {
+        let pts = [(0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0)];
+        let mesh = Mesh {
+            positions: pts.iter().map(|&(x, y)| Vec3::new(x, y, 0.0)).collect(),
+            uvs: Some(pts.iter().map(|&(x, y)| Vec2::new(x, y)).collect()),
+            triangles: vec![[0, 1, 2], [0, 2, 3]],
+            ..Default::default()
+        };
+        let atlas = ShapeAtlas {
+            width: n,
+            height: n,
+            corner_uv: mesh
+                .triangles
+                .iter()
+                .map(|t| {
+                    t.map(|i| {
+                        let (x, y) = pts[i as usize];
+                        Vec2::new(x * n as f32, (1.0 - y) * n as f32)
+                    })
+                })
+                .collect(),
+            charts: 1,
+            texel_density: n as f32,
+        };
+        let texels = (0..m * m)
+            .map(|i| Vec3::splat(texel(i % m, i / m)))
+            .collect();
+        let r = Reflectance::Bitmap {
+            width: m,
+            height: m,
+            texels,
+        };
+        (mesh, atlas, r)
+    }
+
+    #[test]
+    fn footprint_mean_of_a_fine_checkerboard_is_its_average() {
+        // Each atlas texel covers 4 x 4 bitmap texels of a 1-texel checkerboard: a point
+        // sample sees 0 or 1 (or a bilinear blend), the texel's mean is 1/2.
+        let (mesh, atlas, r) = square(8, 32, |x, y| ((x + y) % 2) as f32);
+        for (x, y) in [(0, 0), (3, 5), (7, 7), (5, 1)] {
+            let tri = if x > 7 - y { 0 } else { 1 };
+            let m = footprint_mean(&r, &mesh, &atlas, tri, x, y);
+            assert!((m.x - 0.5).abs() < 1e-6, "({x}, {y}): {m}");
+        }
+    }
+
+    #[test]
+    fn footprint_mean_matches_brute_force_over_the_texel_square() {
+        // A smooth pattern: the 4 x 4 sample mean must match a dense brute-force average of
+        // the bilinear texture over the same square, located through plain barycentrics.
+        let (mesh, atlas, r) = square(5, 16, |x, y| (x as f32 * 0.3).sin() + 0.1 * y as f32);
+        for (x, y) in [(0, 0), (2, 3), (4, 1)] {
+            let tri = 0; // the affine extension makes either triangle's map the same here
+            let fast = footprint_mean(&r, &mesh, &atlas, tri, x, y).x;
+            let k = 64;
+            let mut sum = 0.0f64;
+            for j in 0..k {
+                for i in 0..k {
+                    let u = (x as f32 + (i as f32 + 0.5) / k as f32) / 5.0;
+                    let v = 1.0 - (y as f32 + (j as f32 + 0.5) / k as f32) / 5.0;
+                    let (b1, b2) = barycentrics(&mesh, tri, Vec3::new(u, v, 0.0));
+                    sum += r.eval(&mesh, tri, b1, b2).x as f64;
+                }
+            }
+            let brute = (sum / (k * k) as f64) as f32;
+            assert!((fast - brute).abs() < 0.02, "({x}, {y}): {fast} vs {brute}");
+        }
+        // Constant reflectances are returned as they are.
+        let c = Reflectance::Constant(Vec3::new(0.1, 0.2, 0.3));
+        assert_eq!(
+            footprint_mean(&c, &mesh, &atlas, 0, 1, 1),
+            Vec3::new(0.1, 0.2, 0.3)
+        );
     }
 
     #[test]
@@ -207,9 +286,90 @@ fn barycentrics(mesh: &Mesh, tri: usize, p: Vec3) -> (f32, f32) {
     ((d22 * p1 - d12 * p2) / den, (d11 * p2 - d12 * p1) / den)
 }
 
+/// Samples per axis of a texel's square when averaging the truth over it.
+const FOOTPRINT_SAMPLES: u32 = 4;
+
+/// The true albedo averaged over texel `(x, y)`'s square of the atlas, mapped onto the
+/// plane of triangle `tri` (the affine extension of the triangle's atlas -> mesh-UV map):
+/// a texel stands for the mean albedo over its square, so this is what it should hold.
+/// Texture detail finer than a texel is averaged, as any texture of that resolution must.
+fn footprint_mean(
+    r: &Reflectance,
+    mesh: &Mesh,
+    atlas: &crate::atlas::unwrap::ShapeAtlas,
+    tri: usize,
+    x: u32,
+    y: u32,
+) -> Rgb {
+    if let Reflectance::Constant(c) = r {
+        return *c;
+    }
+    let [a0, a1, a2] = atlas.corner_uv[tri];
+    let (e1, e2) = (a1 - a0, a2 - a0);
+    let det = e1.perp_dot(e2);
+    if det == 0.0 {
+        return r.eval(mesh, tri, 0.0, 0.0);
+    }
+    let n = FOOTPRINT_SAMPLES;
+    let mut sum = Vec3::ZERO;
+    for j in 0..n {
+        for i in 0..n {
+            let q = Vec2::new(
+                x as f32 + (i as f32 + 0.5) / n as f32,
+                y as f32 + (j as f32 + 0.5) / n as f32,
+            ) - a0;
+            let b1 = q.perp_dot(e2) / det;
+            let b2 = e1.perp_dot(q) / det;
+            sum += r.eval(mesh, tri, b1, b2);
+        }
+    }
+    sum / (n * n) as f32
+}
+
 impl Truth {
+    /// The true albedo of every covered texel of layout slot `slot`, averaged over the
+    /// texel's square (row-major, `None` where uncovered), or `None` if the slot's shape has
+    /// no truth.
+    pub fn bake_slot(
+        &self,
+        p: &crate::pipeline::Prepared,
+        geom: &crate::atlas::tiles::TileStore<crate::atlas::layout::TexelGeom>,
+        slot: usize,
+    ) -> Result<Option<Vec<Option<Rgb>>>> {
+        let st = p.layout.slots[slot];
+        let shape = &p.scene.shapes[st.shape];
+        let Some(r) = self.shapes.get(&shape.id) else {
+            return Ok(None);
+        };
+        let atlas = p.atlases[st.shape].as_ref();
+        let mut out = vec![None; (st.width * st.height) as usize];
+        let ts = p.layout.tile_size;
+        for ty in 0..st.tiles_y {
+            for tx in 0..st.tiles_x {
+                let tile = st.first_tile + ty * st.tiles_x + tx;
+                let g = geom.read_tile(tile as usize)?;
+                for (off, g) in g.iter().enumerate() {
+                    let (x, y) = (tx * ts + off as u32 % ts, ty * ts + off as u32 / ts);
+                    if x >= st.width || y >= st.height || !g.covered() {
+                        continue;
+                    }
+                    let tri = g.tri as usize;
+                    out[(y * st.width + x) as usize] = Some(match atlas {
+                        Some(a) => footprint_mean(r, &shape.mesh, a, tri, x, y),
+                        None => {
+                            let (b1, b2) = barycentrics(&shape.mesh, tri, g.p());
+                            r.eval(&shape.mesh, tri, b1, b2)
+                        }
+                    });
+                }
+            }
+        }
+        Ok(Some(out))
+    }
+
     /// Compare the recovered `K_d` of every reconstructed shape that has a truth with it,
-    /// over observed texels (those a camera saw), shape by shape.
+    /// over observed texels (those a camera saw), shape by shape. The truth of a texel is
+    /// the true albedo averaged over the texel's square ([`Truth::bake_slot`]).
     pub fn accuracy(
         &self,
         p: &crate::pipeline::Prepared,
@@ -218,40 +378,37 @@ impl Truth {
     ) -> Result<Vec<ShapeAccuracy>> {
         use crate::atlas::layout::flags;
         let mut out = Vec::new();
-        for st in &p.layout.slots {
-            let shape = &p.scene.shapes[st.shape];
-            let Some(r) = self.shapes.get(&shape.id) else {
+        for slot in 0..p.layout.slots.len() {
+            let Some(truth) = self.bake_slot(p, geom, slot)? else {
                 continue;
             };
+            let (kd, _) = crate::pipeline::gather(p, slot, state, geom, |s| {
+                if s.flags & flags::OBSERVED != 0 {
+                    Vec3::from_array(s.k_d)
+                } else {
+                    Vec3::NAN
+                }
+            })?;
             let mut acc = ShapeAccuracy {
-                shape: shape.id.clone(),
+                shape: p.scene.shapes[p.layout.slots[slot].shape].id.clone(),
                 ..Default::default()
             };
             let mut sum_true = 0.0f64;
-            for t in st.first_tile..st.first_tile + st.tiles_x * st.tiles_y {
-                let g = geom.read_tile(t as usize)?;
-                let s = state.read_tile(t as usize)?;
-                for (g, s) in g.iter().zip(&s) {
-                    if !g.covered() || s.flags & flags::OBSERVED == 0 {
-                        continue;
-                    }
-                    let (b1, b2) = barycentrics(&shape.mesh, g.tri as usize, g.p());
-                    let k_true = r.eval(&shape.mesh, g.tri as usize, b1, b2);
-                    let kd = Vec3::from_array(s.k_d);
-                    let den = (k_true.x + k_true.y + k_true.z) as f64;
-                    if den <= 0.0 {
-                        continue;
-                    }
-                    let diff = (kd - k_true).abs().element_sum() as f64;
-                    acc.mean_rel_error += diff / den;
-                    acc.rel_l1_error += diff;
-                    sum_true += den;
-                    for c in 0..3 {
-                        acc.mean_kd[c] += kd[c] as f64;
-                        acc.mean_truth[c] += k_true[c] as f64;
-                    }
-                    acc.texels += 1;
+            for (kd, k_true) in kd.iter().zip(&truth) {
+                let Some(k_true) = k_true else { continue };
+                let den = k_true.element_sum() as f64;
+                if kd.is_nan() || den <= 0.0 {
+                    continue;
                 }
+                let diff = (*kd - *k_true).abs().element_sum() as f64;
+                acc.mean_rel_error += diff / den;
+                acc.rel_l1_error += diff;
+                sum_true += den;
+                for c in 0..3 {
+                    acc.mean_kd[c] += kd[c] as f64;
+                    acc.mean_truth[c] += k_true[c] as f64;
+                }
+                acc.texels += 1;
             }
             let n = acc.texels.max(1) as f64;
             acc.mean_rel_error /= n;

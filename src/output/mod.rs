@@ -21,6 +21,7 @@
 //! leaves a half-written output; `report.json` appears last, so its presence means the
 //! directory is complete.
 
+pub mod accuracy;
 pub mod font;
 pub mod maps;
 pub mod obj;
@@ -39,12 +40,16 @@ use std::ffi::OsString;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-/// Write `bytes` to `<path>.tmp`, then rename it to `path`.
+/// Write `bytes` to `<path>.tmp`, then rename it to `path`. On error (a full disk included:
+/// see the `KDMAP_FAULT` test hook in [`crate::checkpoint`]) the temporary file is removed
+/// and the error names `path`.
 pub(crate) fn write_file_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     let mut s = OsString::from(path.as_os_str());
     s.push(".tmp");
     let tmp = PathBuf::from(s);
-    if let Err(e) = std::fs::write(&tmp, bytes) {
+    let written = std::fs::File::create(&tmp)
+        .and_then(|mut f| crate::checkpoint::write_counted(&mut f, bytes));
+    if let Err(e) = written {
         let _ = std::fs::remove_file(&tmp);
         return Err(Error::io(path, e));
     }

@@ -1,15 +1,23 @@
 //! Accuracy of the whole reconstruction against the true albedo of the shipped examples, at
 //! CI-sized settings (the full-size figures are in the README).
+//!
+//! Textured shapes are judged against their *resolution floor*: the error left when the
+//! photos are replaced by noise-free images of the true albedo alone, rendered by Mitsuba
+//! through the same cameras (`tests/fixtures/cbox-tex/albedo/`, made by
+//! `tools/render_albedo_aov.py`) and projected onto the same atlas. That is the part of the
+//! texture the 256x256 photos do not resolve; no solver can recover it. The solver must come
+//! within a small margin of it, and uniform shapes (whose floor is zero) must meet absolute
+//! bounds.
 
 use kdmap::atlas::layout::{TexelGeom, TexelState};
 use kdmap::atlas::tiles::TileStore;
 use kdmap::config::Config;
-use kdmap::pipeline::{prepare, reconstruct, state_dir};
+use kdmap::pipeline::{build_geometry, prepare, project_all, reconstruct, state_dir};
 use kdmap::progress::Mode;
-use kdmap::truth::Truth;
+use kdmap::truth::{Reflectance, ShapeAccuracy, Truth};
 use std::path::Path;
 
-fn run(scene: &str, photons: u64, iterations: u32) -> Vec<kdmap::truth::ShapeAccuracy> {
+fn run(scene: &str, photons: u64, iterations: u32) -> (Config, Vec<ShapeAccuracy>) {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("tests/fixtures")
         .join(scene);
@@ -18,6 +26,9 @@ fn run(scene: &str, photons: u64, iterations: u32) -> Vec<kdmap::truth::ShapeAcc
     cfg.iterations = std::env::var("KDMAP_ITERATIONS").map_or(iterations, |v| v.parse().unwrap());
     if let Ok(v) = std::env::var("KDMAP_DENSITY") {
         cfg.atlas.texels_per_unit = v.parse().unwrap();
+    }
+    if let Ok(v) = std::env::var("KDMAP_REFINE_PASSES") {
+        cfg.refine_passes = v.parse().unwrap();
     }
     if let Ok(v) = std::env::var("KDMAP_SMOOTH") {
         cfg.smoothing_radius = v.parse().unwrap();
@@ -31,6 +42,7 @@ fn run(scene: &str, photons: u64, iterations: u32) -> Vec<kdmap::truth::ShapeAcc
     }
     let out = tempfile::tempdir().unwrap();
     let report = reconstruct(&cfg, out.path(), Mode::Quiet).unwrap();
+    let acc = score(&root, &cfg, out.path());
     for it in &report.iterations {
         eprintln!(
             "{scene} iteration {}: rms {:.3}% mean {:.3}% max {:.2}%",
@@ -40,15 +52,14 @@ fn run(scene: &str, photons: u64, iterations: u32) -> Vec<kdmap::truth::ShapeAcc
             100.0 * it.max_rel_error
         );
     }
-    let p = prepare(&cfg, Mode::Quiet).unwrap();
-    let dir = state_dir(out.path());
-    let geom: TileStore<TexelGeom> = TileStore::open(dir.join("geometry.tiles")).unwrap();
-    let state: TileStore<TexelState> = TileStore::open(dir.join("state.tiles")).unwrap();
-    let truth = Truth::load(&root.join("truth.xml")).unwrap();
-    let acc = truth.accuracy(&p, &geom, &state).unwrap();
-    for a in &acc {
+    print_acc(scene, &acc);
+    (cfg, acc)
+}
+
+fn print_acc(what: &str, acc: &[ShapeAccuracy]) {
+    for a in acc {
         eprintln!(
-            "{scene} {}: {} texels, mean relative albedo error {:.2}% (relative L1 {:.2}%), mean K_d {:.4?} vs true {:.4?}",
+            "{what} {}: {} texels, mean relative albedo error {:.2}% (relative L1 {:.2}%), mean K_d {:.4?} vs true {:.4?}",
             a.shape,
             a.texels,
             100.0 * a.mean_rel_error,
@@ -57,11 +68,56 @@ fn run(scene: &str, photons: u64, iterations: u32) -> Vec<kdmap::truth::ShapeAcc
             a.mean_truth
         );
     }
+}
+
+/// Accuracy of the state a run left in `out`.
+fn score(root: &Path, cfg: &Config, out: &Path) -> Vec<ShapeAccuracy> {
+    let p = prepare(cfg, Mode::Quiet).unwrap();
+    let dir = state_dir(out);
+    let geom: TileStore<TexelGeom> = TileStore::open(dir.join("geometry.tiles")).unwrap();
+    let state: TileStore<TexelState> = TileStore::open(dir.join("state.tiles")).unwrap();
+    let truth = Truth::load(&root.join("truth.xml")).unwrap();
+    truth.accuracy(&p, &geom, &state).unwrap()
+}
+
+/// The resolution floor of `cfg`'s atlas: the noise-free true-albedo images of
+/// `<scene>/albedo/` projected (with the same refinement) as if they were the photos, scored
+/// as if the projected values were the recovered albedo.
+fn floor(root: &Path, cfg: &Config) -> Vec<ShapeAccuracy> {
+    let mut cfg = cfg.clone();
+    for id in ["cam_train_0", "cam_train_1", "cam_train_2"] {
+        cfg.views
+            .insert(id.into(), root.join("albedo").join(format!("{id}.exr")));
+    }
+    let out = tempfile::tempdir().unwrap();
+    let p = prepare(&cfg, Mode::Quiet).unwrap();
+    let dir = state_dir(out.path());
+    std::fs::create_dir_all(&dir).unwrap();
+    let geom = build_geometry(&p, &dir.join("geometry.tiles"), Mode::Quiet).unwrap();
+    let mut state = TileStore::create(
+        dir.join("state.tiles"),
+        p.layout.tile_count as usize,
+        p.layout.tile_texels(),
+        TexelState::default(),
+    )
+    .unwrap();
+    project_all(&p, &cfg, &geom, &mut state, Mode::Quiet).unwrap();
+    let window = p.window::<TexelState>(&cfg);
+    state
+        .for_each_tile_mut(window, |_, st| {
+            for s in st {
+                s.k_d = s.l_orig;
+            }
+        })
+        .unwrap();
+    let truth = Truth::load(&root.join("truth.xml")).unwrap();
+    let acc = truth.accuracy(&p, &geom, &state).unwrap();
+    print_acc("resolution floor", &acc);
     acc
 }
 
 /// Texel-weighted mean relative albedo error over all shapes of a scene.
-fn scene_error(acc: &[kdmap::truth::ShapeAccuracy]) -> f64 {
+fn scene_error(acc: &[ShapeAccuracy]) -> f64 {
     let n: u64 = acc.iter().map(|a| a.texels).sum();
     acc.iter()
         .map(|a| a.mean_rel_error * a.texels as f64)
@@ -70,72 +126,114 @@ fn scene_error(acc: &[kdmap::truth::ShapeAccuracy]) -> f64 {
 }
 
 /// Largest relative difference of a shape's mean recovered RGB from its mean true RGB.
-fn mean_rgb_error(a: &kdmap::truth::ShapeAccuracy) -> f64 {
+fn mean_rgb_error(a: &ShapeAccuracy) -> f64 {
     (0..3)
         .map(|c| (a.mean_kd[c] - a.mean_truth[c]).abs() / a.mean_truth[c])
         .fold(0.0, f64::max)
 }
 
-fn check(
-    scene: &str,
-    photons: u64,
-    iterations: u32,
-    max_scene_error: f64,
-    max_wall_rgb: f64,
-) -> Vec<kdmap::truth::ShapeAccuracy> {
-    let acc = run(scene, photons, iterations);
+fn check_cbox(photons: u64, iterations: u32, max_scene_error: f64, max_wall_rgb: f64) {
+    let (_, acc) = run("cbox", photons, iterations);
     let e = scene_error(&acc);
     eprintln!(
-        "{scene}: mean relative albedo error {:.2}% over observed texels",
+        "cbox: mean relative albedo error {:.2}% over observed texels",
         100.0 * e
     );
     assert!(
         e <= max_scene_error,
-        "{scene}: {:.2}% > {:.2}%",
+        "cbox: {:.2}% > {:.2}%",
         100.0 * e,
         100.0 * max_scene_error
     );
-    if scene == "cbox" {
-        for a in acc
-            .iter()
-            .filter(|a| ["left", "right", "back", "floor"].contains(&a.shape.as_str()))
-        {
-            let m = mean_rgb_error(a);
-            eprintln!("{scene} {}: mean RGB off by {:.2}%", a.shape, 100.0 * m);
-            assert!(
-                m <= max_wall_rgb,
-                "{scene} {}: mean RGB off by {:.2}%",
-                a.shape,
-                100.0 * m
-            );
-        }
-    }
-    acc
-}
-
-/// CI-sized: 1e6 photons per iteration (a tenth of full size), 4 iterations. Measured here:
-/// 4.6% mean error, walls' mean RGB within 1.9%; photon noise dominates at this size.
-#[test]
-fn cbox_albedo_is_recovered() {
-    check("cbox", 1_000_000, 4, 0.06, 0.025);
-}
-
-/// CI-sized. The per-texel error on the textured ceiling and walls is dominated by texture
-/// detail finer than the 256x256 photos resolve (relative L1 10-20% there, 28.5% per-texel
-/// mean over the scene, far from the 3% target), so this guards the scene-level error and
-/// every shape's mean colour (bias), which must stay within 8%.
-#[test]
-fn cbox_tex_albedo_is_recovered() {
-    let acc = check("cbox-tex", 1_000_000, 4, 0.32, 1.0);
-    for a in &acc {
+    for a in acc
+        .iter()
+        .filter(|a| ["left", "right", "back", "floor"].contains(&a.shape.as_str()))
+    {
         let m = mean_rgb_error(a);
+        eprintln!("cbox {}: mean RGB off by {:.2}%", a.shape, 100.0 * m);
         assert!(
-            m <= 0.08,
-            "cbox-tex {}: mean RGB off by {:.2}%",
+            m <= max_wall_rgb,
+            "cbox {}: mean RGB off by {:.2}%",
             a.shape,
             100.0 * m
         );
     }
+}
+
+/// cbox-tex: uniform shapes within `max_uniform` mean relative error; textured shapes within
+/// `margin` (both mean relative and relative L1, in absolute fractions) of their resolution
+/// floor, and every shape's mean colour within `max_bias`.
+fn check_cbox_tex(photons: u64, iterations: u32, max_uniform: f64, margin: f64, max_bias: f64) {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/cbox-tex");
+    let (cfg, acc) = run("cbox-tex", photons, iterations);
+    let fl = floor(&root, &cfg);
+    let truth = Truth::load(&root.join("truth.xml")).unwrap();
+    eprintln!(
+        "cbox-tex: mean relative albedo error {:.2}% (resolution floor {:.2}%)",
+        100.0 * scene_error(&acc),
+        100.0 * scene_error(&fl)
+    );
+    assert_eq!(acc.len(), fl.len());
+    for (a, f) in acc.iter().zip(&fl) {
+        assert_eq!(a.shape, f.shape);
+        let bias = mean_rgb_error(a);
+        assert!(
+            bias <= max_bias,
+            "{}: mean RGB off by {:.2}%",
+            a.shape,
+            100.0 * bias
+        );
+        match truth.shapes[&a.shape] {
+            Reflectance::Constant(_) => {
+                // Noise-free images of a uniform albedo project to that albedo.
+                assert!(f.mean_rel_error < 1e-3, "{}: floor {:?}", a.shape, f);
+                assert!(
+                    a.mean_rel_error <= max_uniform,
+                    "{}: {:.2}% > {:.2}%",
+                    a.shape,
+                    100.0 * a.mean_rel_error,
+                    100.0 * max_uniform
+                );
+            }
+            Reflectance::Bitmap { .. } => {
+                assert!(f.mean_rel_error > 0.01, "{}: floor {:?}", a.shape, f);
+                for (what, got, fl) in [
+                    ("mean relative", a.mean_rel_error, f.mean_rel_error),
+                    ("relative L1", a.rel_l1_error, f.rel_l1_error),
+                ] {
+                    eprintln!(
+                        "cbox-tex {}: {what} {:.2}% vs floor {:.2}%",
+                        a.shape,
+                        100.0 * got,
+                        100.0 * fl
+                    );
+                    assert!(
+                        got <= fl + margin,
+                        "{}: {what} {:.2}% > floor {:.2}% + {:.1}",
+                        a.shape,
+                        100.0 * got,
+                        100.0 * fl,
+                        100.0 * margin
+                    );
+                }
+            }
+        }
+    }
+}
+
+/// CI-sized: 1e6 photons per iteration (a tenth of full size), 4 iterations. Measured here:
+/// 4.7% mean error, walls' mean RGB within 1.9%; photon noise dominates at this size.
+#[test]
+fn cbox_albedo_is_recovered() {
+    check_cbox(1_000_000, 4, 0.06, 0.025);
+}
+
+/// CI-sized (photon noise dominates at 1e6: measured 3-10% on uniform shapes, textured ones
+/// 1-5.5 points above their floor). Uniform shapes within 12%; textured ones within 7 points
+/// of their resolution floor; every mean colour within 8%.
+#[test]
+fn cbox_tex_albedo_is_recovered() {
+    check_cbox_tex(1_000_000, 4, 0.12, 0.07, 0.08);
 }
 
 /// The full-size target: 1e7 photons, 6 iterations, at most 3% mean error and the
@@ -144,11 +242,12 @@ fn cbox_tex_albedo_is_recovered() {
 #[test]
 #[ignore = "full size, ~1 min per scene; run for the README figures"]
 fn full_size_cbox() {
-    check("cbox", 10_000_000, 6, 0.03, 0.01);
+    check_cbox(10_000_000, 6, 0.03, 0.01);
 }
 
+/// Full size: uniform shapes within 3%, textured shapes within 1.5 points of the floor.
 #[test]
 #[ignore = "full size, ~1 min per scene; run for the README figures"]
 fn full_size_cbox_tex() {
-    check("cbox-tex", 10_000_000, 6, 0.03, 1.0);
+    check_cbox_tex(10_000_000, 6, 0.03, 0.015, 0.03);
 }

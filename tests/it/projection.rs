@@ -34,6 +34,8 @@ fn config(root: &Path) -> Config {
             .insert(v.clone(), root.join(format!("images/{v}.exr")));
     }
     cfg.atlas.texels_per_unit = 128.0;
+    // `project` below runs the refinement passes itself, so `project_all` must not.
+    cfg.refine_passes = 0;
     if let Ok(v) = std::env::var("KDMAP_DENSITY") {
         cfg.atlas.texels_per_unit = v.parse().unwrap();
     }
@@ -48,9 +50,8 @@ fn refine_passes() -> u32 {
 
 /// The projection stage: the weighted mean (`pipeline::project_all`), then `passes` of
 /// `project::refine`, with the luminance maps written to `<out>/maps` and read back as a user
-/// would. Returns the prepared scene and the maps by shape. (Spelled out rather than
-/// `pipeline::run_projection` so the refinement is exercised whether or not the pipeline
-/// runs it; if `project_all` runs it too, the extra passes only converge further.)
+/// would. Returns the prepared scene and the maps by shape. (Spelled out, with the config's
+/// own `refine_passes` at 0, so the number of passes is the test's to choose.)
 fn project(cfg: &Config, out: &Path, passes: u32) -> (Prepared, Vec<Option<Image>>) {
     let p = prepare(cfg, Mode::Quiet).unwrap();
     let dir = state_dir(out);
