@@ -1,7 +1,9 @@
 //! Projection throughput (texel-views per second): how fast the photos of the Cornell box
 //! fixture are projected onto its atlas (pixel classification, visibility rays, supersampled
-//! bilinear lookups), with 1 and 2 threads. Atlas and geometry tiles are built outside the
-//! timed loop; each iteration projects all three photos into a fresh state store.
+//! bilinear lookups), with 1 and 2 threads, without (`weighted_mean`) and with the default
+//! refinement passes (`refined`, each pass re-renders every view and back-projects the
+//! residual). Atlas and geometry tiles are built outside the timed loop; each iteration
+//! projects all three photos into a fresh state store.
 //!
 //! Run with `cargo bench --bench projection`.
 
@@ -37,29 +39,35 @@ fn bench(c: &mut Criterion) {
     let mut g = c.benchmark_group("projection");
     g.sample_size(10).measurement_time(Duration::from_secs(10));
     g.throughput(Throughput::Elements(covered * p.views.len() as u64));
-    for threads in [1usize, 2] {
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .expect("pool");
-        g.bench_with_input(
-            BenchmarkId::new("cbox_3_views", threads),
-            &threads,
-            |b, _| {
-                b.iter(|| {
-                    pool.install(|| {
-                        let mut st = TileStore::create(
-                            dir.path().join("state.tiles"),
-                            p.layout.tile_count as usize,
-                            p.layout.tile_texels(),
-                            TexelState::default(),
-                        )
-                        .expect("store");
-                        project_all(&p, &cfg, &geom, &mut st, Mode::Quiet).expect("project")
+    for (name, passes) in [
+        ("weighted_mean", 0),
+        ("refined", kdmap::project::REFINE_PASSES),
+    ] {
+        cfg.refine_passes = passes;
+        for threads in [1usize, 2] {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .expect("pool");
+            g.bench_with_input(
+                BenchmarkId::new(format!("cbox_3_views_{name}"), threads),
+                &threads,
+                |b, _| {
+                    b.iter(|| {
+                        pool.install(|| {
+                            let mut st = TileStore::create(
+                                dir.path().join("state.tiles"),
+                                p.layout.tile_count as usize,
+                                p.layout.tile_texels(),
+                                TexelState::default(),
+                            )
+                            .expect("store");
+                            project_all(&p, &cfg, &geom, &mut st, Mode::Quiet).expect("project")
+                        })
                     })
-                })
-            },
-        );
+                },
+            );
+        }
     }
     g.finish();
 }

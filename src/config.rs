@@ -440,7 +440,9 @@ mod tests {
         let c = Config::load(&p, &Overrides::default()).unwrap();
         assert_eq!(c.refine_passes, 1);
         std::fs::write(&p, "scene = \"s.xml\"\n[projection]\nrefine = 1\n").unwrap();
-        let e = Config::load(&p, &Overrides::default()).unwrap_err().to_string();
+        let e = Config::load(&p, &Overrides::default())
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("refine"), "{e}");
     }
 

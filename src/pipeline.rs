@@ -26,7 +26,6 @@ use crate::solve::{
 use glam::Vec3;
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
-use std::sync::Mutex;
 use std::time::Duration;
 use std::time::Instant;
 
@@ -276,48 +275,29 @@ pub fn project_all(
         stats.masked_pixels += image.masked;
         let t0 = std::time::Instant::now();
         let view = View::new(&p.scene, &p.accel, Camera::from_sensor(sensor), &image);
-        let err: Mutex<Option<Error>> = Mutex::new(None);
-        state.for_each_tile_mut(window, |t, st| {
-            let g = match geom.read_tile(t) {
-                Ok(g) => g,
-                Err(e) => {
-                    *err.lock().unwrap_or_else(|e| e.into_inner()) = Some(e);
-                    return;
-                }
-            };
+        map_tiles(state, geom, window, |t, g, st| {
             let slot = p.layout.slot_of_tile(t as u32);
-            project_tile(&view, &p.accel, &p.shape_ref(slot), &g, st);
+            project_tile(&view, &p.accel, &p.shape_ref(slot), g, st);
         })?;
-        if let Some(e) = err.into_inner().unwrap_or_else(|e| e.into_inner()) {
-            return Err(e);
-        }
         time += t0.elapsed();
         stage.inc(1);
     }
     state.for_each_tile_mut(window, |_, st| finish_tile(st))?;
     crate::project::refine(p, geom, state, window, cfg.refine_passes, mode)?;
     stage.finish();
-    let counts = Mutex::new((0u64, 0u64));
-    let err: Mutex<Option<Error>> = Mutex::new(None);
-    state.for_each_tile(window, |t, st| match geom.read_tile(t) {
-        Ok(g) => {
-            let c = g.iter().filter(|g| g.covered()).count() as u64;
-            let o = st.iter().filter(|s| s.flags & flags::OBSERVED != 0).count() as u64;
-            let mut k = counts.lock().unwrap_or_else(|e| e.into_inner());
-            k.0 += c;
-            k.1 += o;
-        }
-        Err(e) => *err.lock().unwrap_or_else(|e| e.into_inner()) = Some(e),
+    let counts = map_tiles(state, geom, window, |_, g, st| {
+        let c = g.iter().filter(|g| g.covered()).count() as u64;
+        let o = st.iter().filter(|s| s.flags & flags::OBSERVED != 0).count() as u64;
+        (c, o)
     })?;
-    if let Some(e) = err.into_inner().unwrap_or_else(|e| e.into_inner()) {
-        return Err(e);
-    }
-    let (c, o) = counts.into_inner().unwrap_or_else(|e| e.into_inner());
+    let (c, o) = counts.iter().fold((0, 0), |(a, b), (c, o)| (a + c, b + o));
     stats.covered_texels = c;
     stats.observed_texels = o;
     stats.seconds = time.as_secs_f64();
     Ok(stats)
 }
+
+pub use crate::atlas::tiles::map_tiles;
 
 /// One slot's texture assembled from tiles: `(values, covered)` row-major.
 pub fn gather<T: bytemuck::Pod + Send + Sync>(
@@ -432,35 +412,6 @@ pub fn run_projection(cfg: &Config, out: &Path, mode: Mode) -> Result<(Prepared,
         write_map(&maps, id, "coverage", (st.width, st.height), wt, &cov, true)?;
     }
     Ok((p, stats))
-}
-
-/// Run `f(tile, geometry, state)` over every tile (in parallel, `window` tiles mapped at a
-/// time) and return its results in tile order, so sums over them are deterministic.
-pub fn map_tiles<R: Send>(
-    state: &mut TileStore<TexelState>,
-    geom: &TileStore<TexelGeom>,
-    window: usize,
-    f: impl Fn(usize, &[TexelGeom], &mut [TexelState]) -> R + Sync + Send,
-) -> Result<Vec<R>> {
-    let n = state.tile_count();
-    let results: Mutex<Vec<Option<R>>> = Mutex::new((0..n).map(|_| None).collect());
-    let err: Mutex<Option<Error>> = Mutex::new(None);
-    state.for_each_tile_mut(window, |t, st| match geom.read_tile(t) {
-        Ok(g) => {
-            let r = f(t, &g, st);
-            results.lock().unwrap_or_else(|e| e.into_inner())[t] = Some(r);
-        }
-        Err(e) => *err.lock().unwrap_or_else(|e| e.into_inner()) = Some(e),
-    })?;
-    if let Some(e) = err.into_inner().unwrap_or_else(|e| e.into_inner()) {
-        return Err(e);
-    }
-    Ok(results
-        .into_inner()
-        .unwrap_or_else(|e| e.into_inner())
-        .into_iter()
-        .flatten()
-        .collect())
 }
 
 /// Step 3: direct irradiance E_d of every covered texel, from every emitter, with shadows.

@@ -70,6 +70,7 @@ use std::fs::{File, OpenOptions};
 use std::marker::PhantomData;
 use std::mem::{align_of, size_of};
 use std::path::{Path, PathBuf};
+use std::sync::Mutex;
 
 use bytemuck::Pod;
 use memmap2::{MmapMut, MmapOptions};
@@ -194,6 +195,31 @@ pub struct TileStore<T: Pod> {
     _record: PhantomData<T>,
 }
 
+/// Allocate the disk blocks of the first `len` bytes of `file` now, so that a full disk is an
+/// `ENOSPC` error here, with a path in the message, rather than a `SIGBUS` later when a page
+/// of the memory map is first written (a sparse file has no blocks behind its zero pages).
+/// Filesystems that cannot preallocate keep the sparse file.
+#[cfg(unix)]
+fn reserve(file: &File, len: u64) -> std::io::Result<()> {
+    use std::os::fd::AsRawFd;
+    let Ok(len) = libc::off_t::try_from(len) else {
+        return Err(std::io::Error::from_raw_os_error(libc::EFBIG));
+    };
+    // SAFETY: `posix_fallocate` only reads its integer arguments; the descriptor is open and
+    // owned by `file` for the duration of the call.
+    let rc = unsafe { libc::posix_fallocate(file.as_raw_fd(), 0, len) };
+    match rc {
+        0 => Ok(()),
+        libc::EOPNOTSUPP | libc::EINVAL => Ok(()),
+        e => Err(std::io::Error::from_raw_os_error(e)),
+    }
+}
+
+#[cfg(not(unix))]
+fn reserve(_file: &File, _len: u64) -> std::io::Result<()> {
+    Ok(())
+}
+
 impl<T: Pod> std::fmt::Debug for TileStore<T> {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("TileStore")
@@ -247,6 +273,7 @@ impl<T: Pod + Send + Sync> TileStore<T> {
             .open(path)
             .map_err(io)?;
         file.set_len(len).map_err(io)?;
+        reserve(&file, len).map_err(io)?;
         write_all_at(&file, &header.encode(), 0).map_err(io)?;
 
         let fill_bytes = bytemuck::bytes_of(&fill);
@@ -600,6 +627,42 @@ fn write_all_at(file: &File, mut buf: &[u8], mut offset: u64) -> std::io::Result
         }
     }
     Ok(())
+}
+
+/// Run `f(tile, other's tile, tile)` over every tile of `store` (in parallel, `window` tiles
+/// mapped at a time), with the same tile of `other` (read-only, e.g. the geometry beside the
+/// solver state), and return the results in tile order, so sums over them are deterministic.
+/// The first read error of `other` is returned.
+pub fn map_tiles<S, G, R>(
+    store: &mut TileStore<S>,
+    other: &TileStore<G>,
+    window: usize,
+    f: impl Fn(usize, &[G], &mut [S]) -> R + Sync + Send,
+) -> Result<Vec<R>>
+where
+    S: Pod + Send + Sync,
+    G: Pod + Send + Sync,
+    R: Send,
+{
+    let n = store.tile_count();
+    let results: Mutex<Vec<Option<R>>> = Mutex::new((0..n).map(|_| None).collect());
+    let err: Mutex<Option<Error>> = Mutex::new(None);
+    store.for_each_tile_mut(window, |t, st| match other.read_tile(t) {
+        Ok(g) => {
+            let r = f(t, &g, st);
+            results.lock().unwrap_or_else(|e| e.into_inner())[t] = Some(r);
+        }
+        Err(e) => *err.lock().unwrap_or_else(|e| e.into_inner()) = Some(e),
+    })?;
+    if let Some(e) = err.into_inner().unwrap_or_else(|e| e.into_inner()) {
+        return Err(e);
+    }
+    Ok(results
+        .into_inner()
+        .unwrap_or_else(|e| e.into_inner())
+        .into_iter()
+        .flatten()
+        .collect())
 }
 
 #[cfg(test)]

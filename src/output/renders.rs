@@ -14,6 +14,9 @@
 //! The table (`report.table`, the paper's "mean over a region, original vs re-rendered")
 //! takes, per view and reconstructed shape, the pixels where the view sees that shape
 //! cleanly (`project::View` classification: the whole pixel on one plane of the shape).
+//! Those pixels are written as `renders/<sensor>_mask.png` (8-bit grey, `1 + shape index`,
+//! 0 for pixels outside the table) with `renders/masks.json` = `{"shapes": [id, ...]}` in the
+//! scene's shape order, so the table can be recomputed from the EXRs by other tools.
 
 use super::font::{draw_text, text_height, text_width};
 use super::plot::{draw_legend, legend_height, ErrorScale};
@@ -155,7 +158,7 @@ pub fn table_rows(
         let idx: Vec<usize> = pixels
             .iter()
             .enumerate()
-            .filter(|(_, px)| px.clean && px.shape == si as u32)
+            .filter(|(_, px)| in_table(scene, px) && px.shape == si as u32)
             .map(|(i, _)| i)
             .collect();
         if idx.is_empty() {
@@ -176,6 +179,49 @@ pub fn table_rows(
         });
     }
     rows
+}
+
+/// Whether pixel `px` counts in the table row of its shape (see [`table_rows`]).
+fn in_table(scene: &Scene, px: &PixelInfo) -> bool {
+    px.clean
+        && scene
+            .shapes
+            .get(px.shape as usize)
+            .is_some_and(|s| s.is_reconstructed())
+}
+
+/// The largest shape count whose indices fit an 8-bit mask (`1 + index <= 255`).
+const MASK_MAX_SHAPES: usize = 255;
+
+/// The pixels [`table_rows`] counts, as an 8-bit grey image: `1 + shape index` (the scene's
+/// shape order, named in `masks.json`) where the pixel counts in that shape's row, 0 elsewhere.
+/// Lets tools recompute the table from the EXRs independently (`tools/nightly.py`). `None`
+/// for scenes with more than [`MASK_MAX_SHAPES`] shapes (no mask is written for them).
+fn table_mask(scene: &Scene, pixels: &[PixelInfo], w: u32, h: u32) -> Option<Pixmap> {
+    if scene.shapes.len() > MASK_MAX_SHAPES {
+        return None;
+    }
+    let mut pm = Pixmap::new(w, h)?;
+    for (o, px) in pm.data_mut().chunks_exact_mut(4).zip(pixels) {
+        let v = if in_table(scene, px) {
+            px.shape as u8 + 1
+        } else {
+            0
+        };
+        o.copy_from_slice(&[v, v, v, 255]);
+    }
+    Some(pm)
+}
+
+/// `masks.json`: `{"shapes": [id, ...]}` in the scene's shape order, so mask value `v > 0`
+/// names shape `shapes[v - 1]`. The same for every view; rewritten with each.
+fn write_masks_json(dir: &Path, scene: &Scene) -> Result<()> {
+    let ids: Vec<&str> = scene.shapes.iter().map(|s| s.id.as_str()).collect();
+    let json = serde_json::json!({ "shapes": ids });
+    let path = dir.join("masks.json");
+    let text = serde_json::to_string_pretty(&json)
+        .map_err(|e| Error::input(&path, format!("cannot serialize: {e}")))?;
+    super::write_file_atomic(&path, text.as_bytes())
 }
 
 /// Re-render view `(sensor index, photo path)`, write its EXR, PNG and comparison PNG into
@@ -205,6 +251,10 @@ pub fn write_view(
     )?;
     let cmp = compare_image(p, &view, &photo, &render, exposure, scale);
     write_pixmap_png(&dir.join(format!("{}_compare.png", sensor.id)), &cmp)?;
+    if let Some(mask) = table_mask(&p.scene, &view.pixels, w, h) {
+        write_pixmap_png(&dir.join(format!("{}_mask.png", sensor.id)), &mask)?;
+        write_masks_json(dir, &p.scene)?;
+    }
     Ok(table_rows(
         &sensor.id,
         &p.scene,

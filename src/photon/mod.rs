@@ -54,7 +54,6 @@ use crate::scene::Scene;
 use crate::{Error, Result};
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
-use std::sync::Mutex;
 use std::time::Instant;
 
 /// One slot's albedo texture: `width x height` linear RGB, row-major, row 0 = top, in the
@@ -439,8 +438,10 @@ pub fn trace_batch(ctx: &PassContext, b: u64) -> (Vec<Deposit>, PathCounts) {
 }
 
 /// Bins a group's deposits by tile (a stable counting sort: batch order, then photon order,
-/// within each tile) and adds them to `accum`, one tile per task.
-fn add_deposits(
+/// within each tile) and adds them to `accum`, one tile per task. Public for the tile
+/// accumulation benchmark (`benches/tiles.rs`).
+#[doc(hidden)]
+pub fn add_deposits(
     outs: &[(Vec<Deposit>, PathCounts)],
     state: &mut TileStore<TexelState>,
     window: usize,
@@ -498,13 +499,6 @@ pub fn finish_pass(
             state.tile_texels()
         )));
     }
-    let err: Mutex<Option<Error>> = Mutex::new(None);
-    state.for_each_tile_mut(window, |t, recs| match geom.read_tile(t) {
-        Ok(g) => finish_tile(&g, recs),
-        Err(e) => *err.lock().unwrap_or_else(|e| e.into_inner()) = Some(e),
-    })?;
-    match err.into_inner().unwrap_or_else(|e| e.into_inner()) {
-        Some(e) => Err(e),
-        None => Ok(()),
-    }
+    crate::atlas::tiles::map_tiles(state, geom, window, |_, g, recs| finish_tile(g, recs))?;
+    Ok(())
 }

@@ -18,17 +18,21 @@ fn fixtures() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures")
 }
 
+/// Every EXR shipped with the fixtures: the photos (`images/`) and the held-out views
+/// (`truth/`) of each scene.
 fn fixture_images() -> Vec<PathBuf> {
     let mut v = Vec::new();
-    for scene in ["cbox", "cbox-tex"] {
-        let dir = fixtures().join(scene).join("images");
-        let mut files: Vec<PathBuf> = std::fs::read_dir(&dir)
-            .unwrap()
-            .map(|e| e.unwrap().path())
-            .filter(|p| p.extension().is_some_and(|e| e == "exr"))
-            .collect();
-        files.sort();
-        v.extend(files);
+    for scene in ["cbox", "cbox-tex", "lights"] {
+        for sub in ["images", "truth"] {
+            let dir = fixtures().join(scene).join(sub);
+            let mut files: Vec<PathBuf> = std::fs::read_dir(&dir)
+                .unwrap()
+                .map(|e| e.unwrap().path())
+                .filter(|p| p.extension().is_some_and(|e| e == "exr"))
+                .collect();
+            files.sort();
+            v.extend(files);
+        }
     }
     v
 }

@@ -245,3 +245,34 @@ fn a_real_full_tmpfs_fails_in_one_line_and_resume_ends_bit_for_bit() {
     mount_opts(&mnt, &format!("remount,size={kib}k"), true).unwrap();
     resume_to_the_end(&a, &full, &out);
 }
+
+/// The tile stores are memory-mapped: without preallocation a full disk would surface as a
+/// SIGBUS when a page is first written. `TileStore::create` reserves the blocks up front, so
+/// it is an ENOSPC error naming the file instead.
+#[test]
+fn a_tile_store_larger_than_the_disk_is_refused_at_creation() {
+    use kdmap::atlas::layout::TexelState;
+    use kdmap::atlas::tiles::TileStore;
+    let tmp = tempfile::tempdir().unwrap();
+    let mnt = tmp.path().join("mnt");
+    std::fs::create_dir(&mnt).unwrap();
+    if let Err(e) = mount_opts(&mnt, "size=1m", false) {
+        eprintln!("note: skipping the tile-store disk-full test: cannot mount a tmpfs ({e})");
+        return;
+    }
+    let _mounted = Mounted(mnt.clone());
+    let path = mnt.join("state.tiles");
+    // 16 tiles x 4096 texels x 72 bytes = 4.5 MiB on a 1 MiB filesystem.
+    let Err(e) = TileStore::<TexelState>::create(&path, 16, 4096, TexelState::default()) else {
+        panic!("a store larger than the filesystem must be refused");
+    };
+    let msg = e.to_string();
+    assert!(
+        msg.contains("state.tiles") && msg.contains("No space left"),
+        "{msg}"
+    );
+    // A store that fits is created and fully usable.
+    let mut s = TileStore::<TexelState>::create(&path, 2, 1024, TexelState::default()).unwrap();
+    s.for_each_tile_mut(2, |_, st| st[0].weight = 1.0).unwrap();
+    assert_eq!(s.read_tile(1).unwrap()[0].weight, 1.0);
+}

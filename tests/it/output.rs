@@ -149,7 +149,9 @@ fn every_contract_file_exists() {
         want.push(format!("renders/{id}.exr"));
         want.push(format!("renders/{id}.png"));
         want.push(format!("renders/{id}_compare.png"));
+        want.push(format!("renders/{id}_mask.png"));
     }
+    want.push("renders/masks.json".into());
     for f in &want {
         assert!(r.out.join(f).is_file(), "missing {f}");
     }
@@ -527,5 +529,41 @@ fn obj_uvs_map_corners_back_to_their_texels() {
         let mtl = std::fs::read_to_string(r.out.join(format!("meshes/{}.mtl", shape.id))).unwrap();
         let map = mtl.lines().find_map(|l| l.strip_prefix("map_Kd ")).unwrap();
         assert!(r.out.join("meshes").join(map).is_file(), "{map}");
+    }
+}
+
+/// The table masks name exactly the pixels of the paper's table: per view, the pixel count of
+/// each mask value equals the `pixels` of that shape's table row, and `masks.json` lists the
+/// scene's shapes in order.
+#[test]
+fn table_masks_match_the_table_rows() {
+    let r = run();
+    let text = std::fs::read_to_string(r.out.join("renders/masks.json")).unwrap();
+    let v: serde_json::Value = serde_json::from_str(&text).unwrap();
+    let ids: Vec<String> = v["shapes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| s.as_str().unwrap().to_string())
+        .collect();
+    let scene_ids: Vec<String> = r.p.scene.shapes.iter().map(|s| s.id.clone()).collect();
+    assert_eq!(ids, scene_ids);
+    assert!(!r.report.table.is_empty());
+    for (si, _) in &r.p.views {
+        let view = &r.p.scene.sensors[*si].id;
+        let pm =
+            tiny_skia::Pixmap::load_png(r.out.join(format!("renders/{view}_mask.png"))).unwrap();
+        let mut counts = vec![0u64; 256];
+        for px in pm.pixels() {
+            counts[px.red() as usize] += 1;
+        }
+        let rows: Vec<_> = r.report.table.iter().filter(|t| &t.view == view).collect();
+        assert!(!rows.is_empty(), "{view}");
+        for row in &rows {
+            let k = 1 + ids.iter().position(|i| *i == row.shape).unwrap();
+            assert_eq!(counts[k], row.pixels, "{view} {}", row.shape);
+        }
+        let in_rows: u64 = rows.iter().map(|t| t.pixels).sum();
+        assert_eq!(counts[1..].iter().sum::<u64>(), in_rows, "{view}");
     }
 }

@@ -1,0 +1,97 @@
+//! Tile accumulation throughput (photon deposits per second): adding a group of traced photon
+//! hits into the memory-mapped `TexelState` tile store, as a photon pass does after every group
+//! of batches (bin the deposits by tile with a stable counting sort, then add each tile's flux
+//! to `accum`, one tile per task, `window` tiles mapped at a time).
+//!
+//! The deposits are real: photons traced in the Cornell box fixture (uniform albedo 0.5) by
+//! `photon::trace_batch`, outside the timed loop. The timed loop is `photon::add_deposits`
+//! (bin, then `TileStore::for_each_tile_mut`), measured with every tile mapped at once (the
+//! default budget) and with a 4-tile window (a store many times its memory budget: the
+//! map/unmap per window is part of the cost), on 1 and 2 threads.
+//!
+//! Run with `cargo bench --bench tiles`.
+
+use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
+use glam::Vec3;
+use kdmap::atlas::layout::TexelState;
+use kdmap::atlas::tiles::TileStore;
+use kdmap::config::Config;
+use kdmap::light::EmitterSampler;
+use kdmap::photon::{
+    add_deposits, trace_batch, AlbedoTextures, Deposit, PassContext, PathCounts, Receivers,
+};
+use kdmap::pipeline::prepare;
+use kdmap::progress::Mode;
+use rayon::prelude::*;
+use std::path::Path;
+use std::time::Duration;
+
+const PHOTONS: u64 = 1 << 18;
+const BATCH: u32 = 1 << 14;
+
+fn bench(c: &mut Criterion) {
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/cbox/input.xml");
+    let cfg = Config::for_scene(scene);
+    let dir = tempfile::tempdir().expect("temp dir");
+    let p = prepare(&cfg, Mode::Quiet).expect("prepare");
+    let receivers = Receivers::new(&p.scene, &p.layout, &p.atlases).expect("receivers");
+    let sampler = EmitterSampler::new(&p.scene);
+    let albedo = AlbedoTextures::uniform(&p.layout, Vec3::splat(0.5));
+    let all_tiles = p.window::<TexelState>(&cfg);
+    let ctx = PassContext {
+        scene: &p.scene,
+        accel: &p.accel,
+        sampler: &sampler,
+        layout: &p.layout,
+        atlases: &p.atlases,
+        receivers: &receivers,
+        albedo: &albedo,
+        seed: 1,
+        iteration: 0,
+        photons: PHOTONS,
+        batch_size: BATCH,
+        max_depth: cfg.max_depth,
+        window: all_tiles,
+        group_batches: 0,
+    };
+    let outs: Vec<(Vec<Deposit>, PathCounts)> = (0..ctx.batch_count())
+        .into_par_iter()
+        .map(|b| trace_batch(&ctx, b))
+        .collect();
+    let deposits: u64 = outs.iter().map(|o| o.0.len() as u64).sum();
+    let mut state = TileStore::create(
+        dir.path().join("state.tiles"),
+        p.layout.tile_count as usize,
+        p.layout.tile_texels(),
+        TexelState::default(),
+    )
+    .expect("state store");
+    eprintln!(
+        "cbox: {} tiles of {} texels ({} KiB each), {deposits} deposits from {PHOTONS} photons",
+        p.layout.tile_count,
+        p.layout.tile_texels(),
+        state.tile_stride_bytes() / 1024
+    );
+
+    let mut g = c.benchmark_group("tiles/cbox");
+    g.sample_size(20)
+        .warm_up_time(Duration::from_secs(1))
+        .measurement_time(Duration::from_secs(4))
+        .throughput(Throughput::Elements(deposits));
+    for threads in [1usize, 2] {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .expect("pool");
+        for (name, window) in [("all_mapped", all_tiles), ("window4", 4)] {
+            let id = BenchmarkId::new(format!("accumulate_{name}"), threads);
+            g.bench_with_input(id, &window, |b, &w| {
+                b.iter(|| pool.install(|| add_deposits(&outs, &mut state, w).expect("accumulate")))
+            });
+        }
+    }
+    g.finish();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);

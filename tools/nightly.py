@@ -1,0 +1,354 @@
+#!/usr/bin/env python3
+"""kdmap nightly accuracy and performance harness (one command).
+
+    python3 tools/nightly.py                      # full settings, every shipped scene
+    python3 tools/nightly.py --quick              # smoke run (small settings)
+    python3 tools/nightly.py --scenes cbox --photons 2e6 --iterations 4 --spp 32
+
+Creates (or reuses) the virtual environment `.venv/` in the repository root with
+tools/requirements.txt, and re-runs itself in it. Then:
+
+1. `cargo build --release`;
+2. per scene of tests/fixtures (cbox, cbox-tex, lights): `target/release/kdmap reconstruct
+   <scene>/input.xml --out <out>/<scene>` (kdmap's defaults, 1e7 photons x 6 iterations,
+   unless --photons / --iterations / --quick), with its wall time and peak RSS (the child's
+   max RSS from wait4); `kdmap accuracy <out>/<scene> <scene>/truth.xml` (albedo error);
+3. checks report.json's re-render table against a recomputation from the EXRs with
+   colour-science (tools/validate_table.py); a disagreement fails the run;
+4. renders the held-out views with Mitsuba 3 from the recovered scene.xml, under the
+   original and the relit lighting, against truth/*.exr (tools/heldout.py);
+5. appends one JSON line per scene to the history (default bench-history/history.jsonl,
+   git-ignored; --history or $KDMAP_BENCH_HISTORY to keep it elsewhere) and redraws the
+   PNG plots beside it (tools/plot_history.py).
+
+Exit code 0 when every scene ran and its table checked out; 1 otherwise (the reasons are
+printed at the end and stored in the history line's `failures`).
+"""
+
+import argparse
+import datetime
+import json
+import os
+import platform
+import shutil
+import subprocess
+import sys
+import time
+
+TOOLS = os.path.dirname(os.path.abspath(__file__))
+REPO = os.path.dirname(TOOLS)
+VENV = os.path.join(REPO, ".venv")
+VENV_PY = os.path.join(VENV, "bin", "python")
+REQUIREMENTS = os.path.join(TOOLS, "requirements.txt")
+SCENES = ["cbox", "cbox-tex", "lights"]
+QUICK = {"photons": 200_000, "iterations": 2, "spp": 8}
+DEFAULT_SPP = 64
+
+
+def log(msg):
+    print(f"[nightly {datetime.datetime.now(datetime.timezone.utc):%H:%M:%S}] {msg}", flush=True)
+
+
+def ensure_venv():
+    """Re-run this script inside .venv (created and filled from requirements.txt if needed)."""
+    if os.path.realpath(sys.prefix) == os.path.realpath(VENV):
+        return
+    if not os.path.exists(VENV_PY):
+        log(f"creating {VENV}")
+        subprocess.check_call([sys.executable, "-m", "venv", VENV])
+    probe = "import mitsuba, numpy, colour, matplotlib"
+    if subprocess.call([VENV_PY, "-c", probe], stderr=subprocess.DEVNULL) != 0:
+        log(f"installing {REQUIREMENTS} into {VENV}")
+        subprocess.check_call([VENV_PY, "-m", "pip", "install", "-q", "-r", REQUIREMENTS])
+    os.execv(VENV_PY, [VENV_PY, os.path.abspath(__file__)] + sys.argv[1:])
+
+
+def run_measured(cmd, log_path, cwd=REPO):
+    """Run `cmd` with stdout+stderr to `log_path`; return (exit code, wall s, peak RSS MiB of
+    the child and its waited-for descendants, from wait4). Not RUSAGE_CHILDREN: that is the
+    maximum over every child so far, the compiler of `cargo build` included."""
+    with open(log_path, "w") as f:
+        t0 = time.perf_counter()
+        p = subprocess.Popen(cmd, cwd=cwd, stdout=f, stderr=subprocess.STDOUT)
+        _, status, ru = os.wait4(p.pid, 0)
+        wall = time.perf_counter() - t0
+        p.returncode = os.waitstatus_to_exitcode(status)
+    return p.returncode, wall, ru.ru_maxrss / 1024.0
+
+
+def tail(path, n=5):
+    try:
+        with open(path) as f:
+            return " | ".join(line.rstrip() for line in f.readlines()[-n:])
+    except OSError:
+        return ""
+
+
+def git(*args):
+    try:
+        return subprocess.check_output(["git", *args], cwd=REPO, text=True,
+                                       stderr=subprocess.DEVNULL).strip()
+    except (OSError, subprocess.CalledProcessError):
+        return ""
+
+
+def machine():
+    cpu = ""
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    cpu = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    mem = None
+    try:
+        with open("/proc/meminfo") as f:
+            mem = int(f.readline().split()[1]) // 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return {"cores": os.cpu_count(), "cpu": cpu, "mem_mib": mem, "host": platform.node(),
+            "os": platform.platform(), "load1": os.getloadavg()[0]}
+
+
+def rerender_summary(report):
+    its = report.get("iterations", [])
+    table = report.get("table", [])
+    diffs = [abs(r["mean_luminance"][1] - r["mean_luminance"][0]) / r["mean_luminance"][0]
+             for r in table if r["mean_luminance"][0] > 0]
+    xy = [max(abs(r["xy"][1][k] - r["xy"][0][k]) for k in range(2)) for r in table]
+    last = its[-1] if its else {}
+    return {
+        "rms_rel_error": last.get("rms_rel_error"),
+        "mean_rel_error": last.get("mean_rel_error"),
+        "max_rel_error": last.get("max_rel_error"),
+        "rms_rel_error_per_iteration": [i["rms_rel_error"] for i in its],
+        "table_rows": len(table),
+        "table_mean_rel_lum_diff": sum(diffs) / len(diffs) if diffs else None,
+        "table_max_rel_lum_diff": max(diffs) if diffs else None,
+        "table_max_xy_diff": max(xy) if xy else None,
+        "table": table,
+    }
+
+
+def run_scene(scene, args, kdmap, logs):
+    """Reconstruct, score and check one scene; return its history record."""
+    scene_dir = os.path.join(args.fixtures, scene)
+    out = os.path.join(args.out, scene)
+    rec = {"scene": scene, "failures": []}
+    if os.path.exists(out):
+        shutil.rmtree(out)
+    cmd = [kdmap, "reconstruct", os.path.join(scene_dir, "input.xml"), "--out", out]
+    if args.photons is not None:
+        cmd += ["--photons", str(int(float(args.photons)))]
+    if args.iterations is not None:
+        cmd += ["--iterations", str(args.iterations)]
+    if args.threads is not None:
+        cmd += ["--threads", str(args.threads)]
+    rec["command"] = " ".join(os.path.relpath(c, REPO) if os.path.isabs(c) else c for c in cmd)
+    log(f"{scene}: {rec['command']}")
+    log_path = os.path.join(logs, f"{scene}-reconstruct.log")
+    code, wall, rss = run_measured(cmd, log_path)
+    rec.update(wall_seconds=wall, peak_rss_mib=rss, exit_code=code)
+    if code != 0:
+        rec["failures"].append(f"{scene}: kdmap reconstruct exited {code}: {tail(log_path)}")
+        return rec
+    with open(os.path.join(out, "report.json")) as f:
+        report = json.load(f)
+    s = report["settings"]
+    rec["settings"] = {k: s.get(k) for k in ("photons", "iterations", "seed", "threads",
+                                             "update", "smoothing_radius", "refine_passes")}
+    rec["settings"]["texels_per_unit"] = s.get("atlas", {}).get("texels_per_unit")
+    rec["timings"] = report["timings"]
+    rec["counts"] = report["counts"]
+    rec["stopped_by"] = report.get("stopped_by")
+    its = report.get("iterations", [])
+    photons = sum(i["photons"] for i in its)
+    psec = sum(i["photon_seconds"] for i in its)
+    rec["photons_traced"] = photons
+    rec["photons_per_second"] = photons / psec if psec > 0 else None
+    rec["iterations"] = its
+    rec["rerender"] = rerender_summary(report)
+    log(f"{scene}: {wall:.1f} s, peak RSS {rss:.0f} MiB, "
+        f"{(rec['photons_per_second'] or 0) / 1e6:.2f} M photons/s")
+
+    acc_log = os.path.join(logs, f"{scene}-accuracy.log")
+    code, awall, _ = run_measured([kdmap, "accuracy", out, os.path.join(scene_dir, "truth.xml")],
+                                  acc_log)
+    acc_json = os.path.join(out, "accuracy", "accuracy.json")
+    if code == 0 and os.path.exists(acc_json):
+        with open(acc_json) as f:
+            rec["accuracy"] = json.load(f)
+        rec["accuracy"]["seconds"] = awall
+        log(f"{scene}: albedo error mean {100 * rec['accuracy']['mean_rel_error']:.2f}%, "
+            f"rel. L1 {100 * rec['accuracy']['rel_l1_error']:.2f}%")
+    else:
+        rec["failures"].append(f"{scene}: kdmap accuracy exited {code}: {tail(acc_log)}")
+
+    import validate_table
+
+    t0 = time.perf_counter()
+    chk = validate_table.validate(out, scene_dir)
+    chk["seconds"] = time.perf_counter() - t0
+    rec["table_check"] = chk
+    if chk["ok"]:
+        log(f"{scene}: table check OK ({chk['rows']} rows within {validate_table.RTOL:.0e}; "
+            + ", ".join(f"{k} {v:.1e}" for k, v in chk["worst"].items()) + ")")
+    else:
+        for e in chk["errors"]:
+            rec["failures"].append(f"{scene}: re-render table disagrees with colour-science: {e}")
+
+    if not args.no_mitsuba:
+        import heldout
+
+        t0 = time.perf_counter()
+        try:
+            m = heldout.score(out, scene_dir, spp=args.spp, floor=args.floor)
+            m["seconds"] = time.perf_counter() - t0
+            rec["mitsuba"] = m
+            parts = [f"{k} rel. L1 {100 * m[k]['rel_l1_error']:.2f}% "
+                     f"(pixel {100 * m[k]['mean_rel_lum_error']:.2f}%, "
+                     f"8x8 {100 * m[k]['block8_rel_lum_error']:.2f}%)"
+                     for k in ("original", "relit") if k in m]
+            log(f"{scene}: Mitsuba held-out at {args.spp} spp: " + "; ".join(parts)
+                + f" [{m['seconds']:.0f} s]")
+        except Exception as e:  # a Mitsuba failure is a finding, not a crash of the harness
+            rec["failures"].append(f"{scene}: Mitsuba held-out scoring failed: "
+                                   f"{type(e).__name__}: {e}")
+    return rec
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter,
+                                 epilog="\n".join(__doc__.splitlines()[1:]))
+    ap.add_argument("--scenes", default=",".join(SCENES),
+                    help="comma-separated scenes of --fixtures (default: %(default)s)")
+    ap.add_argument("--photons", help="photons per iteration (default: kdmap's, 1e7)")
+    ap.add_argument("--iterations", type=int, help="iterations (default: kdmap's, 6)")
+    ap.add_argument("--threads", type=int, help="kdmap --threads (default: all cores)")
+    ap.add_argument("--quick", action="store_true",
+                    help=f"smoke run: {QUICK['photons']} photons, {QUICK['iterations']} "
+                         f"iterations, {QUICK['spp']} spp (unless given)")
+    ap.add_argument("--out", default=os.path.join(REPO, "out", "nightly"),
+                    help="directory for the runs' outputs (default: out/nightly, replaced)")
+    ap.add_argument("--history", default=os.environ.get(
+        "KDMAP_BENCH_HISTORY", os.path.join(REPO, "bench-history", "history.jsonl")),
+                    help="JSON-lines history file (default: bench-history/history.jsonl)")
+    ap.add_argument("--plots", help="plot directory (default: plots/ beside the history)")
+    ap.add_argument("--spp", type=int, help=f"Mitsuba samples per pixel (default {DEFAULT_SPP})")
+    ap.add_argument("--floor", action="store_true",
+                    help="also render the true scenes in Mitsuba (noise floor of the held-out error)")
+    ap.add_argument("--no-mitsuba", action="store_true", help="skip the held-out renders")
+    ap.add_argument("--no-build", action="store_true", help="use the existing release binary")
+    ap.add_argument("--kdmap", help="kdmap binary to measure (default: target/release/kdmap; "
+                    "implies --no-build)")
+    ap.add_argument("--fixtures", default=os.path.join(REPO, "tests", "fixtures"))
+    args = ap.parse_args()
+
+    ensure_venv()
+    sys.path.insert(0, TOOLS)
+    if args.quick:
+        args.photons = args.photons or QUICK["photons"]
+        args.iterations = args.iterations or QUICK["iterations"]
+        args.spp = args.spp or QUICK["spp"]
+    args.spp = args.spp or DEFAULT_SPP
+    args.out = os.path.abspath(args.out)
+    scenes = [s for s in args.scenes.split(",") if s]
+    for s in scenes:
+        if not os.path.exists(os.path.join(args.fixtures, s, "input.xml")):
+            ap.error(f"no scene {s} in {args.fixtures}")
+    t_start = time.perf_counter()
+    logs = os.path.join(args.out, "logs")
+    os.makedirs(logs, exist_ok=True)
+
+    build = {"skipped": True}
+    if not args.no_build and not args.kdmap:
+        log("cargo build --release")
+        code, wall, _ = run_measured(["cargo", "build", "--release"],
+                                     os.path.join(logs, "build.log"))
+        build = {"seconds": wall, "exit_code": code}
+        if code != 0:
+            print(f"nightly: cargo build --release failed ({tail(os.path.join(logs, 'build.log'))})",
+                  file=sys.stderr)
+            return 1
+    kdmap = os.path.abspath(args.kdmap or os.path.join(REPO, "target", "release", "kdmap"))
+
+    commit = git("rev-parse", "HEAD")
+    dirty = bool(git("status", "--porcelain", "--untracked-files=no"))
+    common = {
+        "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        "commit": commit,
+        "dirty": dirty,
+        "branch": git("rev-parse", "--abbrev-ref", "HEAD"),
+        "machine": machine(),
+        "quick": bool(args.quick),
+        "requested": {"photons": args.photons, "iterations": args.iterations, "spp": args.spp},
+        "build": build,
+    }
+    records, failures = [], []
+    for scene in scenes:
+        rec = dict(common)
+        rec.update(run_scene(scene, args, kdmap, logs))
+        rec["ok"] = not rec["failures"]
+        failures += rec["failures"]
+        records.append(rec)
+        os.makedirs(os.path.dirname(os.path.abspath(args.history)), exist_ok=True)
+        with open(args.history, "a") as f:
+            f.write(json.dumps(rec, separators=(",", ":")) + "\n")
+
+    import plot_history
+
+    plots = args.plots or os.path.join(os.path.dirname(os.path.abspath(args.history)), "plots")
+    try:
+        written = plot_history.plot(args.history, plots)
+        log(f"plots: {', '.join(os.path.relpath(p) for p in written)}")
+    except Exception as e:
+        failures.append(f"plotting failed: {type(e).__name__}: {e}")
+
+    print_summary(records)
+    log(f"history: {args.history}; harness took {time.perf_counter() - t_start:.0f} s")
+    if failures:
+        print("\nnightly FAILED:", file=sys.stderr)
+        for f in failures:
+            print(f"  {f}", file=sys.stderr)
+        return 1
+    return 0
+
+
+def print_summary(records):
+    def pct(v):
+        return "-" if v is None else f"{100 * v:.2f}%"
+
+    def g(d, *ks):
+        for k in ks:
+            d = d.get(k) if isinstance(d, dict) else None
+        return d
+
+    print("\n| scene | albedo mean rel. | albedo rel. L1 | re-render RMS | total s | photons s | "
+          "M photons/s | peak RSS MiB | Mitsuba orig. L1 | Mitsuba relit L1 | table check |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    for r in records:
+        pps = r.get("photons_per_second")
+        print(f"| {r['scene']} | {pct(g(r, 'accuracy', 'mean_rel_error'))} | "
+              f"{pct(g(r, 'accuracy', 'rel_l1_error'))} | {pct(g(r, 'rerender', 'rms_rel_error'))} | "
+              f"{g(r, 'timings', 'total') or 0:.1f} | {g(r, 'timings', 'photons') or 0:.1f} | "
+              f"{(pps or 0) / 1e6:.2f} | {r.get('peak_rss_mib', 0):.0f} | "
+              f"{pct(g(r, 'mitsuba', 'original', 'rel_l1_error'))} | "
+              f"{pct(g(r, 'mitsuba', 'relit', 'rel_l1_error'))} | "
+              f"{'OK' if g(r, 'table_check', 'ok') else 'FAIL'} |")
+    for r in records:
+        acc = r.get("accuracy")
+        if not acc:
+            continue
+        print(f"\n{r['scene']}: per shape (albedo mean rel. / rel. L1 / mean K_d vs truth)")
+        for s in acc.get("shapes", []):
+            kd = " ".join(f"{v:.4f}" for v in s["mean_kd"])
+            tr = " ".join(f"{v:.4f}" for v in s["mean_truth"])
+            print(f"  {s['shape']:<12} {s['texels']:>8} {pct(s['mean_rel_error']):>8} "
+                  f"{pct(s['rel_l1_error']):>8}  {kd}  vs {tr}")
+
+
+if __name__ == "__main__":
+    sys.exit(main())
