@@ -77,6 +77,57 @@ fn results_are_bit_identical_for_1_and_2_threads() {
         std::fs::read(outs[0].join("scene.xml")).unwrap(),
         std::fs::read(outs[1].join("scene.xml")).unwrap()
     );
+    accuracy_of_a_finished_run(&outs[0]);
+}
+
+/// `kdmap accuracy` on a finished run: per-shape figures in accuracy.json consistent with
+/// the scene figure and the truth file, truth/difference previews; a directory without a run
+/// is one clear error.
+fn accuracy_of_a_finished_run(out: &Path) {
+    let truth = fixture("cbox").join("truth.xml");
+    let o = kdmap(&["accuracy", out.to_str().unwrap(), truth.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        stdout.contains("scene: mean relative albedo error"),
+        "{stdout}"
+    );
+    let json = std::fs::read_to_string(out.join("accuracy/accuracy.json")).unwrap();
+    let v: serde_json::Value = serde_json::from_str(&json).unwrap();
+    let shapes = v["shapes"].as_array().unwrap();
+    assert_eq!(shapes.len(), 7, "{json}");
+    let (mut n, mut sum) = (0.0, 0.0);
+    for s in shapes {
+        let t = s["texels"].as_f64().unwrap();
+        let e = s["mean_rel_error"].as_f64().unwrap();
+        assert!(t > 0.0 && e > 0.0 && e < 0.5, "{s}");
+        n += t;
+        sum += t * e;
+        let id = s["shape"].as_str().unwrap();
+        assert!(out.join(format!("accuracy/{id}_truth.png")).is_file());
+        assert!(out.join(format!("accuracy/{id}_diff.png")).is_file());
+    }
+    let scene = v["mean_rel_error"].as_f64().unwrap();
+    assert!((scene - sum / n).abs() < 1e-12, "{scene} vs {}", sum / n);
+    // The red wall's truth is the constant of truth.xml, on every texel.
+    let left = shapes.iter().find(|s| s["shape"] == "left").unwrap();
+    let t: Vec<f64> = left["mean_truth"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x.as_f64().unwrap())
+        .collect();
+    for (a, b) in t.iter().zip([0.63, 0.065, 0.05]) {
+        assert!((a - b).abs() < 1e-6, "{t:?}");
+    }
+    let empty = tempfile::tempdir().unwrap();
+    let o = kdmap(&[
+        "accuracy",
+        empty.path().to_str().unwrap(),
+        truth.to_str().unwrap(),
+    ]);
+    let line = one_line_error(&o);
+    assert!(line.contains("report.json"), "{line}");
 }
 
 #[test]
