@@ -11,8 +11,8 @@ use kdmap::atlas::layout::TexelState;
 use kdmap::atlas::tiles::TileStore;
 use kdmap::config::Config;
 use kdmap::light::EmitterSampler;
-use kdmap::photon::{begin_pass, finish_pass, photon_pass, AlbedoTextures, PassContext, Receivers};
-use kdmap::pipeline::{build_geometry, prepare};
+use kdmap::photon::{begin_pass, finish_pass, photon_pass, AlbedoTextures, Receivers};
+use kdmap::pipeline::{build_geometry, pass_context, prepare};
 use kdmap::progress::Mode;
 use kdmap::rng::Rng;
 use rayon::prelude::*;
@@ -25,7 +25,8 @@ const RAYS: usize = 1 << 16;
 
 fn bench(c: &mut Criterion) {
     let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/cbox/input.xml");
-    let cfg = Config::for_scene(scene);
+    let mut cfg = Config::for_scene(scene);
+    (cfg.seed, cfg.photons, cfg.batch_size) = (1, PHOTONS, BATCH);
     let dir = tempfile::tempdir().expect("temp dir");
     let p = prepare(&cfg, Mode::Quiet).expect("prepare");
     let geom =
@@ -34,22 +35,7 @@ fn bench(c: &mut Criterion) {
     let sampler = EmitterSampler::new(&p.scene);
     let albedo = AlbedoTextures::uniform(&p.layout, Vec3::splat(0.5));
     let window = p.window::<TexelState>(&cfg);
-    let ctx = PassContext {
-        scene: &p.scene,
-        accel: &p.accel,
-        sampler: &sampler,
-        layout: &p.layout,
-        atlases: &p.atlases,
-        receivers: &receivers,
-        albedo: &albedo,
-        seed: 1,
-        iteration: 0,
-        photons: PHOTONS,
-        batch_size: BATCH,
-        max_depth: cfg.max_depth,
-        window,
-        group_batches: 0,
-    };
+    let ctx = pass_context(&p, &cfg, (&sampler, &receivers, &albedo), 0);
     let mut state = TileStore::create(
         dir.path().join("state.tiles"),
         p.layout.tile_count as usize,

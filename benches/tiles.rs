@@ -17,10 +17,8 @@ use kdmap::atlas::layout::TexelState;
 use kdmap::atlas::tiles::TileStore;
 use kdmap::config::Config;
 use kdmap::light::EmitterSampler;
-use kdmap::photon::{
-    add_deposits, trace_batch, AlbedoTextures, Deposit, PassContext, PathCounts, Receivers,
-};
-use kdmap::pipeline::prepare;
+use kdmap::photon::{add_deposits, trace_batch, AlbedoTextures, Deposit, PathCounts, Receivers};
+use kdmap::pipeline::{pass_context, prepare};
 use kdmap::progress::Mode;
 use rayon::prelude::*;
 use std::path::Path;
@@ -31,29 +29,15 @@ const BATCH: u32 = 1 << 14;
 
 fn bench(c: &mut Criterion) {
     let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/cbox/input.xml");
-    let cfg = Config::for_scene(scene);
+    let mut cfg = Config::for_scene(scene);
+    (cfg.seed, cfg.photons, cfg.batch_size) = (1, PHOTONS, BATCH);
     let dir = tempfile::tempdir().expect("temp dir");
     let p = prepare(&cfg, Mode::Quiet).expect("prepare");
     let receivers = Receivers::new(&p.scene, &p.layout, &p.atlases).expect("receivers");
     let sampler = EmitterSampler::new(&p.scene);
     let albedo = AlbedoTextures::uniform(&p.layout, Vec3::splat(0.5));
     let all_tiles = p.window::<TexelState>(&cfg);
-    let ctx = PassContext {
-        scene: &p.scene,
-        accel: &p.accel,
-        sampler: &sampler,
-        layout: &p.layout,
-        atlases: &p.atlases,
-        receivers: &receivers,
-        albedo: &albedo,
-        seed: 1,
-        iteration: 0,
-        photons: PHOTONS,
-        batch_size: BATCH,
-        max_depth: cfg.max_depth,
-        window: all_tiles,
-        group_batches: 0,
-    };
+    let ctx = pass_context(&p, &cfg, (&sampler, &receivers, &albedo), 0);
     let outs: Vec<(Vec<Deposit>, PathCounts)> = (0..ctx.batch_count())
         .into_par_iter()
         .map(|b| trace_batch(&ctx, b))

@@ -299,6 +299,33 @@ pub fn project_all(
 
 pub use crate::atlas::tiles::map_tiles;
 
+/// The photon pass of iteration `iteration` as `cfg` sets it (seed, photons, batch size,
+/// depth, tile window), over `p`'s scene with the given emitter sampler, receivers and
+/// current albedo.
+pub fn pass_context<'a>(
+    p: &'a Prepared,
+    cfg: &Config,
+    (sampler, receivers, albedo): (&'a EmitterSampler, &'a Receivers, &'a AlbedoTextures),
+    iteration: u64,
+) -> PassContext<'a> {
+    PassContext {
+        scene: &p.scene,
+        accel: &p.accel,
+        sampler,
+        layout: &p.layout,
+        atlases: &p.atlases,
+        receivers,
+        albedo,
+        seed: cfg.seed,
+        iteration,
+        photons: cfg.photons,
+        batch_size: cfg.batch_size,
+        max_depth: cfg.max_depth,
+        window: p.window::<TexelState>(cfg),
+        group_batches: 0,
+    }
+}
+
 /// One slot's texture assembled from tiles: `(values, covered)` row-major.
 pub fn gather<T: bytemuck::Pod + Send + Sync>(
     p: &Prepared,
@@ -692,22 +719,7 @@ pub fn reconstruct_resumable(
         let albedo = AlbedoTextures::gather(&p.layout, &receivers, &state, cfg.atlas.padding + 2)?;
         update_s += t.elapsed().as_secs_f64();
 
-        let ctx = PassContext {
-            scene: &p.scene,
-            accel: &p.accel,
-            sampler: &sampler,
-            layout: &p.layout,
-            atlases: &p.atlases,
-            receivers: &receivers,
-            albedo: &albedo,
-            seed: cfg.seed,
-            iteration: n as u64,
-            photons: cfg.photons,
-            batch_size: cfg.batch_size,
-            max_depth: cfg.max_depth,
-            window,
-            group_batches: 0,
-        };
+        let ctx = pass_context(&p, cfg, (&sampler, &receivers, &albedo), n as u64);
         if first_batch == 0 {
             begin_pass(&mut state, window)?;
         }
