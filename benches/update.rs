@@ -80,7 +80,7 @@ fn bench(c: &mut Criterion) {
         std::mem::size_of::<TexelState>()
     );
 
-    let (rule, beta, alpha) = (UpdateRule::Relaxed, 0.5, 1.0);
+    let (rule, beta, alpha) = (UpdateRule::Relaxed, glam::Vec3::splat(0.5), 1.0);
     let mut g = c.benchmark_group("update/cbox");
     g.sample_size(20)
         .warm_up_time(Duration::from_secs(1))

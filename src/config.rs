@@ -103,6 +103,11 @@ pub enum UpdateRule {
     /// fixed-point map oscillates where much of a texel's light is interreflected (its slope is
     /// about `-K_d/(1-K_d)` in a closed furnace); relaxation damps that.
     Relaxed,
+    /// The relaxed update with one step per colour channel chosen by the secant method on the
+    /// scene-wide sums of E_i and of the traced E_i over the last two iterations: the step
+    /// that would land the sum on its fixed point if the map were linear (`beta = 1 / (1 -
+    /// g)`, `g` the measured slope, clamped to [0.2, 1]). The first iteration uses `beta`.
+    Secant,
 }
 
 /// Settings of the UV atlas.
@@ -271,11 +276,12 @@ impl Config {
                 "paper" => UpdateRule::Paper,
                 "fixed_point" => UpdateRule::FixedPoint,
                 "relaxed" => UpdateRule::Relaxed,
+                "secant" => UpdateRule::Secant,
                 other => {
                     return Err(Error::input(
                         path,
                         format!(
-                            "solver.update = \"{other}\": expected \"relaxed\", \"paper\" or \"fixed_point\""
+                            "solver.update = \"{other}\": expected \"relaxed\", \"secant\", \"paper\" or \"fixed_point\""
                         ),
                     ))
                 }

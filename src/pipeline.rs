@@ -21,7 +21,8 @@ use crate::project::{finish_tile, project_tile, ShapeRef, View};
 use crate::report::{Counts, IterationStats, Report};
 use crate::scene::{luminance, mitsuba, Scene};
 use crate::solve::{
-    alpha, compare_update_tile, fill_unobserved, init_indirect_tile, kd_tile, ErrorSums,
+    alpha, channel_sums, compare_update_tile, fill_unobserved, init_indirect_tile, kd_tile,
+    secant_beta, ErrorSums,
 };
 use glam::Vec3;
 use rayon::prelude::*;
@@ -773,7 +774,23 @@ pub fn reconstruct_resumable(
 
         let t = Instant::now();
         let a = alpha(cfg.alpha0, n);
-        let (rule, beta) = (cfg.update, cfg.relaxation);
+        let rule = cfg.update;
+        let (mut sum_e_i, mut sum_traced) = ([0.0f64; 3], [0.0f64; 3]);
+        let beta = if rule == crate::config::UpdateRule::Secant {
+            for (e, t) in map_tiles(&mut state, &geom, window, |_, g, s| channel_sums(s, g))? {
+                for c in 0..3 {
+                    sum_e_i[c] += e[c];
+                    sum_traced[c] += t[c];
+                }
+            }
+            let prev = report
+                .iterations
+                .last()
+                .map(|it| (it.sum_e_i, it.sum_traced));
+            secant_beta(prev, (sum_e_i, sum_traced), cfg.relaxation)
+        } else {
+            Vec3::splat(cfg.relaxation)
+        };
         let sums = map_tiles(&mut state, &geom, window, |_, g, s| {
             compare_update_tile(s, g, rule, a, beta)
         })?;
@@ -795,6 +812,9 @@ pub fn reconstruct_resumable(
             photon_seconds,
             photons_per_second: photons as f64 / photon_seconds.max(1e-9),
             update_seconds: update_s,
+            sum_e_i,
+            sum_traced,
+            beta: beta.to_array().map(f64::from),
         };
         report.timings.photons += photon_seconds;
         report.timings.update += update_s;

@@ -28,6 +28,15 @@ pub struct IterationStats {
     pub photons_per_second: f64,
     /// Seconds in the per-texel update.
     pub update_seconds: f64,
+    /// Per channel, the sums over observed texels of E_i before the update and of the
+    /// traced E_i (recorded by the `secant` update, which steps from them; zero otherwise).
+    #[serde(default)]
+    pub sum_e_i: [f64; 3],
+    #[serde(default)]
+    pub sum_traced: [f64; 3],
+    /// The relaxation step used per channel (relaxed and secant updates).
+    #[serde(default)]
+    pub beta: [f64; 3],
 }
 
 /// Wall time per stage, seconds.

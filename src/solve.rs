@@ -109,7 +109,7 @@ pub fn compare_update_tile(
     geom: &[TexelGeom],
     rule: UpdateRule,
     alpha_n: f32,
-    beta: f32,
+    beta: Vec3,
 ) -> ErrorSums {
     let mut sums = ErrorSums::default();
     for (s, g) in state.iter_mut().zip(geom) {
@@ -134,7 +134,7 @@ pub fn compare_update_tile(
             let next = match rule {
                 UpdateRule::Paper => traced + alpha_n * kd / PI * f,
                 UpdateRule::FixedPoint => traced,
-                UpdateRule::Relaxed => v(s.e_i) + beta * (traced - v(s.e_i)),
+                UpdateRule::Relaxed | UpdateRule::Secant => v(s.e_i) + beta * (traced - v(s.e_i)),
             };
             s.e_i = next.max(Vec3::ZERO).to_array();
         } else {
@@ -143,6 +143,52 @@ pub fn compare_update_tile(
         }
     }
     sums
+}
+
+/// Per channel, the sums over observed covered texels of the current E_i and of the traced
+/// E_i (`accum` after a finished pass): one point `(E, T(E))` of the scene-wide map.
+pub fn channel_sums(state: &[TexelState], geom: &[TexelGeom]) -> ([f64; 3], [f64; 3]) {
+    let (mut e, mut t) = ([0.0f64; 3], [0.0f64; 3]);
+    for (s, g) in state.iter().zip(geom) {
+        if g.covered() && s.flags & flags::OBSERVED != 0 {
+            for c in 0..3 {
+                e[c] += s.e_i[c] as f64;
+                t[c] += s.accum[c] as f64;
+            }
+        }
+    }
+    (e, t)
+}
+
+/// Smallest and largest step [`secant_beta`] returns.
+pub const SECANT_BETA: (f32, f32) = (0.2, 1.0);
+
+/// The secant step per channel (see [`UpdateRule::Secant`]): from the points `(E, T)` of the
+/// previous and the current iteration, the slope `g = dT / dE` and `beta = 1 / (1 - g)`,
+/// clamped to [`SECANT_BETA`]; `fallback` where there is no previous point or the slope is
+/// undefined or says the map is not contracting (`g >= 1`).
+pub fn secant_beta(
+    prev: Option<([f64; 3], [f64; 3])>,
+    cur: ([f64; 3], [f64; 3]),
+    fallback: f32,
+) -> Vec3 {
+    let Some((pe, pt)) = prev else {
+        return Vec3::splat(fallback);
+    };
+    let (ce, ct) = cur;
+    let mut b = [fallback; 3];
+    for c in 0..3 {
+        let de = ce[c] - pe[c];
+        // A flat (or NaN) step says nothing about the slope.
+        if de.is_nan() || de.abs() <= 1e-9 * ce[c].abs().max(1e-30) {
+            continue;
+        }
+        let g = (ct[c] - pt[c]) / de;
+        if g.is_finite() && g < 1.0 {
+            b[c] = ((1.0 / (1.0 - g)) as f32).clamp(SECANT_BETA.0, SECANT_BETA.1);
+        }
+    }
+    Vec3::from_array(b)
 }
 
 /// `alpha_n = alpha_0 / (1 + n)`.
@@ -229,6 +275,39 @@ mod tests {
     use super::*;
 
     #[test]
+    fn secant_step_lands_a_linear_map_on_its_fixed_point() {
+        // Per channel T(E) = a + g E, fixed point E* = a / (1 - g). Two points give the slope,
+        // and E + beta (T(E) - E) must be E* whenever beta is not clamped.
+        let (a, g) = ([3.0, 1.0, 2.0], [-0.5, -0.25, -2.0]);
+        let t = |e: [f64; 3]| [0, 1, 2].map(|c| a[c] + g[c] * e[c]);
+        let (e0, e1) = ([1.0, 1.0, 1.0], [2.0, 1.5, 0.5]);
+        let beta = secant_beta(Some((e0, t(e0))), (e1, t(e1)), 0.5);
+        for c in 0..3 {
+            let want = 1.0 / (1.0 - g[c]);
+            assert!((beta[c] as f64 - want).abs() < 1e-6, "{c}: {beta}");
+            let next = e1[c] + beta[c] as f64 * (t(e1)[c] - e1[c]);
+            assert!((next - a[c] / (1.0 - g[c])).abs() < 1e-5, "{c}: {next}");
+        }
+        // No previous point, a flat step, or a non-contracting slope: the fallback; steep
+        // slopes are clamped.
+        assert_eq!(secant_beta(None, (e1, t(e1)), 0.5), Vec3::splat(0.5));
+        assert_eq!(
+            secant_beta(Some((e1, t(e1))), (e1, t(e1)), 0.4),
+            Vec3::splat(0.4)
+        );
+        let up = |e: [f64; 3]| e.map(|x| 1.0 + 1.5 * x);
+        assert_eq!(
+            secant_beta(Some((e0, up(e0))), (e1, up(e1)), 0.3),
+            Vec3::splat(0.3)
+        );
+        let steep = |e: [f64; 3]| e.map(|x| 1.0 - 20.0 * x);
+        assert_eq!(
+            secant_beta(Some((e0, steep(e0))), (e1, steep(e1)), 0.5),
+            Vec3::splat(SECANT_BETA.0)
+        );
+    }
+
+    #[test]
     fn kd_inverts_the_rendering_equation_and_respects_the_bound() {
         // L = K_d/pi (E_d + E_i) with K_d = 0.4
         let (ed, ei) = (3.0, 1.0);
@@ -287,7 +366,13 @@ mod tests {
             kd_tile(&mut st, &[g]);
             let kd = st[0].k_d[0];
             st[0].accum = (ed * kd / (1.0 - kd)).to_array(); // the exact "photon pass"
-            let e = compare_update_tile(&mut st, &[g], UpdateRule::FixedPoint, alpha(2.0, n), 1.0);
+            let e = compare_update_tile(
+                &mut st,
+                &[g],
+                UpdateRule::FixedPoint,
+                alpha(2.0, n),
+                Vec3::ONE,
+            );
             errs.push(e.max_rel);
         }
         kd_tile(&mut st, &[g]);
@@ -307,7 +392,7 @@ mod tests {
         );
         s.e_i = [9.0; 3];
         let mut st = [s];
-        let sums = compare_update_tile(&mut st, &[g], UpdateRule::Paper, 2.0, 1.0);
+        let sums = compare_update_tile(&mut st, &[g], UpdateRule::Paper, 2.0, Vec3::ONE);
         let l_render = 0.5 / PI * (1.0 + 2.0);
         let f = 1.0 - l_render;
         let want = 2.0 + 2.0 * 0.5 / PI * f;

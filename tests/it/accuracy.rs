@@ -37,6 +37,7 @@ fn run(scene: &str, photons: u64, iterations: u32) -> (Config, Vec<ShapeAccuracy
         cfg.update = match v.as_str() {
             "paper" => kdmap::config::UpdateRule::Paper,
             "fixed_point" => kdmap::config::UpdateRule::FixedPoint,
+            "secant" => kdmap::config::UpdateRule::Secant,
             _ => kdmap::config::UpdateRule::Relaxed,
         };
     }

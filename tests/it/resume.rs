@@ -304,3 +304,39 @@ fn runs_killed_inside_a_checkpoint_write_resume_bit_for_bit() {
         assert!(!ck.join("state.4.tmp").exists(), "{fault}");
     }
 }
+
+/// The `secant` update steps from the sums of the previous iteration, which live in the
+/// checkpointed report: a run killed inside iteration 3's photon pass (after two secant
+/// steps' worth of history) resumes to the same bits, and the secant step did run.
+#[test]
+fn secant_update_resumes_bit_for_bit() {
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg = write_fast_config(tmp.path());
+    let text = std::fs::read_to_string(&cfg).unwrap() + "[solver]\nupdate = \"secant\"\n";
+    std::fs::write(&cfg, text).unwrap();
+    let full = tmp.path().join("full");
+    let o = run(&fast_args(&cfg, &full));
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let report: kdmap::report::Report =
+        serde_json::from_str(&std::fs::read_to_string(full.join("report.json")).unwrap())
+            .unwrap();
+    assert_eq!(report.settings.update, kdmap::config::UpdateRule::Secant);
+    assert!(
+        report.iterations[1..]
+            .iter()
+            .any(|it| it.beta.iter().any(|b| (b - 0.5).abs() > 1e-6)),
+        "no secant step taken: {:?}",
+        report.iterations
+    );
+
+    // Checkpoint 7 would be iteration 3's end; 6 is its mid-pass one.
+    let out = tmp.path().join("killed");
+    let a = fast_args(&cfg, &out);
+    kill_paused(&a, &out, "pause-in-checkpoint:7");
+    assert_eq!(manifest(&out).map(|m| m.seq), Some(6));
+    let mut resume = a.clone();
+    resume.push("--resume");
+    let o = run(&resume);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_same_outputs(&full, &out);
+}
