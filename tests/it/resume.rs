@@ -318,8 +318,7 @@ fn secant_update_resumes_bit_for_bit() {
     let o = run(&fast_args(&cfg, &full));
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let report: kdmap::report::Report =
-        serde_json::from_str(&std::fs::read_to_string(full.join("report.json")).unwrap())
-            .unwrap();
+        serde_json::from_str(&std::fs::read_to_string(full.join("report.json")).unwrap()).unwrap();
     assert_eq!(report.settings.update, kdmap::config::UpdateRule::Secant);
     assert!(
         report.iterations[1..]
