@@ -173,14 +173,17 @@ struct TexBounds {
     bias: f64,
 }
 
-/// cbox-tex against [`TexBounds`].
-fn check_cbox_tex(photons: u64, iterations: u32, b: TexBounds) {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/cbox-tex");
-    let (cfg, acc) = run("cbox-tex", photons, iterations);
+/// A scene with textured shapes (and `<scene>/albedo/` images for its floor) against
+/// [`TexBounds`].
+fn check_textured(scene: &str, photons: u64, iterations: u32, b: TexBounds) {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/fixtures")
+        .join(scene);
+    let (cfg, acc) = run(scene, photons, iterations);
     let fl = floor(&root, &cfg);
     let truth = Truth::load(&root.join("truth.xml")).unwrap();
     eprintln!(
-        "cbox-tex: mean relative albedo error {:.2}% (resolution floor {:.2}%)",
+        "{scene}: mean relative albedo error {:.2}% (resolution floor {:.2}%)",
         100.0 * scene_error(&acc),
         100.0 * scene_error(&fl)
     );
@@ -215,7 +218,7 @@ fn check_cbox_tex(photons: u64, iterations: u32, b: TexBounds) {
                     ("relative L1", a.rel_l1_error, f.rel_l1_error),
                 ] {
                     eprintln!(
-                        "cbox-tex {}: {what} {:.2}% vs floor {:.2}%",
+                        "{scene} {}: {what} {:.2}% vs floor {:.2}%",
                         a.shape,
                         100.0 * got,
                         100.0 * fl
@@ -234,12 +237,12 @@ fn check_cbox_tex(photons: u64, iterations: u32, b: TexBounds) {
     }
     let u = scene_error(&uniform);
     eprintln!(
-        "cbox-tex uniform shapes: mean relative albedo error {:.2}%",
+        "{scene} uniform shapes: mean relative albedo error {:.2}%",
         100.0 * u
     );
     assert!(
         u <= b.uniform,
-        "cbox-tex uniform shapes: {:.2}% > {:.2}%",
+        "{scene} uniform shapes: {:.2}% > {:.2}%",
         100.0 * u,
         100.0 * b.uniform
     );
@@ -262,7 +265,7 @@ fn cbox_tex_albedo_is_recovered() {
         margin: 0.07,
         bias: 0.08,
     };
-    check_cbox_tex(1_000_000, 4, b);
+    check_textured("cbox-tex", 1_000_000, 4, b);
 }
 
 /// The full-size target: 1e7 photons, 6 iterations, at most 3% mean error and the
@@ -286,5 +289,20 @@ fn full_size_cbox_tex() {
         margin: 0.025,
         bias: 0.03,
     };
-    check_cbox_tex(10_000_000, 6, b);
+    check_textured("cbox-tex", 10_000_000, 6, b);
+}
+
+/// `lights` (open scene, point/spot/directional lights, textured ground and crate, half of
+/// the surface never seen): the same checks as cbox-tex against its own resolution floor
+/// (`tests/fixtures/lights/albedo/`).
+#[test]
+#[ignore = "full size, ~30 s; run for the README figures"]
+fn full_size_lights() {
+    let b = TexBounds {
+        uniform: 1.0,
+        uniform_each: 1.0,
+        margin: 1.0,
+        bias: 1.0,
+    };
+    check_textured("lights", 10_000_000, 6, b);
 }
