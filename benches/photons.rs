@@ -8,7 +8,6 @@
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use glam::Vec3;
 use kdmap::atlas::layout::TexelState;
-use kdmap::atlas::tiles::TileStore;
 use kdmap::config::Config;
 use kdmap::light::EmitterSampler;
 use kdmap::photon::{begin_pass, finish_pass, photon_pass, AlbedoTextures, Receivers};
@@ -36,13 +35,9 @@ fn bench(c: &mut Criterion) {
     let albedo = AlbedoTextures::uniform(&p.layout, Vec3::splat(0.5));
     let window = p.window::<TexelState>(&cfg);
     let ctx = pass_context(&p, &cfg, (&sampler, &receivers, &albedo), 0);
-    let mut state = TileStore::create(
-        dir.path().join("state.tiles"),
-        p.layout.tile_count as usize,
-        p.layout.tile_texels(),
-        TexelState::default(),
-    )
-    .expect("state store");
+    let mut state = p
+        .create_store(dir.path().join("state.tiles"), TexelState::default())
+        .expect("state store");
 
     // One untimed pass for the path statistics.
     begin_pass(&mut state, window).expect("begin");

@@ -9,7 +9,6 @@
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use kdmap::atlas::layout::TexelState;
-use kdmap::atlas::tiles::TileStore;
 use kdmap::config::Config;
 use kdmap::pipeline::{build_geometry, prepare, project_all};
 use kdmap::progress::Mode;
@@ -25,13 +24,9 @@ fn bench(c: &mut Criterion) {
     let geom =
         build_geometry(&p, &dir.path().join("geometry.tiles"), Mode::Quiet).expect("geometry");
     let covered: u64 = {
-        let mut st = TileStore::create(
-            dir.path().join("probe.tiles"),
-            p.layout.tile_count as usize,
-            p.layout.tile_texels(),
-            TexelState::default(),
-        )
-        .expect("store");
+        let mut st = p
+            .create_store(dir.path().join("probe.tiles"), TexelState::default())
+            .expect("store");
         project_all(&p, &cfg, &geom, &mut st, Mode::Quiet)
             .expect("project")
             .covered_texels
@@ -55,13 +50,9 @@ fn bench(c: &mut Criterion) {
                 |b, _| {
                     b.iter(|| {
                         pool.install(|| {
-                            let mut st = TileStore::create(
-                                dir.path().join("state.tiles"),
-                                p.layout.tile_count as usize,
-                                p.layout.tile_texels(),
-                                TexelState::default(),
-                            )
-                            .expect("store");
+                            let mut st = p
+                                .create_store(dir.path().join("state.tiles"), TexelState::default())
+                                .expect("store");
                             project_all(&p, &cfg, &geom, &mut st, Mode::Quiet).expect("project")
                         })
                     })

@@ -14,7 +14,6 @@
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use glam::Vec3;
 use kdmap::atlas::layout::TexelState;
-use kdmap::atlas::tiles::TileStore;
 use kdmap::config::Config;
 use kdmap::light::EmitterSampler;
 use kdmap::photon::{add_deposits, trace_batch, AlbedoTextures, Deposit, PathCounts, Receivers};
@@ -43,13 +42,9 @@ fn bench(c: &mut Criterion) {
         .map(|b| trace_batch(&ctx, b))
         .collect();
     let deposits: u64 = outs.iter().map(|o| o.0.len() as u64).sum();
-    let mut state = TileStore::create(
-        dir.path().join("state.tiles"),
-        p.layout.tile_count as usize,
-        p.layout.tile_texels(),
-        TexelState::default(),
-    )
-    .expect("state store");
+    let mut state = p
+        .create_store(dir.path().join("state.tiles"), TexelState::default())
+        .expect("state store");
     eprintln!(
         "cbox: {} tiles of {} texels ({} KiB each), {deposits} deposits from {PHOTONS} photons",
         p.layout.tile_count,

@@ -13,7 +13,6 @@
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use kdmap::atlas::layout::{flags, TexelGeom, TexelState};
-use kdmap::atlas::tiles::TileStore;
 use kdmap::config::{Config, UpdateRule};
 use kdmap::pipeline::{build_geometry, map_tiles, prepare};
 use kdmap::progress::Mode;
@@ -56,13 +55,9 @@ fn bench(c: &mut Criterion) {
     let window = p.window::<TexelState>(&cfg);
     let tiles = geom.tile_count();
     let tile_texels = geom.tile_texels();
-    let mut state = TileStore::create(
-        dir.path().join("state.tiles"),
-        tiles,
-        tile_texels,
-        TexelState::default(),
-    )
-    .expect("state store");
+    let mut state = p
+        .create_store(dir.path().join("state.tiles"), TexelState::default())
+        .expect("state store");
     map_tiles(&mut state, &geom, window, |t, g, s| {
         for (k, (gk, sk)) in g.iter().zip(s.iter_mut()).enumerate() {
             *sk = texel_state(gk, (t * tile_texels + k) as u64);

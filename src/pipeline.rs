@@ -134,6 +134,21 @@ impl Prepared {
         }
     }
 
+    /// A new tile store at `path` shaped like this layout (every tile, every texel), each
+    /// record `fill`.
+    pub fn create_store<T: bytemuck::Pod + Send + Sync>(
+        &self,
+        path: impl AsRef<Path>,
+        fill: T,
+    ) -> Result<TileStore<T>> {
+        TileStore::create(
+            path,
+            self.layout.tile_count as usize,
+            self.layout.tile_texels(),
+            fill,
+        )
+    }
+
     /// Tiles per mapped window for a store of `T` under the configured memory budget.
     pub fn window<T>(&self, cfg: &Config) -> usize {
         let tile_bytes = (self.layout.tile_texels() * std::mem::size_of::<T>()) as u64;
@@ -152,12 +167,7 @@ const BIN_SUBSAMPLES: u32 = 8;
 /// Rasterize every atlas into the geometry store (texel -> surface point), one row band of
 /// tiles at a time so memory stays bounded by a band, not a texture.
 pub fn build_geometry(p: &Prepared, path: &Path, mode: Mode) -> Result<TileStore<TexelGeom>> {
-    let mut store = TileStore::create(
-        path,
-        p.layout.tile_count as usize,
-        p.layout.tile_texels(),
-        TexelGeom::default(),
-    )?;
+    let mut store = p.create_store(path, TexelGeom::default())?;
     let total: u64 = p
         .layout
         .slots
@@ -414,12 +424,7 @@ pub fn run_projection(cfg: &Config, out: &Path, mode: Mode) -> Result<(Prepared,
     let dir = state_dir(out);
     std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
     let geom = build_geometry(&p, &dir.join("geometry.tiles"), mode)?;
-    let mut state = TileStore::create(
-        dir.join("state.tiles"),
-        p.layout.tile_count as usize,
-        p.layout.tile_texels(),
-        TexelState::default(),
-    )?;
+    let mut state = p.create_store(dir.join("state.tiles"), TexelState::default())?;
     let stats = project_all(&p, cfg, &geom, &mut state, mode)?;
     let maps = out.join("maps");
     for slot in 0..p.layout.slots.len() {
@@ -608,12 +613,7 @@ pub fn reconstruct_resumable(
             report = Report::new(cfg.clone());
             report.timings.load = load_s;
             report.timings.atlas = atlas_s;
-            state = TileStore::create(
-                &state_path,
-                p.layout.tile_count as usize,
-                p.layout.tile_texels(),
-                TexelState::default(),
-            )?;
+            state = p.create_store(&state_path, TexelState::default())?;
             let t = Instant::now();
             let ps = project_all(&p, cfg, &geom, &mut state, mode)?;
             report.timings.projection = t.elapsed().as_secs_f64();

@@ -100,13 +100,10 @@ impl Fixture {
     }
 
     fn state(&self, name: &str) -> TileStore<TexelState> {
-        let mut s = TileStore::create(
-            self.dir.path().join(name),
-            self.p.layout.tile_count as usize,
-            self.p.layout.tile_texels(),
-            TexelState::default(),
-        )
-        .unwrap();
+        let mut s = self
+            .p
+            .create_store(self.dir.path().join(name), TexelState::default())
+            .unwrap();
         // Garbage in accum must not survive begin_pass.
         s.for_each_tile_mut(3, |_, r| r.iter_mut().for_each(|t| t.accum = [9.0; 3]))
             .unwrap();

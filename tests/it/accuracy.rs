@@ -95,13 +95,9 @@ fn floor(root: &Path, cfg: &Config) -> Vec<ShapeAccuracy> {
     let dir = state_dir(out.path());
     std::fs::create_dir_all(&dir).unwrap();
     let geom = build_geometry(&p, &dir.join("geometry.tiles"), Mode::Quiet).unwrap();
-    let mut state = TileStore::create(
-        dir.join("state.tiles"),
-        p.layout.tile_count as usize,
-        p.layout.tile_texels(),
-        TexelState::default(),
-    )
-    .unwrap();
+    let mut state = p
+        .create_store(dir.join("state.tiles"), TexelState::default())
+        .unwrap();
     project_all(&p, &cfg, &geom, &mut state, Mode::Quiet).unwrap();
     let window = p.window::<TexelState>(&cfg);
     state

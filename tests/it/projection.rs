@@ -57,13 +57,9 @@ fn project(cfg: &Config, out: &Path, passes: u32) -> (Prepared, Vec<Option<Image
     let dir = state_dir(out);
     std::fs::create_dir_all(&dir).unwrap();
     let geom = build_geometry(&p, &dir.join("geometry.tiles"), Mode::Quiet).unwrap();
-    let mut state = TileStore::create(
-        dir.join("state.tiles"),
-        p.layout.tile_count as usize,
-        p.layout.tile_texels(),
-        TexelState::default(),
-    )
-    .unwrap();
+    let mut state = p
+        .create_store(dir.join("state.tiles"), TexelState::default())
+        .unwrap();
     let stats = project_all(&p, cfg, &geom, &mut state, Mode::Quiet).unwrap();
     assert!(stats.views >= 1);
     assert!(
