@@ -12,7 +12,7 @@
 use kdmap::atlas::layout::{TexelGeom, TexelState};
 use kdmap::atlas::tiles::TileStore;
 use kdmap::config::Config;
-use kdmap::pipeline::{build_geometry, prepare, project_all, reconstruct, state_dir};
+use kdmap::pipeline::{prepare, reconstruct, run_projection, state_dir};
 use kdmap::progress::Mode;
 use kdmap::truth::{Reflectance, ShapeAccuracy, Truth};
 use std::path::Path;
@@ -74,11 +74,18 @@ fn print_acc(what: &str, acc: &[ShapeAccuracy]) {
 /// Accuracy of the state a run left in `out`.
 fn score(root: &Path, cfg: &Config, out: &Path) -> Vec<ShapeAccuracy> {
     let p = prepare(cfg, Mode::Quiet).unwrap();
-    let dir = state_dir(out);
-    let geom: TileStore<TexelGeom> = TileStore::open(dir.join("geometry.tiles")).unwrap();
-    let state: TileStore<TexelState> = TileStore::open(dir.join("state.tiles")).unwrap();
+    let (geom, state) = stores(out);
     let truth = Truth::load(&root.join("truth.xml")).unwrap();
     truth.accuracy(&p, &geom, &state).unwrap()
+}
+
+/// The geometry and state stores a run left in `out`.
+fn stores(out: &Path) -> (TileStore<TexelGeom>, TileStore<TexelState>) {
+    let dir = state_dir(out);
+    (
+        TileStore::open(dir.join("geometry.tiles")).unwrap(),
+        TileStore::open(dir.join("state.tiles")).unwrap(),
+    )
 }
 
 /// The resolution floor of `cfg`'s atlas: the noise-free true-albedo images of
@@ -91,14 +98,8 @@ fn floor(root: &Path, cfg: &Config) -> Vec<ShapeAccuracy> {
             .insert(id.into(), root.join("albedo").join(format!("{id}.exr")));
     }
     let out = tempfile::tempdir().unwrap();
-    let p = prepare(&cfg, Mode::Quiet).unwrap();
-    let dir = state_dir(out.path());
-    std::fs::create_dir_all(&dir).unwrap();
-    let geom = build_geometry(&p, &dir.join("geometry.tiles"), Mode::Quiet).unwrap();
-    let mut state = p
-        .create_store(dir.join("state.tiles"), TexelState::default())
-        .unwrap();
-    project_all(&p, &cfg, &geom, &mut state, Mode::Quiet).unwrap();
+    let (p, _) = run_projection(&cfg, out.path(), Mode::Quiet).unwrap();
+    let (geom, mut state) = stores(out.path());
     let window = p.window::<TexelState>(&cfg);
     state
         .for_each_tile_mut(window, |_, st| {
