@@ -376,49 +376,75 @@ impl Truth {
         geom: &crate::atlas::tiles::TileStore<crate::atlas::layout::TexelGeom>,
         state: &crate::atlas::tiles::TileStore<crate::atlas::layout::TexelState>,
     ) -> Result<Vec<ShapeAccuracy>> {
-        use crate::atlas::layout::flags;
         let mut out = Vec::new();
         for slot in 0..p.layout.slots.len() {
-            let Some(truth) = self.bake_slot(p, geom, slot)? else {
-                continue;
-            };
-            let (kd, _) = crate::pipeline::gather(p, slot, state, geom, |s| {
-                if s.flags & flags::OBSERVED != 0 {
-                    Vec3::from_array(s.k_d)
-                } else {
-                    Vec3::NAN
-                }
-            })?;
-            let mut acc = ShapeAccuracy {
-                shape: p.scene.shapes[p.layout.slots[slot].shape].id.clone(),
-                ..Default::default()
-            };
-            let mut sum_true = 0.0f64;
-            for (kd, k_true) in kd.iter().zip(&truth) {
-                let Some(k_true) = k_true else { continue };
-                let den = k_true.element_sum() as f64;
-                if kd.is_nan() || den <= 0.0 {
-                    continue;
-                }
-                let diff = (*kd - *k_true).abs().element_sum() as f64;
-                acc.mean_rel_error += diff / den;
-                acc.rel_l1_error += diff;
-                sum_true += den;
-                for c in 0..3 {
-                    acc.mean_kd[c] += kd[c] as f64;
-                    acc.mean_truth[c] += k_true[c] as f64;
-                }
-                acc.texels += 1;
+            if let Some(s) = self.score_slot(p, geom, state, slot)? {
+                out.push(s.accuracy);
             }
-            let n = acc.texels.max(1) as f64;
-            acc.mean_rel_error /= n;
-            acc.rel_l1_error /= sum_true.max(f64::MIN_POSITIVE);
-            for c in 0..3 {
-                acc.mean_kd[c] /= n;
-                acc.mean_truth[c] /= n;
-            }
-            out.push(acc);
         }
         Ok(out)
     }
+
+    /// [`Truth::accuracy`] of one layout slot, with the baked truth and the recovered `K_d`
+    /// of every texel it was computed from (row-major), or `None` if the slot's shape has no
+    /// truth.
+    pub fn score_slot(
+        &self,
+        p: &crate::pipeline::Prepared,
+        geom: &crate::atlas::tiles::TileStore<crate::atlas::layout::TexelGeom>,
+        state: &crate::atlas::tiles::TileStore<crate::atlas::layout::TexelState>,
+        slot: usize,
+    ) -> Result<Option<SlotScore>> {
+        use crate::atlas::layout::flags;
+        let Some(truth) = self.bake_slot(p, geom, slot)? else {
+            return Ok(None);
+        };
+        let (k_d, _) = crate::pipeline::gather(p, slot, state, geom, |s| Vec3::from_array(s.k_d))?;
+        let (observed, _) = crate::pipeline::gather(p, slot, state, geom, |s| {
+            Vec3::splat((s.flags & flags::OBSERVED != 0) as u8 as f32)
+        })?;
+        let mut acc = ShapeAccuracy {
+            shape: p.scene.shapes[p.layout.slots[slot].shape].id.clone(),
+            ..Default::default()
+        };
+        let mut sum_true = 0.0f64;
+        for ((kd, k_true), obs) in k_d.iter().zip(&truth).zip(&observed) {
+            let Some(k_true) = k_true else { continue };
+            let den = k_true.element_sum() as f64;
+            if obs.x == 0.0 || den <= 0.0 {
+                continue;
+            }
+            let diff = (*kd - *k_true).abs().element_sum() as f64;
+            acc.mean_rel_error += diff / den;
+            acc.rel_l1_error += diff;
+            sum_true += den;
+            for c in 0..3 {
+                acc.mean_kd[c] += kd[c] as f64;
+                acc.mean_truth[c] += k_true[c] as f64;
+            }
+            acc.texels += 1;
+        }
+        let n = acc.texels.max(1) as f64;
+        acc.mean_rel_error /= n;
+        acc.rel_l1_error /= sum_true.max(f64::MIN_POSITIVE);
+        for c in 0..3 {
+            acc.mean_kd[c] /= n;
+            acc.mean_truth[c] /= n;
+        }
+        Ok(Some(SlotScore {
+            accuracy: acc,
+            truth,
+            k_d,
+        }))
+    }
+}
+
+/// One slot scored by [`Truth::score_slot`].
+#[derive(Debug, Clone)]
+pub struct SlotScore {
+    pub accuracy: ShapeAccuracy,
+    /// The true albedo per texel, averaged over its square (`None` where uncovered).
+    pub truth: Vec<Option<Rgb>>,
+    /// The recovered `K_d` per texel (observed or filled).
+    pub k_d: Vec<Vec3>,
 }

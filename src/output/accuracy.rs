@@ -8,7 +8,7 @@
 use crate::atlas::layout::{TexelGeom, TexelState};
 use crate::atlas::tiles::TileStore;
 use crate::image::{write_exr_rgb, write_png_srgb};
-use crate::pipeline::{gather, prepare, state_dir};
+use crate::pipeline::{prepare, state_dir};
 use crate::progress::Mode;
 use crate::report::Report;
 use crate::truth::{ShapeAccuracy, Truth};
@@ -63,26 +63,31 @@ pub fn score_run(out: &Path, truth_xml: &Path) -> Result<AccuracyReport> {
     let dir = state_dir(out);
     let geom: TileStore<TexelGeom> = TileStore::open(dir.join("geometry.tiles"))?;
     let state: TileStore<TexelState> = TileStore::open(dir.join("state.tiles"))?;
-    let acc = truth.accuracy(&p, &geom, &state)?;
     let adir = out.join("accuracy");
     std::fs::create_dir_all(&adir).map_err(|e| Error::io(&adir, e))?;
+    let mut acc = Vec::new();
     for slot in 0..p.layout.slots.len() {
-        let Some(t) = truth.bake_slot(&p, &geom, slot)? else {
+        let Some(score) = truth.score_slot(&p, &geom, &state, slot)? else {
             continue;
         };
         let st = p.layout.slots[slot];
         let id = &p.scene.shapes[st.shape].id;
-        let (kd, _) = gather(&p, slot, &state, &geom, |s| Vec3::from_array(s.k_d))?;
-        let tv: Vec<Vec3> = t.iter().map(|v| v.unwrap_or(Vec3::ZERO)).collect();
-        let diff: Vec<Vec3> = kd
+        let tv: Vec<Vec3> = score
+            .truth
             .iter()
-            .zip(&t)
+            .map(|v| v.unwrap_or(Vec3::ZERO))
+            .collect();
+        let diff: Vec<Vec3> = score
+            .k_d
+            .iter()
+            .zip(&score.truth)
             .map(|(k, t)| t.map_or(Vec3::ZERO, |t| (*k - t).abs() * DIFF_GAIN))
             .collect();
         let (w, h) = (st.width, st.height);
         write_exr_rgb(adir.join(format!("{id}_truth.exr")), w, h, &tv, false)?;
         write_png_srgb(adir.join(format!("{id}_truth.png")), w, h, &tv, 0.0)?;
         write_png_srgb(adir.join(format!("{id}_diff.png")), w, h, &diff, 0.0)?;
+        acc.push(score.accuracy);
     }
     let rep = AccuracyReport::new(acc);
     let json = serde_json::to_vec_pretty(&rep)
