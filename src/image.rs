@@ -206,7 +206,7 @@ pub fn read_sensor_image(path: impl AsRef<Path>, sensor: &Sensor) -> Result<Imag
 }
 
 /// `<path>.tmp`, the name a file is written under before it is renamed into place.
-fn tmp_path(path: &Path) -> PathBuf {
+pub(crate) fn tmp_path(path: &Path) -> PathBuf {
     let mut s = OsString::from(path.as_os_str());
     s.push(".tmp");
     PathBuf::from(s)
@@ -231,8 +231,14 @@ fn write_atomic(
         let _ = std::fs::remove_file(&tmp);
         return Err(Error::io(path, e));
     }
-    std::fs::rename(&tmp, path).map_err(|e| {
-        let _ = std::fs::remove_file(&tmp);
+    rename_into_place(&tmp, path)
+}
+
+/// Rename the finished temporary file `tmp` to `path`; on failure remove `tmp` and name
+/// `path` in the error.
+pub(crate) fn rename_into_place(tmp: &Path, path: &Path) -> Result<()> {
+    std::fs::rename(tmp, path).map_err(|e| {
+        let _ = std::fs::remove_file(tmp);
         Error::io(path, e)
     })
 }

@@ -36,27 +36,21 @@ use crate::render::Texture;
 use crate::report::Report;
 use crate::{Error, Result};
 use glam::Vec3;
-use std::ffi::OsString;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::Instant;
 
 /// Write `bytes` to `<path>.tmp`, then rename it to `path`. On error (a full disk included:
 /// see the `KDMAP_FAULT` test hook in [`crate::checkpoint`]) the temporary file is removed
 /// and the error names `path`.
 pub(crate) fn write_file_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    let mut s = OsString::from(path.as_os_str());
-    s.push(".tmp");
-    let tmp = PathBuf::from(s);
+    let tmp = crate::image::tmp_path(path);
     let written = std::fs::File::create(&tmp)
         .and_then(|mut f| crate::checkpoint::write_counted(&mut f, bytes));
     if let Err(e) = written {
         let _ = std::fs::remove_file(&tmp);
         return Err(Error::io(path, e));
     }
-    std::fs::rename(&tmp, path).map_err(|e| {
-        let _ = std::fs::remove_file(&tmp);
-        Error::io(path, e)
-    })
+    crate::image::rename_into_place(&tmp, path)
 }
 
 /// Encode `pm` as PNG and write it atomically.
