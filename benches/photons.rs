@@ -7,11 +7,12 @@
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use glam::Vec3;
+use kdmap::atlas::charts::Charts;
 use kdmap::atlas::layout::TexelState;
+use kdmap::atlas::{build_geometry, prepare};
 use kdmap::config::Config;
 use kdmap::light::EmitterSampler;
-use kdmap::photon::{begin_pass, finish_pass, photon_pass, AlbedoTextures, Receivers};
-use kdmap::pipeline::{build_geometry, pass_context, prepare};
+use kdmap::photon::{begin_pass, finish_pass, photon_pass, AlbedoTextures, PassContext};
 use kdmap::progress::Mode;
 use kdmap::rng::Rng;
 use rayon::prelude::*;
@@ -30,11 +31,11 @@ fn bench(c: &mut Criterion) {
     let p = prepare(&cfg, Mode::Quiet).expect("prepare");
     let geom =
         build_geometry(&p, &dir.path().join("geometry.tiles"), Mode::Quiet).expect("geometry");
-    let receivers = Receivers::new(&p.scene, &p.layout, &p.atlases).expect("receivers");
+    let charts = Charts::new(&p.scene, &p.layout, &p.atlases).expect("charts");
     let sampler = EmitterSampler::new(&p.scene);
     let albedo = AlbedoTextures::uniform(&p.layout, Vec3::splat(0.5));
     let window = p.window::<TexelState>(&cfg);
-    let ctx = pass_context(&p, &cfg, (&sampler, &receivers, &albedo), 0);
+    let ctx = PassContext::new(&p, &cfg, (&sampler, &charts, &albedo), 0);
     let mut state = p
         .create_store(dir.path().join("state.tiles"), TexelState::default())
         .expect("state store");

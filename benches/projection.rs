@@ -9,8 +9,8 @@
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use kdmap::atlas::layout::TexelState;
+use kdmap::atlas::{build_geometry, prepare};
 use kdmap::config::Config;
-use kdmap::pipeline::{build_geometry, prepare, project_all};
 use kdmap::progress::Mode;
 use std::path::Path;
 use std::time::Duration;
@@ -27,7 +27,7 @@ fn bench(c: &mut Criterion) {
         let mut st = p
             .create_store(dir.path().join("probe.tiles"), TexelState::default())
             .expect("store");
-        project_all(&p, &cfg, &geom, &mut st, Mode::Quiet)
+        kdmap::project::run(&p, &cfg, &geom, &mut st, Mode::Quiet)
             .expect("project")
             .covered_texels
     };
@@ -36,7 +36,7 @@ fn bench(c: &mut Criterion) {
     g.throughput(Throughput::Elements(covered * p.views.len() as u64));
     for (name, passes) in [
         ("weighted_mean", 0),
-        ("refined", kdmap::project::REFINE_PASSES),
+        ("refined", kdmap::config::REFINE_PASSES),
     ] {
         cfg.refine_passes = passes;
         for threads in [1usize, 2] {
@@ -53,7 +53,8 @@ fn bench(c: &mut Criterion) {
                             let mut st = p
                                 .create_store(dir.path().join("state.tiles"), TexelState::default())
                                 .expect("store");
-                            project_all(&p, &cfg, &geom, &mut st, Mode::Quiet).expect("project")
+                            kdmap::project::run(&p, &cfg, &geom, &mut st, Mode::Quiet)
+                                .expect("project")
                         })
                     })
                 },

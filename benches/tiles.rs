@@ -13,11 +13,12 @@
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use glam::Vec3;
+use kdmap::atlas::charts::Charts;
 use kdmap::atlas::layout::TexelState;
+use kdmap::atlas::prepare;
 use kdmap::config::Config;
 use kdmap::light::EmitterSampler;
-use kdmap::photon::{add_deposits, trace_batch, AlbedoTextures, Deposit, PathCounts, Receivers};
-use kdmap::pipeline::{pass_context, prepare};
+use kdmap::photon::{add_deposits, trace_batch, AlbedoTextures, Deposit, PassContext, PathCounts};
 use kdmap::progress::Mode;
 use rayon::prelude::*;
 use std::path::Path;
@@ -32,11 +33,11 @@ fn bench(c: &mut Criterion) {
     (cfg.seed, cfg.photons, cfg.batch_size) = (1, PHOTONS, BATCH);
     let dir = tempfile::tempdir().expect("temp dir");
     let p = prepare(&cfg, Mode::Quiet).expect("prepare");
-    let receivers = Receivers::new(&p.scene, &p.layout, &p.atlases).expect("receivers");
+    let charts = Charts::new(&p.scene, &p.layout, &p.atlases).expect("charts");
     let sampler = EmitterSampler::new(&p.scene);
     let albedo = AlbedoTextures::uniform(&p.layout, Vec3::splat(0.5));
     let all_tiles = p.window::<TexelState>(&cfg);
-    let ctx = pass_context(&p, &cfg, (&sampler, &receivers, &albedo), 0);
+    let ctx = PassContext::new(&p, &cfg, (&sampler, &charts, &albedo), 0);
     let outs: Vec<(Vec<Deposit>, PathCounts)> = (0..ctx.batch_count())
         .into_par_iter()
         .map(|b| trace_batch(&ctx, b))

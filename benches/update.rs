@@ -13,8 +13,9 @@
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use kdmap::atlas::layout::{flags, TexelGeom, TexelState};
+use kdmap::atlas::tiles::map_tiles;
+use kdmap::atlas::{build_geometry, prepare};
 use kdmap::config::{Config, UpdateRule};
-use kdmap::pipeline::{build_geometry, map_tiles, prepare};
 use kdmap::progress::Mode;
 use kdmap::rng::Rng;
 use kdmap::solve::{compare_update_tile, kd_tile};

@@ -28,6 +28,8 @@ pub struct Hit {
     pub b2: f32,
     /// Distance along the (unit) ray direction.
     pub t: f32,
+    /// The BVH primitive index (see [`Accel::prim_ids`]).
+    pub prim: u32,
 }
 
 /// The scene's acceleration structure. Immutable and `Sync`: share it across threads.
@@ -87,6 +89,12 @@ impl Accel {
         self.tris.len()
     }
 
+    /// `(shape, triangle)` of every BVH primitive, in BVH order: a [`Hit::prim`] indexes it,
+    /// and tables laid out in this order are read with one lookup per hit.
+    pub fn prim_ids(&self) -> &[(u32, u32)] {
+        &self.ids
+    }
+
     /// Closest hit along `origin + t * dir` for `t` in `(0, tmax)`. `dir` must be unit length.
     #[inline]
     pub fn intersect(&self, origin: Vec3, dir: Vec3, tmax: f32) -> Option<Hit> {
@@ -113,6 +121,7 @@ impl Accel {
             b1,
             b2,
             t: hit.t,
+            prim: id as u32,
         })
     }
 

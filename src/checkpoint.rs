@@ -1,216 +1,70 @@
-//! Crash-safe checkpoints of a reconstruction so `kdmap reconstruct --resume` continues an
-//! interrupted run and ends with bit-identical outputs.
+//! Crash-safe checkpoints of a long run, so `kdmap reconstruct --resume` continues an
+//! interrupted run and ends with bit-identical outputs. This module knows how to store and
+//! find a checkpoint, not what a run's progress means: the caller gives the fingerprint of its
+//! inputs and a typed payload (where the run stands, its report so far), which is stored
+//! with `bincode` and handed back on load.
 //!
-//! A checkpoint is two files in `<out>/checkpoint/`:
+//! A checkpoint is two files in the run's checkpoint directory:
 //!
-//! - `state.<seq>.tiles`: a byte copy of the working `state.tiles` (the per-texel state of
-//!   every stage: L_orig, E_d, E_i, K_d, error, the photon accumulator, flags) taken at a
-//!   point where it is consistent, fsynced before the manifest names it;
-//! - `progress.json`: the manifest, written atomically (tmp file, fsync, rename, fsync of
-//!   the directory). Its first line is a header `KDMCKPT <version> <fnv1a64 hex> <bytes>`
-//!   over the JSON payload that follows; the payload holds a hash of the inputs and of the
-//!   result-affecting settings, where the run stands ([`Stage`]), the report so far and the
-//!   snapshot's name, length and hash.
+//! - `state.<seq>.tiles`: a byte copy of the working state store (every per-texel quantity of
+//!   every stage), taken where it is consistent, fsynced before the manifest names it;
+//! - `progress.kdm`: the manifest, written atomically (tmp file, fsync, rename, fsync of
+//!   the directory). Its first line is a text header `KDMCKPT <version> <fnv1a64 hex>
+//!   <bytes>` over the binary payload that follows: the inputs fingerprint, the sequence
+//!   number, the seconds spent so far, the snapshot's name, length and hash, and the
+//!   caller's payload.
 //!
-//! The previous manifest is kept as `progress.prev.json` with its snapshot, so a torn or
+//! The previous manifest is kept as `progress.prev.kdm` with its snapshot, so a torn or
 //! corrupt manifest or snapshot (bad header, checksum or length) is reported in one line
 //! and the run falls back to the checkpoint before it. Older snapshots are deleted.
 //!
-//! The geometry store is not checkpointed: it is a pure function of the scene and settings
-//! and is rebuilt on resume. All randomness is keyed by (seed, iteration, batch, index), so
+//! Stores that are pure functions of the inputs (the geometry) are not checkpointed: they
+//! are rebuilt on resume. All randomness is keyed by (seed, iteration, batch, index), so
 //! restoring the state exactly restores the run.
-//!
-//! Checksums are hand-written 64-bit FNV-1a: they guard against torn writes and bit rot, not
-//! adversaries, and the crate needs no extra dependency for them.
 //!
 //! A write that fails (disk full, unwritable directory) removes its temporary file and
 //! returns a one-line [`Error::Io`] naming the file; the previous checkpoint is untouched
 //! (snapshots are deleted only after the new manifest is durable), so `--resume` continues
-//! from it once there is room.
-//!
-//! # Fault injection (test hook)
-//!
-//! The environment variable `KDMAP_FAULT` is read once per process, at the first
-//! checkpoint or output write; unset (or with an unknown value) it has no effect. It exists
-//! for the crash and disk-full tests (`tests/it/resume.rs`, `tests/it/diskfull.rs`):
-//!
-//! - `pause-in-checkpoint:N`: during the N-th checkpoint write of the process (1-based),
-//!   once half of the snapshot's bytes are in its temporary file (before fsync and rename),
-//!   create `<checkpoint dir>/fault.paused` and sleep forever (the test then SIGKILLs);
-//! - `pause-in-manifest:N`: the same, once half of the N-th manifest is in `progress.new`;
-//! - `enospc-after-bytes:N`: once the process has written N bytes in total through
-//!   checkpoint snapshots (and their restore on resume), manifests and output files
-//!   (`output::write_file_atomic`, the EXR/PNG writers of [`crate::image`]), every such
-//!   write fails with `ENOSPC` (os error 28) as a full disk would.
+//! from it once there is room. The `KDMAP_FAULT` test hooks are described in
+//! [`crate::fsio`].
 
-use crate::config::Config;
 use crate::error::{Error, Result};
-use crate::report::Report;
+use crate::fsio::{self, fault, fnv1a, write_counted, Fault, Fnv};
+use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 use std::fs::File;
-use std::io::{Read, Write};
+use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::OnceLock;
 
-/// A fault injected by `KDMAP_FAULT` (module doc, "Fault injection").
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Fault {
-    PauseInCheckpoint(u64),
-    PauseInManifest(u64),
-    EnospcAfterBytes(u64),
-}
-
-/// The fault `KDMAP_FAULT` asks for, parsed once.
-fn fault() -> Option<Fault> {
-    static FAULT: OnceLock<Option<Fault>> = OnceLock::new();
-    *FAULT.get_or_init(|| {
-        let v = std::env::var("KDMAP_FAULT").ok()?;
-        let (kind, n) = v.trim().split_once(':')?;
-        let n: u64 = n.trim().parse().ok()?;
-        match kind.trim() {
-            "pause-in-checkpoint" => Some(Fault::PauseInCheckpoint(n)),
-            "pause-in-manifest" => Some(Fault::PauseInManifest(n)),
-            "enospc-after-bytes" => Some(Fault::EnospcAfterBytes(n)),
-            _ => None,
-        }
-    })
-}
-
-/// Checkpoint writes ([`Writer::write`] calls) begun by this process.
+/// Checkpoint writes ([`Writer::write`] calls) begun by this process (the pause hooks count
+/// them).
 static CHECKPOINT_WRITES: AtomicU64 = AtomicU64::new(0);
-/// Bytes written through [`write_counted`] and [`count_written`] by this process (counted
-/// only under `enospc-after-bytes`).
-static BYTES_WRITTEN: AtomicU64 = AtomicU64::new(0);
-
-/// The error a full disk gives.
-fn enospc() -> std::io::Error {
-    std::io::Error::from_raw_os_error(28) // ENOSPC
-}
-
-/// `w.write_all(bytes)` for checkpoint and output files: under `enospc-after-bytes:N`, the
-/// bytes beyond the process's N-th are not written and the write fails with `ENOSPC`.
-pub(crate) fn write_counted(w: &mut impl Write, bytes: &[u8]) -> std::io::Result<()> {
-    if let Some(Fault::EnospcAfterBytes(limit)) = fault() {
-        let len = bytes.len() as u64;
-        let before = BYTES_WRITTEN.fetch_add(len, Ordering::SeqCst);
-        if before.saturating_add(len) > limit {
-            let room = limit.saturating_sub(before).min(len) as usize;
-            w.write_all(&bytes[..room])?;
-            return Err(enospc());
-        }
-    }
-    w.write_all(bytes)
-}
-
-/// For a file of `len` bytes written by a library (the EXR encoder) rather than through
-/// [`write_counted`]: counts it, and under `enospc-after-bytes:N` fails with `ENOSPC` if
-/// it takes the process past N bytes. The caller removes the file on error.
-pub(crate) fn count_written(len: u64) -> std::io::Result<()> {
-    if let Some(Fault::EnospcAfterBytes(limit)) = fault() {
-        let before = BYTES_WRITTEN.fetch_add(len, Ordering::SeqCst);
-        if before.saturating_add(len) > limit {
-            return Err(enospc());
-        }
-    }
-    Ok(())
-}
-
-/// Under a pause fault: create `<dir>/fault.paused` and sleep forever.
-fn pause_forever(dir: &Path) -> ! {
-    let _ = std::fs::write(dir.join("fault.paused"), b"");
-    loop {
-        std::thread::sleep(std::time::Duration::from_secs(3600));
-    }
-}
 
 /// Manifest format version this build reads and writes.
-pub const VERSION: u32 = 1;
+pub const VERSION: u32 = 2;
 const MAGIC: &str = "KDMCKPT";
 /// The current manifest.
-pub const MANIFEST: &str = "progress.json";
+pub const MANIFEST: &str = "progress.kdm";
 /// The manifest before it, kept for fallback.
-pub const PREV_MANIFEST: &str = "progress.prev.json";
+pub const PREV_MANIFEST: &str = "progress.prev.kdm";
+/// An unusable manifest set aside by [`load_for_resume`].
+pub const BAD_MANIFEST: &str = "progress.bad.kdm";
 
-/// 64-bit FNV-1a, incrementally.
-#[derive(Debug, Clone, Copy)]
-pub struct Fnv(u64);
-
-impl Default for Fnv {
-    fn default() -> Self {
-        Fnv(0xcbf2_9ce4_8422_2325)
-    }
-}
-
-impl Fnv {
-    pub fn update(&mut self, bytes: &[u8]) {
-        for &b in bytes {
-            self.0 ^= u64::from(b);
-            self.0 = self.0.wrapping_mul(0x0100_0000_01b3);
-        }
-    }
-    pub fn finish(&self) -> u64 {
-        self.0
-    }
-}
-
-/// FNV-1a 64 of `bytes`.
-pub fn fnv1a(bytes: &[u8]) -> u64 {
-    let mut h = Fnv::default();
-    h.update(bytes);
-    h.finish()
-}
-
-/// Where a run stands. Each variant names the state `state.tiles` holds.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Stage {
-    /// Projection, direct light and the initial E_i are done; iteration 0 not begun.
-    Direct,
-    /// Inside iteration `iteration`'s photon pass: K_d was computed and filled for it, and
-    /// batches `0..batches_done` are in `accum`.
-    Pass {
-        iteration: u32,
-        batches_done: u64,
-        /// Clamped texels counted by this iteration's K_d step.
-        clamped: u64,
-        /// Photons and seconds of the pass so far.
-        photons: u64,
-        photon_seconds: f64,
-        update_seconds: f64,
-    },
-    /// Iterations `0..iterations_done` are complete; `stopped` if the solver stopped
-    /// (tolerance reached or last iteration), so only the final step and outputs remain.
-    Iterations { iterations_done: u32, stopped: bool },
-    /// Outputs written: resuming is a no-op.
-    Finished,
-}
-
-/// The projection counts the report needs at the end.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
-pub struct ProjCounts {
-    pub views: usize,
-    pub masked_pixels: usize,
-    pub covered_texels: u64,
-    pub observed_texels: u64,
-}
-
-/// The manifest payload.
+/// The manifest: the generic part, and the caller's payload `P`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct Manifest {
-    /// Hash of the inputs and the result-affecting settings ([`inputs_hash`]).
+pub struct Manifest<P> {
+    /// The fingerprint of the inputs and result-affecting settings the run was made with.
     pub inputs_hash: u64,
     /// Checkpoint sequence number (1, 2, ...).
     pub seq: u64,
-    pub stage: Stage,
-    pub projection: ProjCounts,
-    /// The report so far: per-iteration statistics, timings (seconds spent so far).
-    pub report: Report,
     /// Seconds spent by the run so far, over every attempt.
     pub seconds: f64,
     /// The state snapshot (file name in the checkpoint dir), its length and FNV-1a; `None`
-    /// once finished.
+    /// when the caller said there is no state to keep (a finished run).
     pub snapshot: Option<Snapshot>,
+    /// Where the run stands, as the caller describes it.
+    pub payload: P,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -220,46 +74,18 @@ pub struct Snapshot {
     pub fnv1a: u64,
 }
 
-/// Hash of everything that changes the result: the scene file, every file its XML names
-/// (`filename` attributes: meshes, textures), the photos, and the config without `threads`,
-/// `checkpoint_every_batches` and `memory_budget_mib` (which never change results).
-pub fn inputs_hash(cfg: &Config, photos: &[PathBuf]) -> Result<u64> {
-    let mut h = Fnv::default();
-    let mut c = cfg.clone();
-    c.threads = 0;
-    c.checkpoint_every_batches = 1;
-    c.memory_budget_mib = 0;
-    let json = serde_json::to_vec(&c).map_err(|e| Error::Config(format!("settings: {e}")))?;
-    h.update(&json);
-    let xml = std::fs::read(&cfg.scene).map_err(|e| Error::io(&cfg.scene, e))?;
-    h.update(&xml);
-    let dir = cfg.scene.parent().unwrap_or(Path::new("."));
-    if let Ok(text) = std::str::from_utf8(&xml) {
-        if let Ok(doc) = roxmltree::Document::parse(text) {
-            for n in doc.descendants() {
-                if let Some(f) = n.attribute("filename") {
-                    let p = dir.join(f);
-                    h.update(f.as_bytes());
-                    if let Ok(bytes) = std::fs::read(&p) {
-                        h.update(&bytes);
-                    }
-                }
-            }
-        }
-    }
-    for p in photos {
-        h.update(p.to_string_lossy().as_bytes());
-        let bytes = std::fs::read(p).map_err(|e| Error::io(p, e))?;
-        h.update(&(bytes.len() as u64).to_le_bytes());
-        h.update(&bytes);
-    }
-    Ok(h.finish())
+/// Largest payload a manifest may hold: decoding never allocates more than this, whatever a
+/// damaged file claims.
+const MAX_PAYLOAD: usize = 64 << 20;
+
+fn bincode_config() -> impl bincode::config::Config {
+    bincode::config::standard().with_limit::<MAX_PAYLOAD>()
 }
 
-/// Encodes a manifest: header line, then the JSON payload.
-pub fn encode(m: &Manifest) -> Result<Vec<u8>> {
-    let payload =
-        serde_json::to_vec_pretty(m).map_err(|e| Error::Config(format!("checkpoint: {e}")))?;
+/// Encodes a manifest: header line, then the binary payload.
+pub fn encode<P: Serialize>(m: &Manifest<P>) -> Result<Vec<u8>> {
+    let payload = bincode::serde::encode_to_vec(m, bincode_config())
+        .map_err(|e| Error::internal(format!("checkpoint: {e}")))?;
     let mut out = format!(
         "{MAGIC} {VERSION} {:016x} {}\n",
         fnv1a(&payload),
@@ -270,10 +96,13 @@ pub fn encode(m: &Manifest) -> Result<Vec<u8>> {
     Ok(out)
 }
 
-/// Decodes and verifies a manifest; the error says what is wrong in a few words.
-pub fn decode(bytes: &[u8]) -> std::result::Result<Manifest, String> {
+/// Decodes and verifies a manifest; the error says what is wrong in a few words. Never
+/// trusts the content: the length and checksum are checked before the payload is decoded,
+/// and decoding is bounded.
+pub fn decode<P: DeserializeOwned>(bytes: &[u8]) -> std::result::Result<Manifest<P>, String> {
     let nl = bytes
         .iter()
+        .take(128)
         .position(|&b| b == b'\n')
         .ok_or("no header line (torn or not a checkpoint)")?;
     let header = std::str::from_utf8(&bytes[..nl]).map_err(|_| "header is not text")?;
@@ -299,14 +128,15 @@ pub fn decode(bytes: &[u8]) -> std::result::Result<Manifest, String> {
     if fnv1a(payload) != sum {
         return Err("checksum mismatch (corrupt)".into());
     }
-    serde_json::from_slice(payload).map_err(|e| format!("bad payload: {e}"))
-}
-
-/// Fsync a directory so renames in it are durable.
-fn sync_dir(dir: &Path) -> Result<()> {
-    File::open(dir)
-        .and_then(|d| d.sync_all())
-        .map_err(|e| Error::io(dir, e))
+    let (m, used) = bincode::serde::decode_from_slice(payload, bincode_config())
+        .map_err(|e| format!("bad payload: {e}"))?;
+    if used != payload.len() {
+        return Err(format!(
+            "bad payload: {} trailing bytes",
+            payload.len() - used
+        ));
+    }
+    Ok(m)
 }
 
 /// Copy `from` to `to` (through `<to>.tmp`, fsynced, renamed), returning its length and
@@ -360,7 +190,7 @@ fn pump(
                 if at < len + n as u64 {
                     let half = &chunk[..at.saturating_sub(len) as usize];
                     write_counted(*d, half).map_err(|e| Error::io(*p, e))?;
-                    pause_forever(dir);
+                    fsio::pause_forever(dir);
                 }
             }
             write_counted(*d, chunk).map_err(|e| Error::io(*p, e))?;
@@ -412,37 +242,33 @@ impl Writer {
         Ok(())
     }
 
-    /// Checkpoint: snapshot `state_path` (which must hold the state `stage` names, its
-    /// writes done) unless finished, then replace the manifest atomically, keeping the
-    /// previous one, and delete snapshots neither manifest names.
-    pub fn write(
+    /// Checkpoint: snapshot `state_path` (which must hold the state `payload` describes, its
+    /// writes done) if `state_path` is given, then replace the manifest atomically, keeping
+    /// the previous one, and delete snapshots neither manifest names.
+    pub fn write<P: Serialize>(
         &mut self,
-        state_path: &Path,
-        stage: Stage,
-        projection: ProjCounts,
-        report: &Report,
+        state_path: Option<&Path>,
+        payload: &P,
         seconds: f64,
     ) -> Result<()> {
         let t0 = std::time::Instant::now();
         let nth = CHECKPOINT_WRITES.fetch_add(1, Ordering::SeqCst) + 1;
         let seq = self.seq + 1;
-        let snapshot = if stage == Stage::Finished {
-            None
-        } else {
+        let snapshot = if let Some(state_path) = state_path {
             let file = format!("state.{seq}.tiles");
             let pause = (fault() == Some(Fault::PauseInCheckpoint(nth))).then_some(&*self.dir);
             let (bytes, fnv1a) = copy_hashed(state_path, &self.dir.join(&file), pause)?;
             self.bytes_written += bytes;
             Some(Snapshot { file, bytes, fnv1a })
+        } else {
+            None
         };
         let m = Manifest {
             inputs_hash: self.inputs_hash,
             seq,
-            stage,
-            projection,
-            report: report.clone(),
             seconds,
             snapshot,
+            payload,
         };
         let bytes = encode(&m)?;
         self.bytes_written += bytes.len() as u64;
@@ -452,7 +278,7 @@ impl Writer {
         let written = File::create(&tmp).and_then(|mut f| {
             if pause {
                 write_counted(&mut f, &bytes[..bytes.len() / 2])?;
-                pause_forever(&self.dir);
+                fsio::pause_forever(&self.dir);
             }
             write_counted(&mut f, &bytes)?;
             f.sync_all()
@@ -461,13 +287,13 @@ impl Writer {
             let _ = std::fs::remove_file(&tmp);
             return Err(Error::io(&tmp, e));
         }
-        // A kill between these renames leaves only progress.prev.json: loading falls back.
+        // A kill between these renames leaves only the previous manifest: loading falls back.
         if cur.exists() {
             let prev = self.dir.join(PREV_MANIFEST);
             std::fs::rename(&cur, &prev).map_err(|e| Error::io(&prev, e))?;
         }
         std::fs::rename(&tmp, &cur).map_err(|e| Error::io(&cur, e))?;
-        sync_dir(&self.dir)?;
+        fsio::sync_dir(&self.dir)?;
         self.seq = seq;
         // Keep the snapshots of this checkpoint and the previous one.
         if let Ok(rd) = std::fs::read_dir(&self.dir) {
@@ -495,7 +321,10 @@ fn snapshot_seq(name: &str) -> Option<u64> {
 }
 
 /// Reads a manifest file and checks its snapshot's length and hash.
-fn load_one(dir: &Path, name: &str) -> std::result::Result<Manifest, String> {
+fn load_one<P: DeserializeOwned>(
+    dir: &Path,
+    name: &str,
+) -> std::result::Result<Manifest<P>, String> {
     let path = dir.join(name);
     let bytes = std::fs::read(&path).map_err(|e| format!("{}: {e}", path.display()))?;
     let m = decode(&bytes).map_err(|e| format!("{}: {e}", path.display()))?;
@@ -518,26 +347,28 @@ fn load_one(dir: &Path, name: &str) -> std::result::Result<Manifest, String> {
 /// The newest good checkpoint in `dir`: the current manifest, else the previous one. `None`
 /// if neither is usable (or there is none); the notes say, one line each, which checkpoint
 /// was unusable and why.
-pub fn load(dir: &Path) -> (Option<Manifest>, Vec<String>) {
+pub fn load<P: DeserializeOwned>(dir: &Path) -> (Option<Manifest<P>>, Vec<String>) {
     let (m, notes, _) = load_which(dir);
     (m, notes)
 }
 
 /// [`load`] for a run about to continue: if the current manifest is unusable and the
-/// previous one is used, the bad one is renamed `progress.bad.json`, so the next checkpoint
-/// does not rotate it into `progress.prev.json` over the good one.
-pub fn load_for_resume(dir: &Path) -> Result<(Option<Manifest>, Vec<String>)> {
+/// previous one is used, the bad one is renamed [`BAD_MANIFEST`], so the next checkpoint
+/// does not rotate it into [`PREV_MANIFEST`] over the good one.
+pub fn load_for_resume<P: DeserializeOwned>(
+    dir: &Path,
+) -> Result<(Option<Manifest<P>>, Vec<String>)> {
     let (m, notes, from_prev) = load_which(dir);
     let cur = dir.join(MANIFEST);
     if from_prev && cur.exists() {
-        let bad = dir.join("progress.bad.json");
+        let bad = dir.join(BAD_MANIFEST);
         std::fs::rename(&cur, &bad).map_err(|e| Error::io(&bad, e))?;
-        sync_dir(dir)?;
+        fsio::sync_dir(dir)?;
     }
     Ok((m, notes))
 }
 
-fn load_which(dir: &Path) -> (Option<Manifest>, Vec<String>, bool) {
+fn load_which<P: DeserializeOwned>(dir: &Path) -> (Option<Manifest<P>>, Vec<String>, bool) {
     let mut notes = Vec::new();
     for name in [MANIFEST, PREV_MANIFEST] {
         if !dir.join(name).exists() {
@@ -552,14 +383,14 @@ fn load_which(dir: &Path) -> (Option<Manifest>, Vec<String>, bool) {
 }
 
 /// Restores the working state file from a manifest's snapshot.
-pub fn restore(dir: &Path, m: &Manifest, state_path: &Path) -> Result<()> {
+pub fn restore<P>(dir: &Path, m: &Manifest<P>, state_path: &Path) -> Result<()> {
     let s = m
         .snapshot
         .as_ref()
-        .ok_or_else(|| Error::Config("checkpoint has no state snapshot".into()))?;
+        .ok_or_else(|| Error::corrupt(dir.join(MANIFEST), "checkpoint has no state snapshot"))?;
     let (len, sum) = copy_hashed(&dir.join(&s.file), state_path, None)?;
     if len != s.bytes || sum != s.fnv1a {
-        return Err(Error::input(
+        return Err(Error::corrupt(
             dir.join(&s.file),
             "snapshot changed while being restored",
         ));

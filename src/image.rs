@@ -5,14 +5,14 @@
 //! Pixels are stored row-major with row 0 at the top, as OpenEXR and Mitsuba's film store them.
 
 use crate::error::{Error, Result};
+use crate::fsio;
 use crate::scene::Sensor;
 use exr::prelude::{
     self as x, f16, Encoding, FlatSamples, LayerAttributes, ReadChannels, ReadLayers,
     SpecificChannels, WritableImage,
 };
 use glam::Vec3;
-use std::ffi::OsString;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 /// A linear RGB image with a per-pixel validity mask.
 #[derive(Debug, Clone, PartialEq)]
@@ -75,6 +75,18 @@ fn exr_error(path: &Path, e: x::Error) -> Error {
                 one_line(&other.to_string())
             ),
         ),
+    }
+}
+
+/// An EXR encoder failure: the OS error if it is one (a full disk), else a bug.
+fn exr_write_error(path: &Path, e: x::Error) -> Error {
+    match e {
+        x::Error::Io(io) => Error::io(path, io),
+        other => Error::internal(format!(
+            "{}: EXR encoder: {}",
+            path.display(),
+            one_line(&other.to_string())
+        )),
     }
 }
 
@@ -205,53 +217,13 @@ pub fn read_sensor_image(path: impl AsRef<Path>, sensor: &Sensor) -> Result<Imag
     Ok(img)
 }
 
-/// `<path>.tmp`, the name a file is written under before it is renamed into place.
-pub(crate) fn tmp_path(path: &Path) -> PathBuf {
-    let mut s = OsString::from(path.as_os_str());
-    s.push(".tmp");
-    PathBuf::from(s)
-}
-
-/// Write `bytes` via a `<path>.tmp` file produced by `write`, renamed into place on success.
-fn write_atomic(
-    path: &Path,
-    write: impl FnOnce(&Path) -> std::result::Result<(), String>,
-) -> Result<()> {
-    let tmp = tmp_path(path);
-    if let Err(msg) = write(&tmp) {
-        let _ = std::fs::remove_file(&tmp);
-        return Err(Error::input(
-            path,
-            format!("cannot write: {}", one_line(&msg)),
-        ));
-    }
-    // The `KDMAP_FAULT=enospc-after-bytes:N` test hook (crate::checkpoint) counts the file.
-    let counted = std::fs::metadata(&tmp).and_then(|m| crate::checkpoint::count_written(m.len()));
-    if let Err(e) = counted {
-        let _ = std::fs::remove_file(&tmp);
-        return Err(Error::io(path, e));
-    }
-    rename_into_place(&tmp, path)
-}
-
-/// Rename the finished temporary file `tmp` to `path`; on failure remove `tmp` and name
-/// `path` in the error.
-pub(crate) fn rename_into_place(tmp: &Path, path: &Path) -> Result<()> {
-    std::fs::rename(tmp, path).map_err(|e| {
-        let _ = std::fs::remove_file(tmp);
-        Error::io(path, e)
-    })
-}
-
 fn check_len(path: &Path, width: u32, height: u32, pixels: &[Vec3]) -> Result<()> {
     if pixels.len() != width as usize * height as usize || width == 0 || height == 0 {
-        return Err(Error::input(
-            path,
-            format!(
-                "cannot write a {width}x{height} image from {} pixels",
-                pixels.len()
-            ),
-        ));
+        return Err(Error::internal(format!(
+            "{}: cannot write a {width}x{height} image from {} pixels",
+            path.display(),
+            pixels.len()
+        )));
     }
     Ok(())
 }
@@ -272,7 +244,7 @@ pub fn write_exr_rgb(
     let w = width as usize;
     let at = move |p: x::Vec2<usize>| pixels[p.y() * w + p.x()];
     let attrs = LayerAttributes::default();
-    write_atomic(path, |tmp| {
+    fsio::write_atomic_with(path, |tmp| {
         if half {
             let to_h = |v: f32| {
                 let v = if v.is_finite() {
@@ -298,8 +270,26 @@ pub fn write_exr_rgb(
                 .write()
                 .to_file(tmp)
         }
-        .map_err(|e| e.to_string())
+        .map_err(|e| exr_write_error(path, e))
     })
+}
+
+/// Exposure (stops) that maps the 99th percentile luminance of `vals` (where `mask`) to 0.9:
+/// the automatic exposure of every preview that is not an albedo.
+pub fn auto_exposure(vals: &[Vec3], mask: &[bool]) -> f32 {
+    let mut ys: Vec<f32> = vals
+        .iter()
+        .zip(mask)
+        .filter(|(_, &m)| m)
+        .map(|(v, _)| crate::scene::luminance(*v))
+        .filter(|y| y.is_finite() && *y > 0.0)
+        .collect();
+    if ys.is_empty() {
+        return 0.0;
+    }
+    let k = ((ys.len() as f64 * 0.99) as usize).min(ys.len() - 1);
+    let (_, v, _) = ys.select_nth_unstable_by(k, |a, b| a.total_cmp(b));
+    (0.9 / *v).log2()
 }
 
 /// The sRGB transfer function, for a linear value in [0, 1].
@@ -323,8 +313,12 @@ pub fn write_png_srgb(
     let path = path.as_ref();
     check_len(path, width, height, pixels)?;
     let scale = exposure.exp2();
-    let mut pm = tiny_skia::Pixmap::new(width, height)
-        .ok_or_else(|| Error::input(path, format!("cannot make a {width}x{height} PNG")))?;
+    let mut pm = tiny_skia::Pixmap::new(width, height).ok_or_else(|| {
+        Error::internal(format!(
+            "{}: cannot make a {width}x{height} PNG",
+            path.display()
+        ))
+    })?;
     for (px, c) in pm.data_mut().chunks_exact_mut(4).zip(pixels) {
         for k in 0..3 {
             let v = c[k] * scale;
@@ -337,15 +331,19 @@ pub fn write_png_srgb(
         }
         px[3] = 255;
     }
+    write_pixmap_png(path, &pm)
+}
+
+/// Encode `pm` as PNG and write it atomically.
+pub fn write_pixmap_png(path: &Path, pm: &tiny_skia::Pixmap) -> Result<()> {
     let bytes = pm.encode_png().map_err(|e| {
-        Error::input(
-            path,
-            format!("cannot encode PNG: {}", one_line(&e.to_string())),
-        )
+        Error::internal(format!(
+            "{}: cannot encode PNG: {}",
+            path.display(),
+            one_line(&e.to_string())
+        ))
     })?;
-    write_atomic(path, |tmp| {
-        std::fs::write(tmp, &bytes).map_err(|e| e.to_string())
-    })
+    fsio::write_atomic(path, &bytes)
 }
 
 #[cfg(test)]
@@ -367,7 +365,7 @@ mod tests {
         let p = dir.path().join("a.exr");
         let px = ramp(13, 7);
         write_exr_rgb(&p, 13, 7, &px, false).unwrap();
-        assert!(!tmp_path(&p).exists());
+        assert!(!fsio::tmp_path(&p).exists());
         let img = read_exr(&p).unwrap();
         assert_eq!((img.width, img.height, img.masked), (13, 7, 0));
         assert_eq!(img.pixels, px);
@@ -512,7 +510,7 @@ mod tests {
         write_png_srgb(&p, 4, 3, &ramp(4, 3), -2.0).unwrap();
         let bytes = std::fs::read(&p).unwrap();
         assert_eq!(&bytes[1..4], b"PNG");
-        assert!(!tmp_path(&p).exists());
+        assert!(!fsio::tmp_path(&p).exists());
         assert!(write_png_srgb(&p, 5, 3, &ramp(4, 3), 0.0).is_err());
         assert!(write_exr_rgb(dir.path().join("b.exr"), 5, 3, &ramp(4, 3), false).is_err());
         assert!((srgb_encode(1.0) - 1.0).abs() < 1e-6);

@@ -1,31 +1,56 @@
 //! kdmap: recover diffuse reflectance (albedo, `K_d`) textures from HDR photos of a scene
 //! whose geometry, lights and cameras are known (Zhdanov & Kupriyanov's method).
 //!
-//! Data flows one way through the stages (only `pipeline` knows their order):
+//! Data flows one way through the stages, and only [`pipeline`] knows their order:
 //!
 //! ```text
-//! scene (XML, meshes) -> atlas -> texel samples -> projection (L_orig)
-//!   -> direct light (E_d) -> photon tracing (E_i) -> per-texel update (K_d) -> outputs / checkpoint
+//! scene (XML, meshes) -> atlas (geometry store) -> projection (L_orig)
+//!   -> direct light (E_d) -> E_i (photon tracing) -> per-texel update (K_d) -> outputs / checkpoint
 //! ```
+//!
+//! # Layers
+//!
+//! Each module imports only modules of its own layer listed before it or of the layers
+//! below; nothing imports [`pipeline`] but `main.rs`.
+//!
+//! ```text
+//! L4  pipeline                       the order of the stages, start / resume / finish
+//! L3  checkpoint  output/  accuracy  what a run leaves: checkpoints, results, scores
+//! L2  project/  direct  gather  photon/  solve   the stages, plain functions over tiles
+//! L1  config  report  scene/  image  camera  accel  light/  render  atlas/
+//!                                    settings, the scene and its physics, tiles
+//! L0  error  rng  progress  fsio     no kdmap imports but L0
+//! ```
+//!
+//! Within L1 the order is as listed: `report` uses `config`; `image`, `camera`, `accel` use
+//! `scene`; `light` uses `accel`; `render` uses `camera`, `accel`, `image`; `atlas` uses all
+//! of them. The L2 stages are independent of each other. A stage's state lives in the tile stores of `atlas`, not in another stage.
+
+pub mod error;
+pub mod fsio;
+pub mod progress;
+pub mod rng;
 
 pub mod accel;
 pub mod atlas;
 pub mod camera;
-pub mod checkpoint;
 pub mod config;
-pub mod error;
 pub mod image;
 pub mod light;
-pub mod output;
-pub mod photon;
-pub mod pipeline;
-pub mod progress;
-pub mod project;
 pub mod render;
 pub mod report;
-pub mod rng;
 pub mod scene;
+
+pub mod direct;
+pub mod gather;
+pub mod photon;
+pub mod project;
 pub mod solve;
-pub mod truth;
+
+pub mod accuracy;
+pub mod checkpoint;
+pub mod output;
+
+pub mod pipeline;
 
 pub use error::{Error, Result};

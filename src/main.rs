@@ -1,11 +1,15 @@
 //! The `kdmap` command line: parses arguments (clap), runs one subcommand, and turns any
-//! error into a single `error: ...` line on stderr with exit code 1 (clap's usage errors exit
-//! with 2). Library code never prints; only this file talks to the terminal.
+//! error into a single `error: ...` line on stderr with the exit code of its kind
+//! (`kdmap::error::exit`; clap's usage errors exit with 2). Results go to stdout, progress
+//! and notes to stderr; only this file and `progress` talk to the terminal.
 
-use anyhow::Context;
 use clap::{Parser, Subcommand};
 use glam::Vec3;
+use kdmap::config::{Config, Overrides, Preset};
+use kdmap::pipeline::{self, RunStage, Start};
+use kdmap::progress::Mode;
 use kdmap::scene::{luminance, mitsuba, Emitter, Scene, Sides};
+use kdmap::{Error, Result};
 use std::fmt::Write as _;
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
@@ -36,6 +40,10 @@ enum Command {
         /// Output directory.
         #[arg(long)]
         out: PathBuf,
+        /// Start from a named preset: default, fast (a quick look) or paper (the published
+        /// method); the run config and the other flags apply over it.
+        #[arg(long)]
+        preset: Option<Preset>,
         /// Light paths (photons) per iteration.
         #[arg(long)]
         photons: Option<u64>,
@@ -74,6 +82,9 @@ enum Command {
         /// Output directory.
         #[arg(long)]
         out: PathBuf,
+        /// Start from a named preset (default, fast, paper).
+        #[arg(long)]
+        preset: Option<Preset>,
         /// Worker threads (0 = all cores); never changes the result.
         #[arg(long)]
         threads: Option<usize>,
@@ -85,41 +96,37 @@ fn main() -> ExitCode {
     match run(cli.command) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            let _ = writeln!(std::io::stderr(), "error: {}", one_line(&e));
-            ExitCode::from(1)
+            let _ = writeln!(std::io::stderr(), "error: {e}");
+            ExitCode::from(e.exit_code())
         }
     }
 }
 
-/// The error and its causes joined by ": " on one line, skipping a cause whose text the
-/// message already holds (our I/O errors print their source themselves).
-fn one_line(e: &anyhow::Error) -> String {
-    let mut msg = String::new();
-    for cause in e.chain() {
-        let t = cause.to_string();
-        if !msg.contains(&t) {
-            if !msg.is_empty() {
-                msg.push_str(": ");
-            }
-            msg.push_str(&t);
-        }
+/// Write `text` to stdout. A closed pipe (`kdmap inspect ... | head`) is not an error: the
+/// reader has what it wanted.
+fn emit(text: &str) -> Result<()> {
+    let mut out = std::io::stdout().lock();
+    match out.write_all(text.as_bytes()).and_then(|()| out.flush()) {
+        Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => Err(Error::io("<stdout>", e)),
+        _ => Ok(()),
     }
-    msg.replace(['\n', '\r'], " ")
 }
 
-fn run(command: Command) -> anyhow::Result<()> {
+fn run(command: Command) -> Result<()> {
     match command {
-        Command::Inspect { scene } => inspect(&scene),
+        Command::Inspect { scene } => emit(&summary(&mitsuba::load(&scene)?)),
         Command::Reconstruct {
             input,
             out,
+            preset,
             photons,
             iterations,
             seed,
             threads,
             resume,
         } => {
-            let ov = kdmap::config::Overrides {
+            let ov = Overrides {
+                preset,
                 photons,
                 iterations,
                 seed,
@@ -130,63 +137,50 @@ fn run(command: Command) -> anyhow::Result<()> {
         Command::Project {
             input,
             out,
+            preset,
             threads,
-        } => project(&input, &out, threads),
+        } => project(&input, &out, preset, threads),
         Command::InspectCheckpoint { out } => inspect_checkpoint(&out),
         Command::Accuracy { out, truth } => accuracy(&out, &truth),
     }
 }
 
-fn inspect(path: &Path) -> anyhow::Result<()> {
-    let scene = mitsuba::load(path)?;
-    let text = summary(&scene);
-    let mut out = std::io::stdout().lock();
-    out.write_all(text.as_bytes())
-        .and_then(|()| out.flush())
-        .context("writing to stdout")?;
-    Ok(())
+/// A worker pool of `threads` threads (0 = all cores) for the run.
+fn pool(threads: usize) -> Result<rayon::ThreadPool> {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .map_err(|e| Error::internal(format!("starting worker threads: {e}")))
 }
 
-fn reconstruct(
-    input: &Path,
-    out: &Path,
-    ov: &kdmap::config::Overrides,
-    resume: bool,
-) -> anyhow::Result<()> {
-    let cfg = kdmap::config::Config::load(input, ov)?;
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(cfg.threads)
-        .build()
-        .context("starting worker threads")?;
-    let (report, start) = pool.install(|| {
-        kdmap::pipeline::reconstruct_resumable(&cfg, out, kdmap::progress::Mode::Auto, resume)
-    })?;
-    if start == kdmap::pipeline::Start::AlreadyFinished {
-        println!(
-            "already finished ({} iterations, {}): nothing to do; results: {}",
+fn reconstruct(input: &Path, out: &Path, ov: &Overrides, resume: bool) -> Result<()> {
+    let cfg = Config::load(input, ov)?;
+    let (report, start) = pool(cfg.threads)?
+        .install(|| pipeline::reconstruct_resumable(&cfg, out, Mode::Auto, resume))?;
+    if start == Start::AlreadyFinished {
+        return emit(&format!(
+            "already finished ({} iterations, {}): nothing to do; results: {}\n",
             report.iterations.len(),
             report.stopped_by,
             out.display()
-        );
-        return Ok(());
+        ));
     }
     let last = report.iterations.last();
-    println!(
-        "reconstructed {} shapes from {} views in {} iterations ({}): relative error rms {:.3}%, max {:.2}%; {:.1} s",
+    emit(&format!(
+        "reconstructed {} shapes from {} views in {} iterations ({}): relative error rms {:.3}%, max {:.2}%; {:.1} s\nresults: {}\n",
         report.counts.reconstructed_shapes,
         report.counts.views,
         report.iterations.len(),
         report.stopped_by,
         100.0 * last.map_or(0.0, |i| i.rms_rel_error),
         100.0 * last.map_or(0.0, |i| i.max_rel_error),
-        report.timings.total
-    );
-    println!("results: {}", out.display());
-    Ok(())
+        report.timings.total,
+        out.display()
+    ))
 }
 
-fn accuracy(out: &Path, truth: &Path) -> anyhow::Result<()> {
-    let rep = kdmap::output::accuracy::score_run(out, truth)?;
+fn accuracy(out: &Path, truth: &Path) -> Result<()> {
+    let rep = kdmap::accuracy::score_run(out, truth)?;
     let mut t = String::new();
     let _ = writeln!(
         t,
@@ -216,30 +210,25 @@ fn accuracy(out: &Path, truth: &Path) -> anyhow::Result<()> {
         100.0 * rep.rel_l1_error,
         out.join("accuracy").join("accuracy.json").display()
     );
-    let mut o = std::io::stdout().lock();
-    o.write_all(t.as_bytes())
-        .and_then(|()| o.flush())
-        .context("writing to stdout")?;
-    Ok(())
+    emit(&t)
 }
 
-fn inspect_checkpoint(out: &Path) -> anyhow::Result<()> {
-    use kdmap::checkpoint::Stage;
-    let dir = kdmap::pipeline::state_dir(out);
-    let (m, notes) = kdmap::checkpoint::load(&dir);
+fn inspect_checkpoint(out: &Path) -> Result<()> {
+    let (m, notes) = pipeline::load_checkpoint(out);
     for n in &notes {
         eprintln!("note: {n}");
     }
+    let dir = kdmap::atlas::state_dir(out);
     let Some(m) = m else {
-        anyhow::bail!("{}: no usable checkpoint", dir.display());
+        return Err(Error::input(&dir, "no usable checkpoint"));
     };
-    let s = &m.report.settings;
+    let (progress, s) = (&m.payload, &m.payload.report.settings);
     let mut t = String::new();
     let _ = writeln!(t, "checkpoint {} in {}", m.seq, dir.display());
     let _ = writeln!(t, "inputs hash {:016x}", m.inputs_hash);
-    let stage = match m.stage {
-        Stage::Direct => "projection and direct light done; iteration 1 not begun".to_string(),
-        Stage::Pass {
+    let stage = match progress.stage {
+        RunStage::Direct => "projection and direct light done; iteration 1 not begun".to_string(),
+        RunStage::Pass {
             iteration,
             batches_done,
             photons,
@@ -251,7 +240,7 @@ fn inspect_checkpoint(out: &Path) -> anyhow::Result<()> {
             s.photons.div_ceil(u64::from(s.batch_size.max(1))),
             s.photons
         ),
-        Stage::Iterations {
+        RunStage::Iterations {
             iterations_done,
             stopped,
         } => format!(
@@ -263,10 +252,10 @@ fn inspect_checkpoint(out: &Path) -> anyhow::Result<()> {
                 ""
             }
         ),
-        Stage::Finished => format!("finished ({})", m.report.stopped_by),
+        RunStage::Finished => format!("finished ({})", progress.report.stopped_by),
     };
     let _ = writeln!(t, "stage: {stage}");
-    for it in &m.report.iterations {
+    for it in &progress.report.iterations {
         let _ = writeln!(
             t,
             "  iteration {}: relative error rms {:.3}%, mean {:.3}%, max {:.2}%",
@@ -277,34 +266,29 @@ fn inspect_checkpoint(out: &Path) -> anyhow::Result<()> {
         );
     }
     let _ = writeln!(t, "time spent: {:.1} s", m.seconds);
-    print!("{t}");
-    Ok(())
+    emit(&t)
 }
 
-fn project(input: &Path, out: &Path, threads: Option<usize>) -> anyhow::Result<()> {
-    let ov = kdmap::config::Overrides {
+fn project(input: &Path, out: &Path, preset: Option<Preset>, threads: Option<usize>) -> Result<()> {
+    let ov = Overrides {
+        preset,
         threads,
         ..Default::default()
     };
-    let cfg = kdmap::config::Config::load(input, &ov)?;
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(cfg.threads)
-        .build()
-        .context("starting worker threads")?;
+    let cfg = Config::load(input, &ov)?;
     let (p, stats) =
-        pool.install(|| kdmap::pipeline::run_projection(&cfg, out, kdmap::progress::Mode::Auto))?;
-    println!(
-        "projected {} views onto {} shapes: {} of {} surface texels observed ({:.1}%), {} pixels masked, {:.2} s",
+        pool(cfg.threads)?.install(|| pipeline::run_projection(&cfg, out, Mode::Auto))?;
+    emit(&format!(
+        "projected {} views onto {} shapes: {} of {} surface texels observed ({:.1}%), {} pixels masked, {:.2} s\nmaps: {}\n",
         stats.views,
         p.layout.slots.len(),
         stats.observed_texels,
         stats.covered_texels,
         100.0 * stats.observed_texels as f64 / stats.covered_texels.max(1) as f64,
         stats.masked_pixels,
-        stats.seconds
-    );
-    println!("maps: {}", out.join("maps").display());
-    Ok(())
+        stats.seconds,
+        out.join("maps").display()
+    ))
 }
 
 fn v3(v: Vec3) -> String {

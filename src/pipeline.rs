@@ -1,544 +1,81 @@
-//! The one place that orders the stages. Each stage is a plain function over tiles in its own
-//! module; this module only wires them: scene -> atlas -> texel samples -> projection -> ...
-//! and decides where their state lives (`<out>/checkpoint/*.tiles`).
+//! The one place that knows the order of the stages:
+//!
+//! ```text
+//! scene -> atlas (geometry store) -> projection (L_orig) -> direct light (E_d)
+//!   -> [ K_d (eqs. 3-5) -> E_i (photon pass) -> compare and update (eqs. 6-9) ] x iterations
+//!   -> final K_d -> outputs
+//! ```
+//!
+//! Each stage is a plain function over tiles in its own module; this module calls them in
+//! order, decides where their state lives (`<out>/checkpoint/*.tiles`), when a checkpoint is
+//! taken and how a resumed run picks up where it stopped. Nothing below it imports it.
 
-use crate::accel::Accel;
-use crate::atlas::layout::{flags, Layout, TexelGeom, TexelState};
-use crate::atlas::texels::{dilate, TexelMap, TexelSample, NONE};
-use crate::atlas::tiles::{window_tiles_for_budget, TileStore};
-use crate::atlas::unwrap::{build_atlas, AtlasSettings, ShapeAtlas};
-use crate::camera::Camera;
-use crate::config::Config;
+use crate::atlas::charts::Charts;
+use crate::atlas::check::{check_geometry, check_state};
+use crate::atlas::hits::HitTable;
+use crate::atlas::layout::{TexelGeom, TexelState};
+use crate::atlas::tiles::{map_tiles, TileStore};
+use crate::atlas::{build_geometry, prepare, state_dir, Prepared};
+use crate::checkpoint::{self as ck, Manifest, Writer};
+use crate::config::{Config, Method, UpdateRule};
 use crate::error::{Error, Result};
-use crate::image::{read_sensor_image, write_exr_rgb, write_png_srgb};
-use crate::light::{direct_irradiance, DirectParams, EmitterSampler};
-
+use crate::fsio;
+use crate::gather::{gather_pass, write_accum, GatherContext, GatherPoints, Radiance};
+use crate::light::EmitterSampler;
+use crate::output::{write_map, write_outputs};
 use crate::photon::{
-    begin_pass, finish_pass, photon_pass, smooth_accum, AlbedoTextures, PassContext, Receivers,
+    begin_pass, finish_pass, photon_pass, smooth_accum, AlbedoTextures, PassContext,
 };
 use crate::progress::{note, Mode, Stage};
-use crate::project::{finish_tile, project_tile, ShapeRef, View};
+use crate::project::ProjectionStats;
 use crate::report::{Counts, IterationStats, Report};
-use crate::scene::{luminance, mitsuba, Scene};
-use crate::solve::{
-    alpha, channel_sums, compare_update_tile, fill_unobserved, init_indirect_tile, kd_tile,
-    secant_beta, ErrorSums,
-};
-use glam::Vec3;
-use rayon::prelude::*;
+use crate::solve::{init_indirect_tile, kd_step, update_step};
+use crate::{direct, project};
+use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
-use std::time::Duration;
+use std::sync::OnceLock;
 use std::time::Instant;
 
-/// The scene with its acceleration structure, atlases and tile layout: everything fixed.
-pub struct Prepared {
-    pub scene: Scene,
-    pub accel: Accel,
-    /// Per shape: its atlas if reconstructed (emitters have none).
-    pub atlases: Vec<Option<ShapeAtlas>>,
-    pub layout: Layout,
-    /// Sensor index -> photo path, for the sensors that have a photo.
-    pub views: Vec<(usize, PathBuf)>,
+/// Where a run stands: what the state store holds at a checkpoint.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub enum RunStage {
+    /// Projection, direct light and the initial E_i are done; iteration 0 not begun.
+    Direct,
+    /// Inside iteration `iteration`'s photon pass: K_d was computed and filled for it, and
+    /// batches `0..batches_done` are in `accum`.
+    Pass {
+        iteration: u32,
+        batches_done: u64,
+        /// Clamped texels counted by this iteration's K_d step.
+        clamped: u64,
+        /// Photons and seconds of the pass so far.
+        photons: u64,
+        photon_seconds: f64,
+        update_seconds: f64,
+    },
+    /// Iterations `0..iterations_done` are complete; `stopped` if the solver stopped
+    /// (tolerance reached or last iteration), so only the final step and outputs remain.
+    Iterations { iterations_done: u32, stopped: bool },
+    /// Outputs written: resuming is a no-op.
+    Finished,
 }
 
-/// Load the scene, pick the views, unwrap every reconstructed shape and lay out the tiles.
-pub fn prepare(cfg: &Config, mode: Mode) -> Result<Prepared> {
-    let scene = mitsuba::load(&cfg.scene)?;
-    let views = match_views(&scene, cfg, mode)?;
-    let accel = Accel::build(&scene);
-    let settings = AtlasSettings {
-        texels_per_unit: cfg.atlas.texels_per_unit,
-        padding: cfg.atlas.padding,
-        use_mesh_uvs: cfg.atlas.use_mesh_uvs,
-        max_size: cfg.atlas.max_texture_size,
-    };
-    let mut atlases = Vec::with_capacity(scene.shapes.len());
-    let mut textures = Vec::new();
-    for (i, s) in scene.shapes.iter().enumerate() {
-        if !s.is_reconstructed() {
-            atlases.push(None);
-            continue;
-        }
-        let a = build_atlas(&s.mesh, &settings).map_err(|e| match e {
-            Error::Config(m) | Error::Input { msg: m, .. } => {
-                Error::input(&cfg.scene, format!("shape '{}': {m}", s.id))
-            }
-            other => other,
-        })?;
-        textures.push((i, a.width, a.height));
-        atlases.push(Some(a));
-    }
-    let layout = Layout::new(cfg.atlas.tile_size, &textures);
-    Ok(Prepared {
-        scene,
-        accel,
-        atlases,
-        layout,
-        views,
-    })
-}
-
-/// The (sensor, photo) pairs of a run: the config's `views`, or every sensor with an
-/// `images/<id>.exr` beside the scene (sensors without one are skipped with a note).
-pub fn match_views(scene: &Scene, cfg: &Config, mode: Mode) -> Result<Vec<(usize, PathBuf)>> {
-    let mut views = Vec::new();
-    if cfg.views.is_empty() {
-        let dir = scene.dir().join("images");
-        for (i, s) in scene.sensors.iter().enumerate() {
-            let p = dir.join(format!("{}.exr", s.id));
-            if p.is_file() {
-                views.push((i, p));
-            } else {
-                note(
-                    mode,
-                    &format!("sensor '{}' has no photo {}: skipped", s.id, p.display()),
-                );
-            }
-        }
-    } else {
-        for (id, p) in &cfg.views {
-            let i = scene
-                .sensors
-                .iter()
-                .position(|s| &s.id == id)
-                .ok_or_else(|| {
-                    Error::input(
-                        &cfg.scene,
-                        format!("views names sensor '{id}', which the scene does not have"),
-                    )
-                })?;
-            views.push((i, p.clone()));
-        }
-    }
-    if views.is_empty() {
-        return Err(Error::input(
-            &cfg.scene,
-            "no photos: no sensor has an images/<sensor id>.exr and the config names no views",
-        ));
-    }
-    Ok(views)
-}
-
-impl Prepared {
-    pub fn shape_ref(&self, slot: usize) -> ShapeRef<'_> {
-        let si = self.layout.slots[slot].shape;
-        let s = &self.scene.shapes[si];
-        ShapeRef {
-            index: si as u32,
-            mesh: &s.mesh,
-            sides: s.sides,
-            corner_uv: &self.atlases[si]
-                .as_ref()
-                .expect("reconstructed shape has an atlas")
-                .corner_uv,
-        }
-    }
-
-    /// A new tile store at `path` shaped like this layout (every tile, every texel), each
-    /// record `fill`.
-    pub fn create_store<T: bytemuck::Pod + Send + Sync>(
-        &self,
-        path: impl AsRef<Path>,
-        fill: T,
-    ) -> Result<TileStore<T>> {
-        TileStore::create(
-            path,
-            self.layout.tile_count as usize,
-            self.layout.tile_texels(),
-            fill,
-        )
-    }
-
-    /// Tiles per mapped window for a store of `T` under the configured memory budget.
-    pub fn window<T>(&self, cfg: &Config) -> usize {
-        let tile_bytes = (self.layout.tile_texels() * std::mem::size_of::<T>()) as u64;
-        window_tiles_for_budget(cfg.memory_budget_mib << 20, tile_bytes).max(1)
-    }
-}
-
-/// Where a run keeps its tile stores.
-pub fn state_dir(out: &Path) -> PathBuf {
-    out.join("checkpoint")
-}
-
-/// Sub-samples per texel side used to measure a border texel's area on its chart.
-const BIN_SUBSAMPLES: u32 = 8;
-
-/// Rasterize every atlas into the geometry store (texel -> surface point), one row band of
-/// tiles at a time so memory stays bounded by a band, not a texture.
-pub fn build_geometry(p: &Prepared, path: &Path, mode: Mode) -> Result<TileStore<TexelGeom>> {
-    let mut store = p.create_store(path, TexelGeom::default())?;
-    let total: u64 = p
-        .layout
-        .slots
-        .iter()
-        .map(|s| s.width as u64 * s.height as u64)
-        .sum();
-    let stage = Stage::new(mode, "atlas", total, "texels");
-    let ts = p.layout.tile_size;
-    for st in &p.layout.slots {
-        let shape = &p.scene.shapes[st.shape];
-        let atlas = p.atlases[st.shape].as_ref().expect("atlas");
-        let map = TexelMap::new(&shape.mesh, atlas);
-        for ty in 0..st.tiles_y {
-            // one band of rows, with a row of margin each side for the border test
-            let y0 = (ty * ts).saturating_sub(1);
-            let y1 = ((ty + 1) * ts + 1).min(st.height);
-            let band = map.sample_rows(y0..y1);
-            let at = |x: u32, y: u32| -> Option<&TexelSample> {
-                band.get(((y - y0) * st.width + x) as usize)?.as_ref()
-            };
-            let geo: Vec<Vec<TexelGeom>> = (0..st.tiles_x)
-                .into_par_iter()
-                .map(|tx| {
-                    let mut recs = vec![TexelGeom::default(); p.layout.tile_texels()];
-                    for (off, r) in recs.iter_mut().enumerate() {
-                        let (x, y) = (tx * ts + off as u32 % ts, ty * ts + off as u32 / ts);
-                        if x >= st.width || y >= st.height {
-                            continue;
-                        }
-                        let Some(s) = at(x, y) else { continue };
-                        let interior = (-1i32..=1).all(|dy| {
-                            (-1i32..=1).all(|dx| {
-                                let (nx, ny) = (x as i32 + dx, y as i32 + dy);
-                                nx >= 0
-                                    && ny >= 0
-                                    && (nx as u32) < st.width
-                                    && (ny as u32) < st.height
-                                    && at(nx as u32, ny as u32).is_some()
-                            })
-                        });
-                        let bin_area = if interior {
-                            s.area
-                        } else {
-                            map.subsamples(x, y, BIN_SUBSAMPLES)
-                                .iter()
-                                .map(|q| q.area)
-                                .sum()
-                        };
-                        let ng = shape
-                            .mesh
-                            .face_normal_raw(s.tri as usize)
-                            .normalize_or_zero();
-                        *r = TexelGeom {
-                            position: s.position.to_array(),
-                            normal: s.normal.to_array(),
-                            geo_normal: ng.to_array(),
-                            area: s.area,
-                            bin_area,
-                            tri: s.tri,
-                            flags: flags::COVERED,
-                        };
-                    }
-                    recs
-                })
-                .collect();
-            for (tx, recs) in geo.iter().enumerate() {
-                let tile = st.first_tile + ty * st.tiles_x + tx as u32;
-                store.write_tile(tile as usize, recs)?;
-            }
-            stage.inc(st.width as u64 * (((ty + 1) * ts).min(st.height) - ty * ts) as u64);
-        }
-    }
-    stage.finish();
-    Ok(store)
-}
-
-/// Statistics of the projection stage.
-#[derive(Debug, Clone, Default, serde::Serialize)]
-pub struct ProjectionStats {
+/// The projection counts the report needs at the end.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct ProjCounts {
     pub views: usize,
     pub masked_pixels: usize,
     pub covered_texels: u64,
     pub observed_texels: u64,
-    pub seconds: f64,
 }
 
-/// Project every photo onto the atlas into `state` (L_orig, weight, OBSERVED), streaming the
-/// photos one at a time.
-pub fn project_all(
-    p: &Prepared,
-    cfg: &Config,
-    geom: &TileStore<TexelGeom>,
-    state: &mut TileStore<TexelState>,
-    mode: Mode,
-) -> Result<ProjectionStats> {
-    let mut stats = ProjectionStats {
-        views: p.views.len(),
-        ..Default::default()
-    };
-    let window = p.window::<TexelState>(cfg);
-    let stage = Stage::new(mode, "projection", p.views.len() as u64, "views");
-    let mut time = Duration::ZERO;
-    for (si, path) in &p.views {
-        let sensor = &p.scene.sensors[*si];
-        let image = read_sensor_image(path, sensor)?;
-        if image.masked > 0 {
-            note(
-                mode,
-                &format!(
-                    "{}: {} non-finite or negative pixels masked",
-                    path.display(),
-                    image.masked
-                ),
-            );
-        }
-        stats.masked_pixels += image.masked;
-        let t0 = std::time::Instant::now();
-        let view = View::new(&p.scene, &p.accel, Camera::from_sensor(sensor), &image);
-        map_tiles(state, geom, window, |t, g, st| {
-            let slot = p.layout.slot_of_tile(t as u32);
-            project_tile(&view, &p.accel, &p.shape_ref(slot), g, st);
-        })?;
-        time += t0.elapsed();
-        stage.inc(1);
-    }
-    state.for_each_tile_mut(window, |_, st| finish_tile(st))?;
-    crate::project::refine(p, geom, state, window, cfg.refine_passes, mode)?;
-    stage.finish();
-    let counts = map_tiles(state, geom, window, |_, g, st| {
-        let c = g.iter().filter(|g| g.covered()).count() as u64;
-        let o = st.iter().filter(|s| s.flags & flags::OBSERVED != 0).count() as u64;
-        (c, o)
-    })?;
-    let (c, o) = counts.iter().fold((0, 0), |(a, b), (c, o)| (a + c, b + o));
-    stats.covered_texels = c;
-    stats.observed_texels = o;
-    stats.seconds = time.as_secs_f64();
-    Ok(stats)
-}
-
-pub use crate::atlas::tiles::map_tiles;
-
-/// The photon pass of iteration `iteration` as `cfg` sets it (seed, photons, batch size,
-/// depth, tile window), over `p`'s scene with the given emitter sampler, receivers and
-/// current albedo.
-pub fn pass_context<'a>(
-    p: &'a Prepared,
-    cfg: &Config,
-    (sampler, receivers, albedo): (&'a EmitterSampler, &'a Receivers, &'a AlbedoTextures),
-    iteration: u64,
-) -> PassContext<'a> {
-    PassContext {
-        scene: &p.scene,
-        accel: &p.accel,
-        sampler,
-        layout: &p.layout,
-        atlases: &p.atlases,
-        receivers,
-        albedo,
-        seed: cfg.seed,
-        iteration,
-        photons: cfg.photons,
-        batch_size: cfg.batch_size,
-        max_depth: cfg.max_depth,
-        window: p.window::<TexelState>(cfg),
-        group_batches: 0,
-    }
-}
-
-/// One slot's texture assembled from tiles: `(values, covered)` row-major.
-pub fn gather<T: bytemuck::Pod + Send + Sync>(
-    p: &Prepared,
-    slot: usize,
-    store: &TileStore<T>,
-    geom: &TileStore<TexelGeom>,
-    value: impl Fn(&T) -> Vec3,
-) -> Result<(Vec<Vec3>, Vec<bool>)> {
-    let st = p.layout.slots[slot];
-    let n = (st.width * st.height) as usize;
-    let mut vals = vec![Vec3::ZERO; n];
-    let mut cov = vec![false; n];
-    let ts = p.layout.tile_size;
-    for ty in 0..st.tiles_y {
-        for tx in 0..st.tiles_x {
-            let tile = (st.first_tile + ty * st.tiles_x + tx) as usize;
-            let recs = store.read_tile(tile)?;
-            let g = geom.read_tile(tile)?;
-            for (off, r) in recs.iter().enumerate() {
-                let (x, y) = (tx * ts + off as u32 % ts, ty * ts + off as u32 / ts);
-                if x < st.width && y < st.height {
-                    let i = (y * st.width + x) as usize;
-                    vals[i] = value(r);
-                    cov[i] = g[off].covered();
-                }
-            }
-        }
-    }
-    Ok((vals, cov))
-}
-
-/// Exposure (stops) that maps the 99th percentile luminance of `vals` to 0.9.
-pub fn auto_exposure(vals: &[Vec3], mask: &[bool]) -> f32 {
-    let mut ys: Vec<f32> = vals
-        .iter()
-        .zip(mask)
-        .filter(|(_, &m)| m)
-        .map(|(v, _)| luminance(*v))
-        .filter(|y| y.is_finite() && *y > 0.0)
-        .collect();
-    if ys.is_empty() {
-        return 0.0;
-    }
-    let k = ((ys.len() as f64 * 0.99) as usize).min(ys.len() - 1);
-    let (_, v, _) = ys.select_nth_unstable_by(k, |a, b| a.total_cmp(b));
-    (0.9 / *v).log2()
-}
-
-/// Write a per-shape map `<dir>/<id>_<name>.exr` (gutter dilated) and, if asked, a PNG preview.
-pub fn write_map(
-    dir: &Path,
-    id: &str,
-    name: &str,
-    (width, height): (u32, u32),
-    mut vals: Vec<Vec3>,
-    cov: &[bool],
-    png: bool,
-) -> Result<()> {
-    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
-    let exposure = auto_exposure(&vals, cov);
-    dilate(&mut vals, cov, width, height, 4)?;
-    write_exr_rgb(
-        dir.join(format!("{id}_{name}.exr")),
-        width,
-        height,
-        &vals,
-        false,
-    )?;
-    if png {
-        write_png_srgb(
-            dir.join(format!("{id}_{name}.png")),
-            width,
-            height,
-            &vals,
-            exposure,
-        )?;
-    }
-    Ok(())
-}
-
-/// Steps 1-2 on their own: atlas, projection, and the luminance and coverage maps in
-/// `<out>/maps/`. Returns the projection statistics.
-pub fn run_projection(cfg: &Config, out: &Path, mode: Mode) -> Result<(Prepared, ProjectionStats)> {
-    let p = prepare(cfg, mode)?;
-    let dir = state_dir(out);
-    std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
-    let geom = build_geometry(&p, &dir.join("geometry.tiles"), mode)?;
-    let mut state = p.create_store(dir.join("state.tiles"), TexelState::default())?;
-    let stats = project_all(&p, cfg, &geom, &mut state, mode)?;
-    let maps = out.join("maps");
-    for slot in 0..p.layout.slots.len() {
-        let st = p.layout.slots[slot];
-        let id = &p.scene.shapes[st.shape].id;
-        let (lum, cov) = gather(&p, slot, &state, &geom, |s| Vec3::from_array(s.l_orig))?;
-        let (wt, _) = gather(&p, slot, &state, &geom, |s| Vec3::splat(s.weight))?;
-        let observed: Vec<bool> = wt.iter().map(|v| v.x > 0.0).collect();
-        write_map(
-            &maps,
-            id,
-            "luminance",
-            (st.width, st.height),
-            lum,
-            &observed,
-            true,
-        )?;
-        write_map(&maps, id, "coverage", (st.width, st.height), wt, &cov, true)?;
-    }
-    Ok((p, stats))
-}
-
-/// Step 3: direct irradiance E_d of every covered texel, from every emitter, with shadows.
-/// Returns the area-weighted mean E_d over covered texels (for the initial E_i).
-pub fn direct_all(
-    p: &Prepared,
-    cfg: &Config,
-    geom: &TileStore<TexelGeom>,
-    state: &mut TileStore<TexelState>,
-    mode: Mode,
-) -> Result<Vec3> {
-    let params = DirectParams {
-        area_samples: cfg.area_samples,
-        ..DirectParams::default()
-    };
-    let window = p.window::<TexelState>(cfg);
-    let texels = p.layout.tile_texels() as u64;
-    let stage = Stage::new(mode, "direct", state.tile_count() as u64, "tiles");
-    let sums = map_tiles(state, geom, window, |t, g, st| {
-        let mut sum = (Vec3::ZERO, 0.0f64);
-        for (off, (g, s)) in g.iter().zip(st.iter_mut()).enumerate() {
-            if !g.covered() {
-                continue;
-            }
-            let key = (cfg.seed, t as u64 * texels + off as u64);
-            let e = direct_irradiance(&p.scene, &p.accel, g.p(), g.n(), g.ng(), &params, key);
-            s.e_d = e.to_array();
-            sum.0 += e * g.area;
-            sum.1 += g.area as f64;
-        }
-        stage.inc(1);
-        sum
-    })?;
-    stage.finish();
-    let (e, a) = sums
-        .iter()
-        .fold((Vec3::ZERO, 0.0f64), |acc, s| (acc.0 + s.0, acc.1 + s.1));
-    Ok(if a > 0.0 { e / a as f32 } else { Vec3::ZERO })
-}
-
-/// Unobserved texels: K_d from observed neighbours of the same chart (else the shape's mean),
-/// flagged FILLED. Works one texture at a time.
-pub fn fill_unobserved_all(
-    p: &Prepared,
-    receivers: &Receivers,
-    geom: &TileStore<TexelGeom>,
-    state: &mut TileStore<TexelState>,
-) -> Result<u64> {
-    let mut filled_total = 0u64;
-    for slot in 0..p.layout.slots.len() {
-        let st = p.layout.slots[slot];
-        let (mut kd, cov) = gather(p, slot, state, geom, |s| Vec3::from_array(s.k_d))?;
-        let (obs, _) = gather(p, slot, state, geom, |s| {
-            Vec3::splat((s.flags & flags::OBSERVED != 0) as u32 as f32)
-        })?;
-        let observed: Vec<bool> = obs.iter().zip(&cov).map(|(o, &c)| c && o.x > 0.0).collect();
-        let chart: Vec<Option<u32>> = receivers.slots[slot]
-            .texel_chart
-            .iter()
-            .zip(&cov)
-            .map(|(&c, &cv)| (cv && c != NONE).then_some(c))
-            .collect();
-        let filled = fill_unobserved(&mut kd, &observed, &chart, st.width, st.height);
-        let ts = p.layout.tile_size;
-        for ty in 0..st.tiles_y {
-            for tx in 0..st.tiles_x {
-                let tile = (st.first_tile + ty * st.tiles_x + tx) as usize;
-                let mut recs = state.read_tile(tile)?;
-                let mut changed = false;
-                for (off, r) in recs.iter_mut().enumerate() {
-                    let (x, y) = (tx * ts + off as u32 % ts, ty * ts + off as u32 / ts);
-                    if x < st.width && y < st.height {
-                        let i = (y * st.width + x) as usize;
-                        if filled[i] {
-                            r.k_d = kd[i].to_array();
-                            r.flags |= flags::FILLED;
-                            changed = true;
-                            filled_total += 1;
-                        }
-                    }
-                }
-                if changed {
-                    state.write_tile(tile, &recs)?;
-                }
-            }
-        }
-    }
-    Ok(filled_total)
-}
-
-/// The whole method, steps 1-9, then every output of the contract, from scratch. Returns the
-/// report.
-pub fn reconstruct(cfg: &Config, out: &Path, mode: Mode) -> Result<Report> {
-    reconstruct_resumable(cfg, out, mode, false).map(|(r, _)| r)
+/// What a checkpoint of a reconstruction stores beside the state snapshot.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Progress {
+    pub stage: RunStage,
+    pub projection: ProjCounts,
+    /// The report so far: per-iteration statistics, timings (seconds spent so far).
+    pub report: Report,
 }
 
 /// How a run started (see [`reconstruct_resumable`]).
@@ -553,6 +90,17 @@ pub enum Start {
     AlreadyFinished,
 }
 
+/// The newest usable checkpoint of the run in `out` (with notes on unusable ones).
+pub fn load_checkpoint(out: &Path) -> (Option<Manifest<Progress>>, Vec<String>) {
+    ck::load(&state_dir(out))
+}
+
+/// The whole method, steps 1-9, then every output of the contract, from scratch. Returns the
+/// report.
+pub fn reconstruct(cfg: &Config, out: &Path, mode: Mode) -> Result<Report> {
+    reconstruct_resumable(cfg, out, mode, false).map(|(r, _)| r)
+}
+
 /// [`reconstruct`] with checkpoints in `<out>/checkpoint` (after projection and direct light,
 /// after each iteration, every `checkpoint_every_batches` photon batches) and, if `resume`,
 /// continuing from the newest good checkpoint there. A resumed run's outputs are
@@ -564,316 +112,564 @@ pub fn reconstruct_resumable(
     mode: Mode,
     resume: bool,
 ) -> Result<(Report, Start)> {
-    use crate::checkpoint::{self as ck, ProjCounts, Stage as Ck, Writer};
-    let t_total = Instant::now();
-    let t = Instant::now();
+    let clock = Instant::now();
+    let run = Run::open(cfg, out, mode)?;
+    let found = match resume {
+        true => run.find_checkpoint()?,
+        false => None,
+    };
+    let mut r = match found {
+        Some(m) if m.payload.stage == RunStage::Finished => {
+            return Ok((m.payload.report, Start::AlreadyFinished))
+        }
+        Some(m) => run.resume(m, clock)?,
+        None => run.start(clock)?,
+    };
+    run.iterate(&mut r)?;
+    let start = r.start;
+    Ok((run.finish(r)?, start))
+}
+
+/// Steps 1-2 on their own: atlas, projection, and the luminance and coverage maps in
+/// `<out>/maps/`. Returns the projection statistics.
+pub fn run_projection(cfg: &Config, out: &Path, mode: Mode) -> Result<(Prepared, ProjectionStats)> {
     let p = prepare(cfg, mode)?;
-    let load_s = t.elapsed().as_secs_f64();
     let dir = state_dir(out);
-    std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
-    let photos: Vec<PathBuf> = p.views.iter().map(|v| v.1.clone()).collect();
-    let hash = ck::inputs_hash(cfg, &photos)?;
-    let mut loaded = None;
-    if resume {
-        let (m, notes) = ck::load_for_resume(&dir)?;
+    fsio::create_dir(&dir)?;
+    let geom = build_geometry(&p, &dir.join("geometry.tiles"), mode)?;
+    let mut state = p.create_store(dir.join("state.tiles"), TexelState::default())?;
+    let stats = project::run(&p, cfg, &geom, &mut state, mode)?;
+    debug_check(&geom, &state)?;
+    let maps = out.join("maps");
+    for slot in 0..p.layout.slots.len() {
+        let st = p.layout.slots[slot];
+        let dims = (st.width, st.height);
+        let recs = crate::atlas::texture::gather(&p.layout, slot, &state, &geom, |s, g| {
+            (*s, g.covered())
+        })?;
+        let lum = recs
+            .iter()
+            .map(|r| glam::Vec3::from_array(r.0.l_orig))
+            .collect();
+        let wt: Vec<glam::Vec3> = recs.iter().map(|r| glam::Vec3::splat(r.0.weight)).collect();
+        let observed: Vec<bool> = wt.iter().map(|v| v.x > 0.0).collect();
+        let cov: Vec<bool> = recs.iter().map(|r| r.1).collect();
+        write_map(
+            &maps,
+            p.slot_id(slot),
+            "luminance",
+            dims,
+            lum,
+            &observed,
+            true,
+        )?;
+        write_map(&maps, p.slot_id(slot), "coverage", dims, wt, &cov, true)?;
+    }
+    Ok((p, stats))
+}
+
+/// The stores' invariants after a stage, in debug builds (`atlas::check`).
+fn debug_check(geom: &TileStore<TexelGeom>, state: &TileStore<TexelState>) -> Result<()> {
+    if cfg!(debug_assertions) {
+        check_state(state, geom)?;
+    }
+    Ok(())
+}
+
+/// What is fixed about one reconstruction: the prepared scene, where its state lives, the
+/// fingerprint of its inputs, the geometry store.
+struct Run<'a> {
+    cfg: &'a Config,
+    out: &'a Path,
+    mode: Mode,
+    p: Prepared,
+    dir: PathBuf,
+    state_path: PathBuf,
+    hash: u64,
+    geom: TileStore<TexelGeom>,
+    charts: Charts,
+    /// Made on first use by the gather.
+    hits: OnceLock<HitTable>,
+    points: OnceLock<GatherPoints>,
+    window: usize,
+    load_s: f64,
+    atlas_s: f64,
+}
+
+/// A reconstruction under way: its state store, report and checkpoint writer.
+struct Running {
+    state: TileStore<TexelState>,
+    report: Report,
+    proj: ProjCounts,
+    stage: RunStage,
+    writer: Writer,
+    start: Start,
+    /// When this attempt began, and the seconds spent by earlier attempts.
+    clock: Instant,
+    prior_s: f64,
+}
+
+impl Running {
+    /// Seconds spent by the run so far, over every attempt.
+    fn elapsed(&self) -> f64 {
+        self.prior_s + self.clock.elapsed().as_secs_f64()
+    }
+
+    /// Checkpoint: the state (unless finished) and where the run stands.
+    fn checkpoint(&mut self, state_path: &Path, stage: RunStage) -> Result<()> {
+        let progress = Progress {
+            stage,
+            projection: self.proj,
+            report: self.report.clone(),
+        };
+        let snapshot = (stage != RunStage::Finished).then_some(state_path);
+        let seconds = self.elapsed();
+        self.writer.write(snapshot, &progress, seconds)
+    }
+}
+
+impl<'a> Run<'a> {
+    /// Load and prepare the scene, fingerprint the inputs and build the geometry store.
+    fn open(cfg: &'a Config, out: &'a Path, mode: Mode) -> Result<Run<'a>> {
+        let t = Instant::now();
+        let p = prepare(cfg, mode)?;
+        let load_s = t.elapsed().as_secs_f64();
+        let dir = state_dir(out);
+        fsio::create_dir(&dir)?;
+        let hash = p.fingerprint(cfg)?;
+        let t = Instant::now();
+        let geom = build_geometry(&p, &dir.join("geometry.tiles"), mode)?;
+        if cfg!(debug_assertions) {
+            check_geometry(&geom)?;
+        }
+        let charts = Charts::new(&p.scene, &p.layout, &p.atlases)?;
+        Ok(Run {
+            charts,
+            hits: OnceLock::new(),
+            points: OnceLock::new(),
+            window: p.window::<TexelState>(cfg),
+            state_path: dir.join("state.tiles"),
+            cfg,
+            out,
+            mode,
+            p,
+            dir,
+            hash,
+            geom,
+            load_s,
+            atlas_s: t.elapsed().as_secs_f64(),
+        })
+    }
+
+    /// The checkpoint to resume from, if a usable one of these inputs exists; a checkpoint of
+    /// other inputs is refused.
+    fn find_checkpoint(&self) -> Result<Option<Manifest<Progress>>> {
+        let (m, notes) = ck::load_for_resume::<Progress>(&self.dir)?;
         for n in &notes {
-            note(mode, n);
+            note(self.mode, n);
         }
         match m {
-            Some(m) if m.inputs_hash != hash => {
-                return Err(Error::input(
-                    dir.join(ck::MANIFEST),
-                    "--resume: this checkpoint was made with other inputs or settings \
-                     (scene, meshes, photos, or a setting that changes the result); resume \
-                     with the original ones, or run without --resume to start over",
-                ));
-            }
-            Some(m) if m.stage == Ck::Finished => {
-                return Ok((m.report, Start::AlreadyFinished));
-            }
-            Some(m) => loaded = Some(m),
-            None => note(
-                mode,
-                &format!("no usable checkpoint in {}: starting fresh", dir.display()),
-            ),
-        }
-    }
-    if loaded.is_none() {
-        Writer::clear(&dir)?;
-    }
-
-    let t = Instant::now();
-    let geom = build_geometry(&p, &dir.join("geometry.tiles"), mode)?;
-    let atlas_s = t.elapsed().as_secs_f64();
-    let state_path = dir.join("state.tiles");
-    let window = p.window::<TexelState>(cfg);
-    let (mut report, mut state, proj, stage, prior_s, mut writer, start);
-    match loaded {
-        None => {
-            report = Report::new(cfg.clone());
-            report.timings.load = load_s;
-            report.timings.atlas = atlas_s;
-            state = p.create_store(&state_path, TexelState::default())?;
-            let t = Instant::now();
-            let ps = project_all(&p, cfg, &geom, &mut state, mode)?;
-            report.timings.projection = t.elapsed().as_secs_f64();
-            proj = ProjCounts {
-                views: ps.views,
-                masked_pixels: ps.masked_pixels,
-                covered_texels: ps.covered_texels,
-                observed_texels: ps.observed_texels,
-            };
-
-            let t = Instant::now();
-            let mean_e = direct_all(&p, cfg, &geom, &mut state, mode)?;
-            report.timings.direct = t.elapsed().as_secs_f64();
-            let share = cfg.initial_indirect_share;
-            map_tiles(&mut state, &geom, window, |_, g, s| {
-                init_indirect_tile(s, g, share, mean_e)
-            })?;
-            report.stopped_by = "max_iterations".into();
-            stage = Ck::Direct;
-            prior_s = 0.0;
-            writer = Writer::new(&dir, hash, 0);
-            writer.write(
-                &state_path,
-                stage,
-                proj,
-                &report,
-                t_total.elapsed().as_secs_f64(),
-            )?;
-            start = Start::Fresh;
-        }
-        Some(m) => {
-            ck::restore(&dir, &m, &state_path)?;
-            state = TileStore::open(&state_path)?;
-            if state.tile_count() != p.layout.tile_count as usize
-                || state.tile_texels() != p.layout.tile_texels()
-            {
-                return Err(Error::input(
-                    &state_path,
-                    "checkpoint state does not match the atlas layout",
-                ));
-            }
-            report = m.report.clone();
-            report.settings = cfg.clone();
-            proj = m.projection;
-            stage = m.stage;
-            prior_s = m.seconds;
-            writer = Writer::new(&dir, hash, m.seq);
-            let at = match stage {
-                Ck::Pass {
-                    iteration,
-                    batches_done,
-                    ..
-                } => format!("iteration {}, batch {batches_done}", iteration + 1),
-                Ck::Iterations {
-                    iterations_done, ..
-                } => format!("after iteration {iterations_done}"),
-                _ => "after projection and direct light".into(),
-            };
-            note(mode, &format!("resuming from checkpoint {} ({at})", m.seq));
-            start = Start::Resumed(m.seq);
-        }
-    }
-    let elapsed = |t: &Instant| prior_s + t.elapsed().as_secs_f64();
-
-    let receivers = Receivers::new(&p.scene, &p.layout, &p.atlases)?;
-    let sampler = EmitterSampler::new(&p.scene);
-    let (first_iteration, mut in_pass, stopped) = match stage {
-        Ck::Direct | Ck::Finished => (0, None, false),
-        Ck::Pass {
-            iteration,
-            batches_done,
-            clamped,
-            photon_seconds,
-            update_seconds,
-            ..
-        } => (
-            iteration,
-            Some((batches_done, clamped, photon_seconds, update_seconds)),
-            false,
-        ),
-        Ck::Iterations {
-            iterations_done,
-            stopped,
-        } => (iterations_done, None, stopped),
-    };
-    let every = cfg.checkpoint_every_batches.max(1) as u64;
-    let n_end = if stopped {
-        first_iteration
-    } else {
-        cfg.iterations
-    };
-    for n in first_iteration..n_end {
-        let t = Instant::now();
-        let (clamped, mut update_s, first_batch, prior_photon_s) = match in_pass.take() {
-            Some((b, clamped, ps, us)) => (clamped, us, b, ps),
+            Some(m) if m.inputs_hash != self.hash => Err(Error::input(
+                self.dir.join(ck::MANIFEST),
+                "--resume: this checkpoint was made with other inputs or settings \
+                 (scene, meshes, photos, or a setting that changes the result); resume \
+                 with the original ones, or run without --resume to start over",
+            )),
             None => {
-                let clamped: u64 = map_tiles(&mut state, &geom, window, |_, g, s| kd_tile(s, g))?
-                    .iter()
-                    .sum();
-                fill_unobserved_all(&p, &receivers, &geom, &mut state)?;
-                (clamped, 0.0, 0, 0.0)
+                let msg = format!(
+                    "no usable checkpoint in {}: starting fresh",
+                    self.dir.display()
+                );
+                note(self.mode, &msg);
+                Ok(None)
+            }
+            m => Ok(m),
+        }
+    }
+
+    /// A fresh start: projection, direct light, the initial E_i, and the first checkpoint.
+    fn start(&self, clock: Instant) -> Result<Running> {
+        let (cfg, p, mode) = (self.cfg, &self.p, self.mode);
+        Writer::clear(&self.dir)?;
+        let mut report = Report::new(cfg.clone());
+        report.timings.load = self.load_s;
+        report.timings.atlas = self.atlas_s;
+        let mut state = p.create_store(&self.state_path, TexelState::default())?;
+        let t = Instant::now();
+        let ps = project::run(p, cfg, &self.geom, &mut state, mode)?;
+        report.timings.projection = t.elapsed().as_secs_f64();
+        debug_check(&self.geom, &state)?;
+        let proj = ProjCounts {
+            views: ps.views,
+            masked_pixels: ps.masked_pixels,
+            covered_texels: ps.covered_texels,
+            observed_texels: ps.observed_texels,
+        };
+        let t = Instant::now();
+        let mean_e = direct::run(p, cfg, &self.geom, &mut state, mode)?;
+        report.timings.direct = t.elapsed().as_secs_f64();
+        let share = cfg.initial_indirect_share;
+        map_tiles(&mut state, &self.geom, self.window, |_, g, s| {
+            init_indirect_tile(s, g, share, mean_e)
+        })?;
+        debug_check(&self.geom, &state)?;
+        report.stopped_by = "max_iterations".into();
+        let mut r = Running {
+            state,
+            report,
+            proj,
+            stage: RunStage::Direct,
+            writer: Writer::new(&self.dir, self.hash, 0),
+            start: Start::Fresh,
+            clock,
+            prior_s: 0.0,
+        };
+        r.checkpoint(&self.state_path, RunStage::Direct)?;
+        Ok(r)
+    }
+
+    /// Continue from checkpoint `m`: its state snapshot restored, its report and stage.
+    fn resume(&self, m: Manifest<Progress>, clock: Instant) -> Result<Running> {
+        ck::restore(&self.dir, &m, &self.state_path)?;
+        let state = self.p.open_store(&self.state_path)?;
+        let mut report = m.payload.report;
+        report.settings = self.cfg.clone();
+        let at = match m.payload.stage {
+            RunStage::Pass {
+                iteration,
+                batches_done,
+                ..
+            } => format!("iteration {}, batch {batches_done}", iteration + 1),
+            RunStage::Iterations {
+                iterations_done, ..
+            } => format!("after iteration {iterations_done}"),
+            _ => "after projection and direct light".into(),
+        };
+        note(
+            self.mode,
+            &format!("resuming from checkpoint {} ({at})", m.seq),
+        );
+        Ok(Running {
+            state,
+            report,
+            proj: m.payload.projection,
+            stage: m.payload.stage,
+            writer: Writer::new(&self.dir, self.hash, m.seq),
+            start: Start::Resumed(m.seq),
+            clock,
+            prior_s: m.seconds,
+        })
+    }
+
+    /// The solver's iterations from where `r` stands, each checkpointed.
+    fn iterate(&self, r: &mut Running) -> Result<()> {
+        let sampler = EmitterSampler::new(&self.p.scene);
+        let (first, mut in_pass, stopped) = match r.stage {
+            RunStage::Direct | RunStage::Finished => (0, None, false),
+            RunStage::Pass {
+                iteration,
+                batches_done,
+                clamped,
+                photon_seconds,
+                update_seconds,
+                ..
+            } => (
+                iteration,
+                Some(PassResume {
+                    batches_done,
+                    clamped,
+                    photon_seconds,
+                    update_seconds,
+                }),
+                false,
+            ),
+            RunStage::Iterations {
+                iterations_done,
+                stopped,
+            } => (iterations_done, None, stopped),
+        };
+        let last = if stopped { first } else { self.cfg.iterations };
+        for n in first..last {
+            let done = self.iteration(r, n, in_pass.take(), &sampler)?;
+            debug_check(&self.geom, &r.state)?;
+            if done {
+                break;
+            }
+        }
+        Ok(())
+    }
+
+    /// Iteration `n`: K_d from the current E_i, an E_i estimate (a gather pass, or a photon
+    /// pass from `resume` if the run stopped inside one), the update; checkpointed at its end.
+    /// Returns whether the solver stops here (tolerance reached).
+    fn iteration(
+        &self,
+        r: &mut Running,
+        n: u32,
+        resume: Option<PassResume>,
+        sampler: &EmitterSampler,
+    ) -> Result<bool> {
+        let (cfg, p, window, charts) = (self.cfg, &self.p, self.window, &self.charts);
+        let t = Instant::now();
+        let mut pass = match resume {
+            Some(r) => r,
+            None => {
+                let (clamped, _) = kd_step(&p.layout, charts, &self.geom, &mut r.state, window)?;
+                PassResume {
+                    batches_done: 0,
+                    clamped,
+                    photon_seconds: 0.0,
+                    update_seconds: t.elapsed().as_secs_f64(),
+                }
             }
         };
-        let albedo = AlbedoTextures::gather(&p.layout, &receivers, &state, cfg.atlas.padding + 2)?;
-        update_s += t.elapsed().as_secs_f64();
-
-        let ctx = pass_context(&p, cfg, (&sampler, &receivers, &albedo), n as u64);
-        if first_batch == 0 {
-            begin_pass(&mut state, window)?;
+        let (est, rule) = match cfg.method {
+            Method::Photons => (self.photon_estimate(r, n, &mut pass, sampler)?, cfg.update),
+            Method::Gather => (self.gather_estimate(r, n)?, UpdateRule::FixedPoint),
+        };
+        let t = Instant::now();
+        let prev = r
+            .report
+            .iterations
+            .last()
+            .map(|it| (it.sum_e_i, it.sum_traced));
+        let u = update_step(cfg, rule, n, prev, &self.geom, &mut r.state, window)?;
+        pass.update_seconds += t.elapsed().as_secs_f64();
+        let it = IterationStats {
+            iteration: n,
+            rms_rel_error: u.errors.rms_rel(),
+            mean_rel_error: u.errors.mean_rel(),
+            max_rel_error: u.errors.max_rel,
+            rms_residual: u.errors.rms_residual(),
+            clamped_texels: pass.clamped,
+            photons: est.photons,
+            photon_seconds: est.photon_seconds,
+            photons_per_second: est.photons as f64 / est.photon_seconds.max(1e-9),
+            gather_rays: est.gather_rays,
+            gather_seconds: est.gather_seconds,
+            update_seconds: pass.update_seconds,
+            sum_e_i: u.sum_e_i,
+            sum_traced: u.sum_traced,
+            beta: u.beta.to_array().map(f64::from),
+        };
+        r.report.timings.photons += est.photon_seconds;
+        r.report.timings.gather += est.gather_seconds;
+        r.report.timings.update += pass.update_seconds;
+        if self.mode == Mode::Auto {
+            eprintln!(
+                "[iteration {}] relative error: rms {:.3}%, mean {:.3}%, max {:.2}%",
+                n + 1,
+                100.0 * it.rms_rel_error,
+                100.0 * it.mean_rel_error,
+                100.0 * it.max_rel_error,
+            );
         }
+        let done = it.rms_rel_error < cfg.tolerance as f64;
+        r.report.iterations.push(it);
+        if done {
+            r.report.stopped_by = "tolerance".into();
+        }
+        let stage = RunStage::Iterations {
+            iterations_done: n + 1,
+            stopped: done || n + 1 == cfg.iterations,
+        };
+        r.stage = stage;
+        r.checkpoint(&self.state_path, stage)?;
+        Ok(done)
+    }
+
+    /// E_i by photon tracing into `accum` (the rest of `pass` from where it stands), smoothed.
+    fn photon_estimate(
+        &self,
+        r: &mut Running,
+        n: u32,
+        pass: &mut PassResume,
+        sampler: &EmitterSampler,
+    ) -> Result<Estimate> {
+        let (cfg, p, window, charts) = (self.cfg, &self.p, self.window, &self.charts);
+        let t = Instant::now();
+        let padding = cfg.atlas.padding + 2;
+        let albedo = AlbedoTextures::gather(&p.layout, charts, &r.state, &self.geom, padding)?;
+        pass.update_seconds += t.elapsed().as_secs_f64();
+        let ctx = PassContext::new(p, cfg, (sampler, charts, &albedo), n as u64);
+        let traced = self.photon_pass(r, &ctx, n, pass)?;
+        finish_pass(&self.geom, &mut r.state, window)?;
+        if cfg.smoothing_radius > 0 {
+            let radius = cfg.smoothing_radius;
+            smooth_accum(&p.layout, charts, &self.geom, &mut r.state, radius)?;
+        }
+        Ok(Estimate {
+            photons: ctx.photons_in(pass.batches_done) + traced.photons,
+            photon_seconds: pass.photon_seconds + traced.seconds,
+            ..Default::default()
+        })
+    }
+
+    /// E_i gathered from the observed radiance into `accum`.
+    fn gather_estimate(&self, r: &mut Running, n: u32) -> Result<Estimate> {
+        let (cfg, p) = (self.cfg, &self.p);
+        let t = Instant::now();
+        let points = self.gather_points()?;
+        let radiance = Radiance::from_state(&p.layout, &r.state, &self.geom)?;
+        let ctx = GatherContext {
+            accel: &p.accel,
+            hits: self.hits(),
+            charts: &self.charts,
+            radiance: &radiance,
+            seed: cfg.seed,
+            iteration: n as u64,
+            rays: cfg.gather_rays,
+        };
         let stage = Stage::new(
-            mode,
-            &format!("photons {}/{}", n + 1, cfg.iterations),
-            cfg.photons,
-            "photons",
+            self.mode,
+            &format!("gather {}/{}", n + 1, cfg.iterations),
+            1,
+            "passes",
         );
-        let batch = cfg.batch_size as u64;
+        let (values, stats) = gather_pass(&ctx, points);
+        stage.inc(1);
+        stage.finish();
+        let (layout, charts, geom) = (&p.layout, &self.charts, &self.geom);
+        write_accum(
+            layout,
+            points,
+            &values,
+            charts,
+            geom,
+            &mut r.state,
+            self.window,
+        )?;
+        Ok(Estimate {
+            gather_rays: stats.rays,
+            gather_seconds: t.elapsed().as_secs_f64(),
+            ..Default::default()
+        })
+    }
+
+    /// The gather points of this run (made on first use).
+    fn gather_points(&self) -> Result<&GatherPoints> {
+        if let Some(p) = self.points.get() {
+            return Ok(p);
+        }
+        let radius = crate::light::bounding_sphere(&self.p.scene).1;
+        let spacing = self.cfg.gather_spacing_for(radius);
+        let pts = GatherPoints::new(&self.p, &self.geom, &self.charts, spacing)?;
+        Ok(self.points.get_or_init(|| pts))
+    }
+
+    /// The hit table of this run (made on first use).
+    fn hits(&self) -> &HitTable {
+        self.hits
+            .get_or_init(|| HitTable::new(&self.p, &self.charts))
+    }
+
+    /// The photon pass of iteration `n` from batch `pass.batches_done`, with its progress
+    /// bar and a checkpoint every `checkpoint_every_batches` batches.
+    fn photon_pass(
+        &self,
+        r: &mut Running,
+        ctx: &PassContext,
+        n: u32,
+        pass: &PassResume,
+    ) -> Result<crate::photon::PassStats> {
+        let cfg = self.cfg;
+        if pass.batches_done == 0 {
+            begin_pass(&mut r.state, self.window)?;
+        }
+        let name = format!("photons {}/{}", n + 1, cfg.iterations);
+        let stage = Stage::new(self.mode, &name, cfg.photons, "photons");
         let batches = ctx.batch_count();
-        let photons_of = |done: u64| done.saturating_mul(batch).min(cfg.photons);
-        let mut last = photons_of(first_batch);
+        let every = cfg.checkpoint_every_batches.max(1) as u64;
+        let mut last = ctx.photons_in(pass.batches_done);
         stage.inc(last);
-        let mut last_ck = first_batch;
+        let mut last_ck = pass.batches_done;
         let t_pass = Instant::now();
-        let pass = photon_pass(&ctx, &mut state, first_batch, |done| {
-            let photons = photons_of(done);
+        let state_path = &self.state_path;
+        let Running {
+            state,
+            report,
+            proj,
+            writer,
+            clock,
+            prior_s,
+            ..
+        } = r;
+        let traced = photon_pass(ctx, state, pass.batches_done, |done| {
+            let photons = ctx.photons_in(done);
             stage.inc(photons - last);
             last = photons;
             if done < batches && done - last_ck >= every {
-                writer.write(
-                    &state_path,
-                    Ck::Pass {
+                let progress = Progress {
+                    stage: RunStage::Pass {
                         iteration: n,
                         batches_done: done,
-                        clamped,
+                        clamped: pass.clamped,
                         photons,
-                        photon_seconds: prior_photon_s + t_pass.elapsed().as_secs_f64(),
-                        update_seconds: update_s,
+                        photon_seconds: pass.photon_seconds + t_pass.elapsed().as_secs_f64(),
+                        update_seconds: pass.update_seconds,
                     },
-                    proj,
-                    &report,
-                    elapsed(&t_total),
-                )?;
+                    projection: *proj,
+                    report: report.clone(),
+                };
+                let seconds = *prior_s + clock.elapsed().as_secs_f64();
+                writer.write(Some(state_path), &progress, seconds)?;
                 last_ck = done;
             }
             Ok(())
         })?;
         stage.finish();
-        finish_pass(&geom, &mut state, window)?;
-        if cfg.smoothing_radius > 0 {
-            smooth_accum(
-                &p.layout,
-                &receivers,
-                &geom,
-                &mut state,
-                cfg.smoothing_radius,
-            )?;
-        }
-
-        let t = Instant::now();
-        let a = alpha(cfg.alpha0, n);
-        let rule = cfg.update;
-        let (mut sum_e_i, mut sum_traced) = ([0.0f64; 3], [0.0f64; 3]);
-        let beta = if rule == crate::config::UpdateRule::Secant {
-            for (e, t) in map_tiles(&mut state, &geom, window, |_, g, s| channel_sums(s, g))? {
-                for c in 0..3 {
-                    sum_e_i[c] += e[c];
-                    sum_traced[c] += t[c];
-                }
-            }
-            let prev = report
-                .iterations
-                .last()
-                .map(|it| (it.sum_e_i, it.sum_traced));
-            secant_beta(prev, (sum_e_i, sum_traced), cfg.relaxation)
-        } else {
-            Vec3::splat(cfg.relaxation)
-        };
-        let sums = map_tiles(&mut state, &geom, window, |_, g, s| {
-            compare_update_tile(s, g, rule, a, beta)
-        })?;
-        let mut e = ErrorSums::default();
-        for s in &sums {
-            e.add(s);
-        }
-        update_s += t.elapsed().as_secs_f64();
-        let photons = photons_of(first_batch) + pass.photons;
-        let photon_seconds = prior_photon_s + pass.seconds;
-        let it = IterationStats {
-            iteration: n,
-            rms_rel_error: e.rms_rel(),
-            mean_rel_error: e.mean_rel(),
-            max_rel_error: e.max_rel,
-            rms_residual: e.rms_residual(),
-            clamped_texels: clamped,
-            photons,
-            photon_seconds,
-            photons_per_second: photons as f64 / photon_seconds.max(1e-9),
-            update_seconds: update_s,
-            sum_e_i,
-            sum_traced,
-            beta: beta.to_array().map(f64::from),
-        };
-        report.timings.photons += photon_seconds;
-        report.timings.update += update_s;
-        if mode == Mode::Auto {
-            eprintln!(
-                "[iteration {}] relative error: rms {:.3}%, mean {:.3}%, max {:.2}%; {:.3e} photons/s",
-                n + 1,
-                100.0 * it.rms_rel_error,
-                100.0 * it.mean_rel_error,
-                100.0 * it.max_rel_error,
-                it.photons_per_second
-            );
-        }
-        let done = it.rms_rel_error < cfg.tolerance as f64;
-        report.iterations.push(it);
-        if done {
-            report.stopped_by = "tolerance".into();
-        }
-        writer.write(
-            &state_path,
-            Ck::Iterations {
-                iterations_done: n + 1,
-                stopped: done || n + 1 == cfg.iterations,
-            },
-            proj,
-            &report,
-            elapsed(&t_total),
-        )?;
-        if done {
-            break;
-        }
+        Ok(traced)
     }
-    // K_d consistent with the final E_i.
-    map_tiles(&mut state, &geom, window, |_, g, s| kd_tile(s, g))?;
-    let filled = fill_unobserved_all(&p, &receivers, &geom, &mut state)?;
-    state.flush()?;
 
-    report.counts = Counts {
-        shapes: p.scene.shapes.len(),
-        reconstructed_shapes: p.layout.slots.len(),
-        triangles: p.scene.triangle_count(),
-        emitters: p.scene.emitters.len(),
-        views: proj.views,
-        masked_pixels: proj.masked_pixels,
-        tiles: p.layout.tile_count,
-        covered_texels: proj.covered_texels,
-        observed_texels: proj.observed_texels,
-        filled_texels: filled,
-    };
-    report.timings.total = elapsed(&t_total);
-    crate::output::write_outputs(&p, &geom, &state, &mut report, out)?;
-    writer.write(&state_path, Ck::Finished, proj, &report, elapsed(&t_total))?;
-    note(
-        mode,
-        &format!(
-            "checkpoints: {:.1} MB written in {:.2} s",
-            writer.bytes_written as f64 / 1e6,
-            writer.seconds
-        ),
-    );
-    Ok((report, start))
+    /// K_d consistent with the final E_i, the counts, every output, the last checkpoint.
+    fn finish(&self, mut r: Running) -> Result<Report> {
+        let p = &self.p;
+        let charts = &self.charts;
+        let (_, filled) = kd_step(&p.layout, charts, &self.geom, &mut r.state, self.window)?;
+        r.state.flush()?;
+        debug_check(&self.geom, &r.state)?;
+        let proj = r.proj;
+        r.report.counts = Counts {
+            shapes: p.scene.shapes.len(),
+            reconstructed_shapes: p.layout.slots.len(),
+            triangles: p.scene.triangle_count(),
+            emitters: p.scene.emitters.len(),
+            views: proj.views,
+            masked_pixels: proj.masked_pixels,
+            tiles: p.layout.tile_count,
+            covered_texels: proj.covered_texels,
+            observed_texels: proj.observed_texels,
+            filled_texels: filled,
+        };
+        r.report.timings.total = r.elapsed();
+        write_outputs(p, &self.geom, &r.state, &mut r.report, self.out)?;
+        r.checkpoint(&self.state_path, RunStage::Finished)?;
+        note(
+            self.mode,
+            &format!(
+                "checkpoints: {:.1} MB written in {:.2} s",
+                r.writer.bytes_written as f64 / 1e6,
+                r.writer.seconds
+            ),
+        );
+        Ok(r.report)
+    }
+}
+
+/// What an iteration's E_i estimate cost.
+#[derive(Debug, Clone, Copy, Default)]
+struct Estimate {
+    photons: u64,
+    photon_seconds: f64,
+    gather_rays: u64,
+    gather_seconds: f64,
+}
+
+/// Where an iteration's photon pass stands: from a checkpoint inside it, or fresh.
+#[derive(Debug, Clone, Copy)]
+struct PassResume {
+    batches_done: u64,
+    clamped: u64,
+    photon_seconds: f64,
+    update_seconds: f64,
 }

@@ -1,9 +1,12 @@
-//! Looking at texture-space results through a camera: a primary ray per pixel, the hit's atlas
+//! Looking at texture-space results through a camera: sub-pixel primary rays, the hit's atlas
 //! coordinates, a bilinear texture lookup. Used to re-render the input views from recovered
-//! maps and to check projection (a luminance map re-projected must give back the photo).
+//! maps (outputs), by the projection's refinement, and to check projection (a luminance map
+//! re-projected must give back the photo).
 
 use crate::accel::Accel;
 use crate::camera::Camera;
+use crate::image::Image;
+use crate::scene::Scene;
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
@@ -30,53 +33,116 @@ pub fn bilinear(texels: &[Vec3], width: u32, height: u32, uv: Vec2) -> Vec3 {
     top * (1.0 - ty) + bot * ty
 }
 
-/// Render one view as Mitsuba's box-filtered film does: each pixel is the mean over `k x k`
-/// stratified sub-pixel rays of the texture value where the ray hits a textured shape
-/// (`textures[shape]`). `None` where no sub-pixel ray hits a textured shape.
+/// How a rendered pixel treats its sub-pixel rays that do not see a texture.
+#[derive(Clone, Copy)]
+pub enum Film<'a> {
+    /// The mean over the sub-pixel rays that hit a textured shape; `None` where none does
+    /// (projection refinement compares only what the maps cover).
+    HitsOnly,
+    /// Mitsuba's box-filtered film: every sub-pixel ray counts in the mean; a ray that hits
+    /// an emitter shape sees its radiance from the front and black from behind, a miss is
+    /// black. Pixels that lie wholly on emitters take `photo`'s value (the light is not
+    /// reconstructed, so it never shows as error). Always `Some`.
+    Box { scene: &'a Scene, photo: &'a Image },
+}
+
+/// What one sub-pixel ray sees.
+enum Seen {
+    Texture(Vec3),
+    Emitter(Vec3),
+    Nothing,
+}
+
+/// Render one view: each pixel from `k x k` stratified sub-pixel rays reading the texture of
+/// the shape they hit (`textures[shape]`, bilinear), combined as `film` says. The one renderer
+/// of texture-space maps: the re-rendered views of the outputs and the projection's
+/// refinement both use it.
 pub fn render_view(
     accel: &Accel,
     camera: &Camera,
     textures: &[Option<Texture>],
     k: u32,
+    film: Film,
 ) -> Vec<Option<Vec3>> {
     let (w, h) = (camera.width(), camera.height());
     let k = k.max(1);
     (0..h)
         .into_par_iter()
-        .flat_map_iter(|y| {
-            (0..w).map(move |x| {
-                let mut sum = Vec3::ZERO;
-                let mut n = 0u32;
-                for j in 0..k {
-                    for i in 0..k {
-                        let px = x as f32 + (i as f32 + 0.5) / k as f32;
-                        let py = y as f32 + (j as f32 + 0.5) / k as f32;
-                        if let Some(v) = shade(accel, camera, textures, px, py) {
-                            sum += v;
-                            n += 1;
-                        }
-                    }
-                }
-                (n > 0).then(|| sum / n as f32)
-            })
-        })
+        .flat_map_iter(|y| (0..w).map(move |x| pixel(accel, camera, textures, k, film, x, y)))
         .collect()
 }
 
-/// The texture value seen along the ray through continuous pixel coordinates `(px, py)`.
-fn shade(
+/// One pixel of [`render_view`].
+fn pixel(
     accel: &Accel,
     camera: &Camera,
     textures: &[Option<Texture>],
+    k: u32,
+    film: Film,
+    x: u32,
+    y: u32,
+) -> Option<Vec3> {
+    let scene = match film {
+        Film::Box { scene, .. } => Some(scene),
+        Film::HitsOnly => None,
+    };
+    let (mut sum, mut hits, mut on_emitter) = (Vec3::ZERO, 0u32, 0u32);
+    for j in 0..k {
+        for i in 0..k {
+            let px = x as f32 + (i as f32 + 0.5) / k as f32;
+            let py = y as f32 + (j as f32 + 0.5) / k as f32;
+            match trace(accel, camera, textures, scene, px, py) {
+                Seen::Texture(v) => {
+                    sum += v;
+                    hits += 1;
+                }
+                Seen::Emitter(v) => {
+                    sum += v;
+                    on_emitter += 1;
+                }
+                Seen::Nothing => {}
+            }
+        }
+    }
+    match film {
+        Film::HitsOnly => (hits > 0).then(|| sum / hits as f32),
+        Film::Box { photo, .. } if on_emitter == k * k && photo.is_valid(x, y) => {
+            Some(photo.get(x, y))
+        }
+        Film::Box { .. } => Some(sum / (k * k) as f32),
+    }
+}
+
+/// What the ray through continuous pixel coordinates `(px, py)` sees; emitters only with
+/// `scene` (else they are `Nothing`).
+fn trace(
+    accel: &Accel,
+    camera: &Camera,
+    textures: &[Option<Texture>],
+    scene: Option<&Scene>,
     px: f32,
     py: f32,
-) -> Option<Vec3> {
+) -> Seen {
     let (o, d) = camera.ray(px, py);
-    let hit = accel.intersect(o, d, f32::INFINITY)?;
-    let tex = textures.get(hit.shape as usize)?.as_ref()?;
-    let c = tex.corner_uv[hit.tri as usize];
-    let uv = c[0] * (1.0 - hit.b1 - hit.b2) + c[1] * hit.b1 + c[2] * hit.b2;
-    Some(bilinear(tex.texels, tex.width, tex.height, uv))
+    let Some(hit) = accel.intersect(o, d, f32::INFINITY) else {
+        return Seen::Nothing;
+    };
+    let si = hit.shape as usize;
+    if let Some(tex) = textures.get(si).and_then(|t| t.as_ref()) {
+        let c = tex.corner_uv[hit.tri as usize];
+        let uv = c[0] * (1.0 - hit.b1 - hit.b2) + c[1] * hit.b1 + c[2] * hit.b2;
+        return Seen::Texture(bilinear(tex.texels, tex.width, tex.height, uv));
+    }
+    let Some(shape) = scene.map(|s| &s.shapes[si]) else {
+        return Seen::Nothing;
+    };
+    match shape.emission {
+        Some(radiance) => {
+            let n = shape.mesh.shading_normal(hit.tri as usize, hit.b1, hit.b2);
+            Seen::Emitter(if n.dot(d) < 0.0 { radiance } else { Vec3::ZERO })
+        }
+        None => Seen::Nothing,
+    }
 }
 
 #[cfg(test)]

@@ -26,6 +26,11 @@ pub struct IterationStats {
     pub photon_seconds: f64,
     /// Photons per second in the pass.
     pub photons_per_second: f64,
+    /// Gather rays cast in this iteration's gather pass, and its seconds.
+    #[serde(default)]
+    pub gather_rays: u64,
+    #[serde(default)]
+    pub gather_seconds: f64,
     /// Seconds in the per-texel update.
     pub update_seconds: f64,
     /// Per channel, the sums over observed texels of E_i before the update and of the
@@ -47,6 +52,8 @@ pub struct Timings {
     pub projection: f64,
     pub direct: f64,
     pub photons: f64,
+    #[serde(default)]
+    pub gather: f64,
     pub update: f64,
     pub output: f64,
     pub total: f64,

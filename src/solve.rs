@@ -4,8 +4,13 @@
 //! statistics come back per tile and are summed in tile order (bit-identical for any thread
 //! count). Unobserved texels get K_d from observed neighbours of the same chart.
 
-use crate::atlas::layout::{flags, TexelGeom, TexelState};
-use crate::config::UpdateRule;
+use crate::atlas::charts::Charts;
+use crate::atlas::layout::{flags, Layout, TexelGeom, TexelState};
+use crate::atlas::texels::NONE;
+use crate::atlas::texture;
+use crate::atlas::tiles::{map_tiles, TileStore};
+use crate::config::{Config, UpdateRule};
+use crate::error::Result;
 use crate::scene::luminance;
 use glam::Vec3;
 use std::f32::consts::PI;
@@ -268,6 +273,116 @@ pub fn fill_unobserved(
         }
     }
     filled
+}
+
+/// Steps 3-5 over every tile, then the fill of unobserved texels: `K_d` from the current
+/// `E_i` everywhere. Returns `(clamped texels, filled texels)`.
+pub fn kd_step(
+    layout: &Layout,
+    charts: &Charts,
+    geom: &TileStore<TexelGeom>,
+    state: &mut TileStore<TexelState>,
+    window: usize,
+) -> Result<(u64, u64)> {
+    let clamped: u64 = map_tiles(state, geom, window, |_, g, s| kd_tile(s, g))?
+        .iter()
+        .sum();
+    let filled = fill_unobserved_all(layout, charts, geom, state)?;
+    Ok((clamped, filled))
+}
+
+/// [`fill_unobserved`] over every texture of the layout, one texture at a time: unobserved
+/// covered texels get `K_d` from observed neighbours of their chart (else the shape's mean)
+/// and the `FILLED` flag. Returns how many texels were filled.
+pub fn fill_unobserved_all(
+    layout: &Layout,
+    charts: &Charts,
+    geom: &TileStore<TexelGeom>,
+    state: &mut TileStore<TexelState>,
+) -> Result<u64> {
+    let mut filled_total = 0u64;
+    for slot in 0..layout.slots.len() {
+        let st = layout.slots[slot];
+        let texels = texture::gather(layout, slot, state, geom, |s, g| {
+            let observed = g.covered() && s.flags & flags::OBSERVED != 0;
+            (Vec3::from_array(s.k_d), observed, g.covered())
+        })?;
+        let mut kd: Vec<Vec3> = texels.iter().map(|t| t.0).collect();
+        let observed: Vec<bool> = texels.iter().map(|t| t.1).collect();
+        let chart: Vec<Option<u32>> = charts.slots[slot]
+            .texel_chart
+            .iter()
+            .zip(&texels)
+            .map(|(&c, t)| (t.2 && c != NONE).then_some(c))
+            .collect();
+        let filled = fill_unobserved(&mut kd, &observed, &chart, st.width, st.height);
+        let update: Vec<Option<Vec3>> = filled
+            .iter()
+            .zip(&kd)
+            .map(|(&f, &k)| f.then_some(k))
+            .collect();
+        filled_total += texture::scatter(layout, slot, state, &update, |r, v| match v {
+            Some(k) => {
+                r.k_d = k.to_array();
+                r.flags |= flags::FILLED;
+                true
+            }
+            None => false,
+        })?;
+    }
+    Ok(filled_total)
+}
+
+/// What one update step (steps 7 and 9) did.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Update {
+    pub errors: ErrorSums,
+    /// The relaxation step used per channel.
+    pub beta: Vec3,
+    /// Per channel, the sums over observed texels of E_i before the update and of the traced
+    /// E_i (computed for the `secant` rule only; zero otherwise).
+    pub sum_e_i: [f64; 3],
+    pub sum_traced: [f64; 3],
+}
+
+/// Steps 7 and 9 over every tile for iteration `n`, after `accum` holds the estimated `E_i`:
+/// compare and update `E_i` by `rule` (with `cfg`'s step sizes). `prev` is the previous
+/// iteration's `(sum_e_i, sum_traced)` (the secant rule steps from it).
+pub fn update_step(
+    cfg: &Config,
+    rule: UpdateRule,
+    n: u32,
+    prev: Option<([f64; 3], [f64; 3])>,
+    geom: &TileStore<TexelGeom>,
+    state: &mut TileStore<TexelState>,
+    window: usize,
+) -> Result<Update> {
+    let a = alpha(cfg.alpha0, n);
+    let (mut sum_e_i, mut sum_traced) = ([0.0f64; 3], [0.0f64; 3]);
+    let beta = if rule == UpdateRule::Secant {
+        for (e, t) in map_tiles(state, geom, window, |_, g, s| channel_sums(s, g))? {
+            for c in 0..3 {
+                sum_e_i[c] += e[c];
+                sum_traced[c] += t[c];
+            }
+        }
+        secant_beta(prev, (sum_e_i, sum_traced), cfg.relaxation)
+    } else {
+        Vec3::splat(cfg.relaxation)
+    };
+    let sums = map_tiles(state, geom, window, |_, g, s| {
+        compare_update_tile(s, g, rule, a, beta)
+    })?;
+    let mut errors = ErrorSums::default();
+    for s in &sums {
+        errors.add(s);
+    }
+    Ok(Update {
+        errors,
+        beta,
+        sum_e_i,
+        sum_traced,
+    })
 }
 
 #[cfg(test)]

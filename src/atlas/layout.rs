@@ -81,6 +81,30 @@ impl Layout {
         self.slots.partition_point(|s| s.first_tile <= tile) - 1
     }
 
+    /// Where tile `tile` lies in its slot's texture.
+    pub fn span(&self, tile: u32) -> TileSpan {
+        let slot = self.slot_of_tile(tile);
+        let s = &self.slots[slot];
+        let local = tile - s.first_tile;
+        let ts = self.tile_size;
+        let (x0, y0) = ((local % s.tiles_x) * ts, (local / s.tiles_x) * ts);
+        TileSpan {
+            slot,
+            tile_size: ts,
+            x0,
+            y0,
+            width: (s.width - x0).min(ts),
+            height: (s.height - y0).min(ts),
+            texture_width: s.width,
+        }
+    }
+
+    /// The tiles of `slot` (global tile indices), row-major.
+    pub fn slot_tiles(&self, slot: usize) -> std::ops::Range<u32> {
+        let s = &self.slots[slot];
+        s.first_tile..s.first_tile + s.tiles_x * s.tiles_y
+    }
+
     /// `(slot, x, y)` of a texel given as `(tile, offset)`, or `None` if it hangs outside its
     /// texture.
     #[inline]
@@ -92,6 +116,41 @@ impl Layout {
         let x = (local % s.tiles_x) * ts + off % ts;
         let y = (local / s.tiles_x) * ts + off / ts;
         (x < s.width && y < s.height).then_some((slot, x, y))
+    }
+}
+
+/// The part of a slot's texture one tile holds: the one place that turns a tile record's
+/// offset into texel coordinates.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct TileSpan {
+    pub slot: usize,
+    pub tile_size: u32,
+    /// The tile's top-left texel.
+    pub x0: u32,
+    pub y0: u32,
+    /// Texels of the tile inside the texture (less than `tile_size` on the right and bottom
+    /// edges).
+    pub width: u32,
+    pub height: u32,
+    /// Width of the whole texture.
+    pub texture_width: u32,
+}
+
+impl TileSpan {
+    /// Every texel of the tile inside its texture, row-major: `(offset in the tile, x, y)`.
+    pub fn texels(&self) -> impl Iterator<Item = (usize, u32, u32)> + '_ {
+        (0..self.height).flat_map(move |j| {
+            (0..self.width).map(move |i| {
+                let off = (j * self.tile_size + i) as usize;
+                (off, self.x0 + i, self.y0 + j)
+            })
+        })
+    }
+
+    /// `(offset in the tile, index in the row-major texture)` of every texel inside it.
+    pub fn indices(&self) -> impl Iterator<Item = (usize, usize)> + '_ {
+        self.texels()
+            .map(|(off, x, y)| (off, y as usize * self.texture_width as usize + x as usize))
     }
 }
 
@@ -185,6 +244,27 @@ mod tests {
             .filter(|&(t, o)| l.texel_of(t, o).is_none())
             .count();
         assert_eq!(outside, l.tile_count as usize * 16 - seen.len());
+    }
+
+    #[test]
+    fn spans_visit_every_texel_once_like_texel_of() {
+        let l = Layout::new(4, &[(0, 5, 3), (2, 8, 8), (5, 1, 9)]);
+        let mut n = 0;
+        for (slot, s) in l.slots.iter().enumerate() {
+            let mut seen = vec![0u8; (s.width * s.height) as usize];
+            for t in l.slot_tiles(slot) {
+                let span = l.span(t);
+                assert_eq!(span.slot, slot);
+                for ((off, x, y), (off2, i)) in span.texels().zip(span.indices()) {
+                    assert_eq!(l.texel_of(t, off as u32), Some((slot, x, y)));
+                    assert_eq!((off, i), (off2, (y * s.width + x) as usize));
+                    seen[i] += 1;
+                    n += 1;
+                }
+            }
+            assert!(seen.iter().all(|&c| c == 1), "slot {slot}: {seen:?}");
+        }
+        assert_eq!(n, 5 * 3 + 8 * 8 + 9);
     }
 
     #[test]

@@ -1,7 +1,17 @@
-//! The texture atlas: per-shape UV charts, the texel <-> surface map, and the memory-mapped
-//! tile store that holds per-texel state.
+//! The texture atlas: per-shape UV charts, the texel <-> surface map, the global tile layout,
+//! the memory-mapped tile stores that hold per-texel state, and what is fixed about a run
+//! before any stage ([`Prepared`]): everything a stage needs to address a texel.
 
+pub mod charts;
+pub mod check;
+pub mod geometry;
+pub mod hits;
 pub mod layout;
+pub mod prepared;
 pub mod texels;
+pub mod texture;
 pub mod tiles;
 pub mod unwrap;
+
+pub use geometry::build_geometry;
+pub use prepared::{match_views, prepare, state_dir, Prepared, ShapeRef};

@@ -264,6 +264,11 @@ impl<'a> TexelMap<'a> {
         self.atlas.width
     }
 
+    /// The mesh this map was made for.
+    pub fn mesh(&self) -> &'a Mesh {
+        self.mesh
+    }
+
     pub fn height(&self) -> u32 {
         self.atlas.height
     }
@@ -492,7 +497,7 @@ where
 {
     let (w, h) = (width as usize, height as usize);
     if values.len() != w * h || covered.len() != w * h {
-        return Err(Error::Config(format!(
+        return Err(Error::internal(format!(
             "dilate: {} values and {} mask entries for a {width}x{height} texture",
             values.len(),
             covered.len()

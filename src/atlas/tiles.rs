@@ -245,7 +245,7 @@ impl<T: Pod + Send + Sync> TileStore<T> {
         fill: T,
     ) -> Result<Self> {
         let path = path.as_ref();
-        let bad = |msg: String| Error::Config(format!("tile store {}: {msg}", path.display()));
+        let bad = |msg: String| Error::internal(format!("tile store {}: {msg}", path.display()));
         let record_size = record_size::<T>().map_err(bad)?;
         if tile_texels == 0 {
             return Err(bad("tile_texels must be > 0".into()));
@@ -260,9 +260,12 @@ impl<T: Pod + Send + Sync> TileStore<T> {
         };
         let stride = usize::try_from(header.tile_stride)
             .map_err(|_| bad("tile too large for this platform".into()))?;
-        let len = header
-            .file_len()
-            .ok_or_else(|| bad(format!("{tile_count} tiles is too many")))?;
+        let len = header.file_len().ok_or_else(|| {
+            Error::config(format!(
+                "tile store {}: {tile_count} tiles is too many",
+                path.display()
+            ))
+        })?;
 
         let io = |e| Error::io(path, e);
         let file = OpenOptions::new()
@@ -297,11 +300,11 @@ impl<T: Pod + Send + Sync> TileStore<T> {
     }
 
     /// Opens an existing store read-write, checking its header against `T` and its length
-    /// against the header. Any mismatch is a one-line [`Error::Input`] naming the file.
+    /// against the header. Any mismatch is a one-line [`Error::Corrupt`] naming the file.
     pub fn open(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref();
         let io = |e| Error::io(path, e);
-        let bad = |msg: String| Error::input(path, msg);
+        let bad = |msg: String| Error::corrupt(path, msg);
         let file = OpenOptions::new()
             .read(true)
             .write(true)
@@ -408,7 +411,7 @@ impl<T: Pod + Send + Sync> TileStore<T> {
     pub fn write_tile(&mut self, i: usize, data: &[T]) -> Result<()> {
         let off = self.tile_offset(i)?;
         if data.len() != self.tile_texels {
-            return Err(Error::Config(format!(
+            return Err(Error::internal(format!(
                 "tile store {}: write_tile got {} records, tiles hold {}",
                 self.path.display(),
                 data.len(),
@@ -510,7 +513,7 @@ impl<T: Pod + Send + Sync> TileStore<T> {
     /// Validates a walk: window > 0 and the file still as long as the header says.
     fn check_walk(&self, window_tiles: usize) -> Result<usize> {
         if window_tiles == 0 {
-            return Err(Error::Config(format!(
+            return Err(Error::internal(format!(
                 "tile store {}: window of 0 tiles",
                 self.path.display()
             )));
@@ -522,7 +525,7 @@ impl<T: Pod + Send + Sync> TileStore<T> {
             .len();
         let expect = HEADER_BYTES + self.data_bytes();
         if len < expect {
-            return Err(Error::input(
+            return Err(Error::corrupt(
                 &self.path,
                 format!("tile store shrank to {len} bytes since it was opened (expected {expect})"),
             ));
@@ -533,7 +536,7 @@ impl<T: Pod + Send + Sync> TileStore<T> {
     /// File offset and length of the window of `n` tiles starting at tile `start`.
     fn window_range(&self, start: usize, n: usize) -> Result<(u64, usize)> {
         let len = n.checked_mul(self.tile_stride).ok_or_else(|| {
-            Error::Config(format!(
+            Error::internal(format!(
                 "tile store {}: window of {n} tiles overflows the address space",
                 self.path.display()
             ))
@@ -544,7 +547,7 @@ impl<T: Pod + Send + Sync> TileStore<T> {
     /// File offset of tile `i`, or an error if it is out of range.
     fn tile_offset(&self, i: usize) -> Result<u64> {
         if i >= self.tile_count {
-            return Err(Error::Config(format!(
+            return Err(Error::internal(format!(
                 "tile store {}: tile {i} out of range ({} tiles)",
                 self.path.display(),
                 self.tile_count
@@ -556,7 +559,7 @@ impl<T: Pod + Send + Sync> TileStore<T> {
     fn cast_error(&self, e: bytemuck::PodCastError) -> Error {
         // Unreachable in practice: tiles start on 4096-byte boundaries of a page-aligned map
         // and `record_size` refuses alignments above that.
-        Error::Config(format!(
+        Error::internal(format!(
             "tile store {}: cannot view mapped tile as {}: {e:?}",
             self.path.display(),
             std::any::type_name::<T>()

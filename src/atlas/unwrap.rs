@@ -99,16 +99,16 @@ pub fn build_atlas_with_progress(
 
 fn check_settings(s: &AtlasSettings) -> Result<()> {
     if !(s.texels_per_unit > 0.0 && s.texels_per_unit.is_finite()) {
-        return Err(Error::Config(format!(
+        return Err(Error::config(format!(
             "atlas texels_per_unit must be finite and > 0, got {}",
             s.texels_per_unit
         )));
     }
     if s.max_size == 0 {
-        return Err(Error::Config("atlas max_size must be > 0".into()));
+        return Err(Error::config("atlas max_size must be > 0"));
     }
     if s.padding > 256 {
-        return Err(Error::Config(format!(
+        return Err(Error::config(format!(
             "atlas padding of {} texels is unreasonable (at most 256)",
             s.padding
         )));
@@ -120,13 +120,13 @@ fn check_mesh(mesh: &Mesh) -> Result<()> {
     let n = mesh.positions.len();
     for (t, tri) in mesh.triangles.iter().enumerate() {
         if let Some(&i) = tri.iter().find(|&&i| i as usize >= n) {
-            return Err(Error::Config(format!(
+            return Err(Error::internal(format!(
                 "mesh triangle {t} refers to vertex {i} but the mesh has {n} vertices"
             )));
         }
     }
     if let Some(v) = mesh.positions.iter().position(|p| !p.is_finite()) {
-        return Err(Error::Config(format!(
+        return Err(Error::internal(format!(
             "mesh vertex {v} has a non-finite position {}",
             mesh.positions[v]
         )));
@@ -138,7 +138,7 @@ fn check_mesh(mesh: &Mesh) -> Result<()> {
 fn too_large(w: u64, h: u64, s: &AtlasSettings, what: &str) -> Error {
     let side = w.max(h).max(1) as f64;
     let fit = s.texels_per_unit as f64 * s.max_size as f64 / side * 0.97;
-    Error::Config(format!(
+    Error::config(format!(
         "{what} needs a {w}x{h} texture at {} texels per unit, more than max_size {}; \
          lower texels_per_unit to about {fit:.2} or raise max_size",
         s.texels_per_unit, s.max_size
@@ -149,17 +149,17 @@ fn too_large(w: u64, h: u64, s: &AtlasSettings, what: &str) -> Error {
 /// (`side = density * sqrt(world area / uv area)`).
 fn from_mesh_uvs(mesh: &Mesh, s: &AtlasSettings, area: f64) -> Result<ShapeAtlas> {
     let uvs = mesh.uvs.as_ref().ok_or_else(|| {
-        Error::Config("use_mesh_uvs is set but the mesh has no texture coordinates".into())
+        Error::config("use_mesh_uvs is set but the mesh has no texture coordinates")
     })?;
     if uvs.len() != mesh.positions.len() {
-        return Err(Error::Config(format!(
+        return Err(Error::config(format!(
             "mesh has {} texture coordinates for {} vertices",
             uvs.len(),
             mesh.positions.len()
         )));
     }
     if let Some(v) = uvs.iter().position(|uv| !uv.is_finite()) {
-        return Err(Error::Config(format!(
+        return Err(Error::config(format!(
             "mesh vertex {v} has a non-finite texture coordinate {}",
             uvs[v]
         )));
@@ -171,7 +171,7 @@ fn from_mesh_uvs(mesh: &Mesh, s: &AtlasSettings, area: f64) -> Result<ShapeAtlas
         uv.x < -tol || uv.y < -tol || uv.x > 1.0 + tol || uv.y > 1.0 + tol
     });
     if let Some(&i) = outside {
-        return Err(Error::Config(format!(
+        return Err(Error::config(format!(
             "mesh texture coordinates leave [0, 1] (vertex {i} at {}): tiled or wrapped UVs \
              can't hold one albedo per surface point; unwrap instead (use_mesh_uvs = false)",
             uvs[i as usize]
@@ -186,8 +186,8 @@ fn from_mesh_uvs(mesh: &Mesh, s: &AtlasSettings, area: f64) -> Result<ShapeAtlas
         })
         .sum();
     if uv_area.is_nan() || uv_area <= 1e-12 {
-        return Err(Error::Config(
-            "mesh texture coordinates have no area (all triangles collapse in UV space)".into(),
+        return Err(Error::config(
+            "mesh texture coordinates have no area (all triangles collapse in UV space)",
         ));
     }
     let side = (s.texels_per_unit as f64 * (area / uv_area).sqrt()).ceil();
@@ -221,7 +221,7 @@ fn from_mesh_uvs(mesh: &Mesh, s: &AtlasSettings, area: f64) -> Result<ShapeAtlas
     // A few shared texel centers can come from rounding in hand-made UVs; more is a layout
     // that maps two surface points to one texel.
     if overlapped as f64 > 0.01 * covered.max(1) as f64 {
-        return Err(Error::Config(format!(
+        return Err(Error::config(format!(
             "mesh texture coordinates overlap: {overlapped} of {covered} covered texel centers \
              lie in more than one triangle; unwrap instead (use_mesh_uvs = false)"
         )));
@@ -273,17 +273,15 @@ fn unwrap(
     });
     let atlas = match result {
         Ok(a) => a,
-        Err(uvunwrap::Error::Cancelled) => {
-            return Err(Error::Config("atlas unwrap cancelled".into()))
-        }
+        Err(uvunwrap::Error::Cancelled) => return Err(Error::internal("atlas unwrap cancelled")),
         Err(uvunwrap::Error::AtlasTooLarge { texels }) => {
             let side = (texels as f64).sqrt().ceil() as u64;
             return Err(too_large(side, side, s, "the unwrapped mesh"));
         }
-        Err(e) => return Err(Error::Config(format!("unwrapping the mesh failed: {e}"))),
+        Err(e) => return Err(Error::internal(format!("unwrapping the mesh failed: {e}"))),
     };
     if atlas.page_count > 1 {
-        return Err(Error::Config(format!(
+        return Err(Error::internal(format!(
             "unwrapping the mesh gave {} pages, expected one",
             atlas.page_count
         )));
@@ -297,11 +295,11 @@ fn unwrap(
         ));
     }
     let Some(out) = atlas.meshes.first() else {
-        return Err(Error::Config("unwrapping the mesh gave no output".into()));
+        return Err(Error::internal("unwrapping the mesh gave no output"));
     };
     if out.indices.len() != indices.len() {
-        return Err(Error::Config(
-            "unwrapping the mesh changed its triangle count".into(),
+        return Err(Error::internal(
+            "unwrapping the mesh changed its triangle count",
         ));
     }
     let (w, h) = (atlas.width as f64, atlas.height as f64);

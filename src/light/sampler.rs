@@ -54,6 +54,83 @@ enum Kind {
     },
 }
 
+impl Kind {
+    /// How to sample emitter `e` (`sphere`: the scene's bounding sphere), `None` if it cannot
+    /// emit (a zero axis or direction, an area emitter without area).
+    fn of(scene: &Scene, e: &Emitter, (center, radius): (Vec3, f32)) -> Option<Kind> {
+        Some(match *e {
+            Emitter::Point { position, .. } => Kind::Point { position },
+            Emitter::Spot {
+                position,
+                axis,
+                intensity,
+                cutoff,
+                beam_width,
+                ..
+            } => {
+                let w = axis.try_normalize()?;
+                let (u, v) = w.any_orthonormal_pair();
+                let c = cutoff.clamp(0.0, PI);
+                let s = (0.5 * c).sin();
+                let one_minus_cos = 2.0 * s * s;
+                Kind::Spot {
+                    position,
+                    frame: [u, v, w],
+                    intensity,
+                    cutoff,
+                    beam_width,
+                    one_minus_cos,
+                    cone: 2.0 * PI * one_minus_cos,
+                }
+            }
+            Emitter::Directional { direction, .. } => {
+                let d = direction.try_normalize()?;
+                let (u, v) = d.any_orthonormal_pair();
+                Kind::Directional {
+                    direction: d,
+                    frame: [u, v],
+                    center,
+                    radius,
+                }
+            }
+            Emitter::Area { shape, .. } => Kind::area(&scene.shapes.get(shape)?.mesh)?,
+        })
+    }
+
+    /// An area emitter's triangles with positive area and their area CDF.
+    fn area(m: &crate::scene::Mesh) -> Option<Kind> {
+        let mut tris = Vec::with_capacity(m.triangles.len());
+        let mut cdf = Vec::with_capacity(m.triangles.len());
+        let mut acc = 0.0f64;
+        for t in 0..m.triangles.len() {
+            let a = m.triangle_area(t) as f64;
+            if !(a.is_finite() && a > 0.0) {
+                continue;
+            }
+            acc += a;
+            cdf.push(acc);
+            let [i, j, l] = m.triangles[t];
+            let n = m.normals.as_ref().and_then(|ns| {
+                Some([
+                    *ns.get(i as usize)?,
+                    *ns.get(j as usize)?,
+                    *ns.get(l as usize)?,
+                ])
+            });
+            tris.push(EmitTri {
+                p: m.triangle(t),
+                n,
+                ng: m.face_normal_raw(t).normalize(),
+            });
+        }
+        if tris.is_empty() {
+            return None;
+        }
+        cdf.iter_mut().for_each(|c| *c /= acc);
+        Some(Kind::Area { tris, cdf })
+    }
+}
+
 #[derive(Debug, Clone)]
 struct Source {
     emitter: usize,
@@ -96,82 +173,8 @@ impl EmitterSampler {
             if !(y.is_finite() && y > 0.0) {
                 continue;
             }
-            let kind = match *e {
-                Emitter::Point { position, .. } => Kind::Point { position },
-                Emitter::Spot {
-                    position,
-                    axis,
-                    intensity,
-                    cutoff,
-                    beam_width,
-                    ..
-                } => {
-                    let w = axis.normalize_or_zero();
-                    if w == Vec3::ZERO {
-                        continue;
-                    }
-                    let (u, v) = w.any_orthonormal_pair();
-                    let c = cutoff.clamp(0.0, PI);
-                    let s = (0.5 * c).sin();
-                    let one_minus_cos = 2.0 * s * s;
-                    Kind::Spot {
-                        position,
-                        frame: [u, v, w],
-                        intensity,
-                        cutoff,
-                        beam_width,
-                        one_minus_cos,
-                        cone: 2.0 * PI * one_minus_cos,
-                    }
-                }
-                Emitter::Directional { direction, .. } => {
-                    let d = direction.normalize_or_zero();
-                    if d == Vec3::ZERO {
-                        continue;
-                    }
-                    let (u, v) = d.any_orthonormal_pair();
-                    Kind::Directional {
-                        direction: d,
-                        frame: [u, v],
-                        center,
-                        radius,
-                    }
-                }
-                Emitter::Area { shape, .. } => {
-                    let Some(s) = scene.shapes.get(shape) else {
-                        continue;
-                    };
-                    let m = &s.mesh;
-                    let mut tris = Vec::with_capacity(m.triangles.len());
-                    let mut cdf = Vec::with_capacity(m.triangles.len());
-                    let mut acc = 0.0f64;
-                    for t in 0..m.triangles.len() {
-                        let a = m.triangle_area(t) as f64;
-                        if !(a.is_finite() && a > 0.0) {
-                            continue;
-                        }
-                        acc += a;
-                        cdf.push(acc);
-                        let [i, j, l] = m.triangles[t];
-                        let n = m.normals.as_ref().and_then(|ns| {
-                            Some([
-                                *ns.get(i as usize)?,
-                                *ns.get(j as usize)?,
-                                *ns.get(l as usize)?,
-                            ])
-                        });
-                        tris.push(EmitTri {
-                            p: m.triangle(t),
-                            n,
-                            ng: m.face_normal_raw(t).normalize(),
-                        });
-                    }
-                    if tris.is_empty() {
-                        continue;
-                    }
-                    cdf.iter_mut().for_each(|c| *c /= acc);
-                    Kind::Area { tris, cdf }
-                }
+            let Some(kind) = Kind::of(scene, e, (center, radius)) else {
+                continue;
             };
             total_power += power;
             sources.push(Source {

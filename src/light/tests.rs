@@ -33,6 +33,7 @@ pub(super) fn shape(mesh: Mesh, emission: Option<Vec3>) -> Shape {
         mesh,
         sides: Sides::Front,
         emission,
+        reflectance: None,
     }
 }
 
@@ -42,6 +43,7 @@ pub(super) fn scene(shapes: Vec<Shape>, emitters: Vec<Emitter>) -> Scene {
         shapes,
         emitters,
         sensors: vec![],
+        files: vec![],
     }
 }
 

@@ -1,14 +1,15 @@
-//! Per-shape textures and maps (`textures/<id>_albedo.*`, `maps/<id>_*.exr|png`), gathered
-//! from the tile store one quantity at a time so only one texture-sized buffer per map is in
-//! memory. Also builds each shape's re-render texture `L_render = K_d / pi (E_d + E_i)`.
+//! Per-shape textures and maps (`textures/<id>_albedo.*`, `maps/<id>_*.exr|png`), from one
+//! gather of each shape's texel records. Also builds each shape's re-render texture
+//! `L_render = K_d / pi (E_d + E_i)`.
 
 use super::plot::{draw_legend, fill, legend_height, ErrorScale, NO_DATA};
-use super::write_pixmap_png;
 use crate::atlas::layout::{flags, TexelGeom, TexelState};
 use crate::atlas::texels::dilate;
+use crate::atlas::texture::gather;
 use crate::atlas::tiles::TileStore;
-use crate::image::{write_exr_rgb, write_png_srgb};
-use crate::pipeline::{gather, write_map, Prepared};
+use crate::atlas::Prepared;
+use crate::fsio;
+use crate::image::{auto_exposure, write_exr_rgb, write_pixmap_png, write_png_srgb};
 use crate::{Error, Result};
 use glam::Vec3;
 use std::f32::consts::PI;
@@ -73,6 +74,39 @@ fn write_texture(
     write_png_srgb(dir.join(format!("{name}.png")), w, h, &vals, exposure)
 }
 
+/// Write a per-shape map `<dir>/<id>_<name>.exr` (gutter dilated) and, if asked, a PNG
+/// preview at the automatic exposure.
+pub fn write_map(
+    dir: &Path,
+    id: &str,
+    name: &str,
+    (width, height): (u32, u32),
+    mut vals: Vec<Vec3>,
+    cov: &[bool],
+    png: bool,
+) -> Result<()> {
+    fsio::create_dir(dir)?;
+    let exposure = auto_exposure(&vals, cov);
+    dilate(&mut vals, cov, width, height, 4)?;
+    write_exr_rgb(
+        dir.join(format!("{id}_{name}.exr")),
+        width,
+        height,
+        &vals,
+        false,
+    )?;
+    if png {
+        write_png_srgb(
+            dir.join(format!("{id}_{name}.png")),
+            width,
+            height,
+            &vals,
+            exposure,
+        )?;
+    }
+    Ok(())
+}
+
 /// Everything for one slot: albedo texture, the error / colorless / coverage / direct /
 /// indirect / luminance maps. Returns the slot's dilated `L_render` texture for re-rendering.
 pub fn write_slot(
@@ -84,30 +118,36 @@ pub fn write_slot(
     scale: &ErrorScale,
 ) -> Result<Vec<Vec3>> {
     let st = p.layout.slots[slot];
-    let id = &p.scene.shapes[st.shape].id;
+    let id = p.slot_id(slot);
     let dims = (st.width, st.height);
     let textures = out.join("textures");
     let maps = out.join("maps");
     for d in [&textures, &maps] {
-        std::fs::create_dir_all(d).map_err(|e| Error::io(d, e))?;
+        fsio::create_dir(d)?;
     }
+    let recs = gather(&p.layout, slot, state, geom, |s, g| (*s, g.covered()))?;
+    let cov: Vec<bool> = recs.iter().map(|r| r.1).collect();
+    let map =
+        |f: &dyn Fn(&TexelState) -> Vec3| -> Vec<Vec3> { recs.iter().map(|r| f(&r.0)).collect() };
 
-    let (kd, cov) = gather(p, slot, state, geom, |s| arr(s.k_d))?;
-    write_texture(&textures, &format!("{id}_albedo"), dims, kd, &cov, 0.0)?;
-
-    let (obs, _) = gather(p, slot, state, geom, |s| {
-        Vec3::splat(observed(s) as u8 as f32)
-    })?;
-    let obs: Vec<bool> = obs.iter().map(|v| v.x > 0.0).collect();
+    write_texture(
+        &textures,
+        &format!("{id}_albedo"),
+        dims,
+        map(&|s| arr(s.k_d)),
+        &cov,
+        0.0,
+    )?;
+    let obs: Vec<bool> = recs.iter().map(|r| observed(&r.0)).collect();
 
     // Relative error: defined on observed texels only; 0 elsewhere (see the coverage map).
-    let (err, _) = gather(p, slot, state, geom, |s| {
+    let err = map(&|s| {
         Vec3::splat(if observed(s) && s.error.is_finite() {
             s.error
         } else {
             0.0
         })
-    })?;
+    });
     write_error_png(
         &maps.join(format!("{id}_error.png")),
         dims,
@@ -126,18 +166,37 @@ pub fn write_slot(
         false,
     )?;
 
-    let (v, _) = gather(p, slot, state, geom, colorless)?;
-    write_map(&maps, id, "colorless", dims, v, &cov, true)?;
-    let (v, _) = gather(p, slot, state, geom, |s| Vec3::splat(s.weight))?;
-    write_map(&maps, id, "coverage", dims, v, &cov, true)?;
-    let (v, _) = gather(p, slot, state, geom, |s| arr(s.e_d))?;
-    write_map(&maps, id, "direct", dims, v, &cov, true)?;
-    let (v, _) = gather(p, slot, state, geom, |s| arr(s.e_i))?;
-    write_map(&maps, id, "indirect", dims, v, &cov, true)?;
-    let (v, _) = gather(p, slot, state, geom, |s| arr(s.l_orig))?;
-    write_map(&maps, id, "luminance", dims, v, &obs, true)?;
+    write_map(&maps, id, "colorless", dims, map(&colorless), &cov, true)?;
+    write_map(
+        &maps,
+        id,
+        "coverage",
+        dims,
+        map(&|s| Vec3::splat(s.weight)),
+        &cov,
+        true,
+    )?;
+    write_map(&maps, id, "direct", dims, map(&|s| arr(s.e_d)), &cov, true)?;
+    write_map(
+        &maps,
+        id,
+        "indirect",
+        dims,
+        map(&|s| arr(s.e_i)),
+        &cov,
+        true,
+    )?;
+    write_map(
+        &maps,
+        id,
+        "luminance",
+        dims,
+        map(&|s| arr(s.l_orig)),
+        &obs,
+        true,
+    )?;
 
-    let (mut lr, _) = gather(p, slot, state, geom, l_render)?;
+    let mut lr = map(&l_render);
     dilate(&mut lr, &cov, st.width, st.height, TEXTURE_DILATE_PASSES)?;
     Ok(lr)
 }
@@ -158,8 +217,9 @@ fn write_error_png(
     let cw = iw.max(240);
     let font = if cw >= 600 { 2 } else { 1 };
     let ch = ih + legend_height(font) + 4;
-    let mut pm = Pixmap::new(cw, ch)
-        .ok_or_else(|| Error::input(path, format!("cannot make a {cw}x{ch} PNG")))?;
+    let mut pm = Pixmap::new(cw, ch).ok_or_else(|| {
+        Error::internal(format!("{}: cannot make a {cw}x{ch} PNG", path.display()))
+    })?;
     pm.fill(tiny_skia::Color::BLACK);
     let data = pm.data_mut();
     for y in 0..ih {

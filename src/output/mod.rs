@@ -21,7 +21,6 @@
 //! leaves a half-written output; `report.json` appears last, so its presence means the
 //! directory is complete.
 
-pub mod accuracy;
 pub mod font;
 pub mod maps;
 pub mod obj;
@@ -29,40 +28,19 @@ pub mod plot;
 pub mod renders;
 pub mod scene_xml;
 
+pub use maps::write_map;
+
 use crate::atlas::layout::{TexelGeom, TexelState};
 use crate::atlas::tiles::TileStore;
-use crate::pipeline::Prepared;
+use crate::atlas::Prepared;
+use crate::error::{Error, Result};
+use crate::fsio;
+use crate::image::write_pixmap_png;
 use crate::render::Texture;
 use crate::report::Report;
-use crate::{Error, Result};
 use glam::Vec3;
 use std::path::Path;
 use std::time::Instant;
-
-/// Write `bytes` to `<path>.tmp`, then rename it to `path`. On error (a full disk included:
-/// see the `KDMAP_FAULT` test hook in [`crate::checkpoint`]) the temporary file is removed
-/// and the error names `path`.
-pub(crate) fn write_file_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    let tmp = crate::image::tmp_path(path);
-    let written = std::fs::File::create(&tmp)
-        .and_then(|mut f| crate::checkpoint::write_counted(&mut f, bytes));
-    if let Err(e) = written {
-        let _ = std::fs::remove_file(&tmp);
-        return Err(Error::io(path, e));
-    }
-    crate::image::rename_into_place(&tmp, path)
-}
-
-/// Encode `pm` as PNG and write it atomically.
-pub(crate) fn write_pixmap_png(path: &Path, pm: &tiny_skia::Pixmap) -> Result<()> {
-    let bytes = pm.encode_png().map_err(|e| {
-        Error::input(
-            path,
-            format!("cannot encode PNG: {}", e.to_string().replace('\n', " ")),
-        )
-    })?;
-    write_file_atomic(path, &bytes)
-}
 
 /// Write the whole output directory for a finished run (see the module doc): textures and
 /// maps per reconstructed shape, meshes, `scene.xml`, the re-rendered views, the convergence
@@ -76,7 +54,7 @@ pub fn write_outputs(
     out: &Path,
 ) -> Result<()> {
     let t0 = Instant::now();
-    std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
+    fsio::create_dir(out)?;
 
     // One error scale for every map and comparison image of the run.
     let scale = maps::error_scale(p, state)?;
@@ -125,6 +103,6 @@ pub fn write_outputs(
     report.timings.output = t0.elapsed().as_secs_f64();
     let json_path = out.join("report.json");
     let json = serde_json::to_string_pretty(report)
-        .map_err(|e| Error::input(&json_path, format!("cannot serialize the report: {e}")))?;
-    write_file_atomic(&json_path, json.as_bytes())
+        .map_err(|e| Error::internal(format!("cannot serialize the report: {e}")))?;
+    fsio::write_atomic(&json_path, json.as_bytes())
 }

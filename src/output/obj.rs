@@ -8,10 +8,10 @@
 //! stay shared. Numbers are written in Rust's shortest round-trip form, so reading the file
 //! back gives the same `f32` bits.
 
-use super::write_file_atomic;
 use crate::atlas::unwrap::ShapeAtlas;
+use crate::fsio::write_atomic;
 use crate::scene::Shape;
-use crate::{Error, Result};
+use crate::Result;
 use std::fmt::Write as _;
 use std::path::Path;
 
@@ -93,13 +93,13 @@ pub fn mtl_text(id: &str) -> String {
 
 /// Write `<dir>/<id>.obj`, and `<dir>/<id>.mtl` for a shape with an atlas.
 pub fn write_shape_mesh(dir: &Path, shape: &Shape, atlas: Option<&ShapeAtlas>) -> Result<()> {
-    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    crate::fsio::create_dir(dir)?;
     let material = atlas.is_some();
     let obj = dir.join(format!("{}.obj", shape.id));
-    write_file_atomic(&obj, obj_text(shape, atlas, material).as_bytes())?;
+    write_atomic(&obj, obj_text(shape, atlas, material).as_bytes())?;
     if material {
         let mtl = dir.join(format!("{}.mtl", shape.id));
-        write_file_atomic(&mtl, mtl_text(&shape.id).as_bytes())?;
+        write_atomic(&mtl, mtl_text(&shape.id).as_bytes())?;
     }
     Ok(())
 }
@@ -128,6 +128,7 @@ mod tests {
             },
             sides: Sides::Front,
             emission: None,
+            reflectance: None,
         }
     }
 

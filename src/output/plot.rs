@@ -157,129 +157,157 @@ pub fn draw_legend(
     }
 }
 
-/// The convergence plot: RMS and maximum per-texel relative error per iteration on a log
-/// axis (decades labelled in percent), iterations along x.
-pub fn convergence_plot(iters: &[IterationStats]) -> Pixmap {
-    let (w, h) = (800u32, 500u32);
-    let font = 2u32;
-    let mut pm = Pixmap::new(w, h).expect("fixed plot size");
-    pm.fill(Color::WHITE);
-    let black = Color::BLACK;
-    let (left, right, top, bottom) = (130.0f32, 30.0f32, 60.0f32, 80.0f32);
-    let (pw, ph) = (w as f32 - left - right, h as f32 - top - bottom);
+/// Where the convergence plot's data go: the plot area in pixels, the decades of the log
+/// y axis and the iteration range of the x axis.
+struct Frame {
+    left: f32,
+    top: f32,
+    pw: f32,
+    ph: f32,
+    /// Decades of the y axis, `10^lo ..= 10^hi`.
+    lo: i32,
+    hi: i32,
+    x_max: f32,
+}
 
-    // y range: whole decades around every finite positive value (1e-6 floor for zeros).
-    let floor = 1e-6f64;
+/// Values below this show at it on the log axis (zeros included).
+const PLOT_FLOOR: f64 = 1e-6;
+
+impl Frame {
+    fn px(&self, i: f32) -> f32 {
+        self.left + self.pw * i / self.x_max
+    }
+
+    fn py(&self, v: f64) -> f32 {
+        let l = v.max(PLOT_FLOOR).log10();
+        let t = (l - self.lo as f64) / (self.hi - self.lo) as f64;
+        self.top + self.ph * (1.0 - t as f32)
+    }
+}
+
+/// Whole decades `(lo, hi)` around every finite positive value (at least one decade).
+fn decade_range(iters: &[IterationStats]) -> (i32, i32) {
     let vals: Vec<f64> = iters
         .iter()
         .flat_map(|s| [s.rms_rel_error, s.max_rel_error])
         .filter(|v| v.is_finite())
-        .map(|v| v.max(floor))
+        .map(|v| v.max(PLOT_FLOOR))
         .collect();
-    let (lo, hi) = if vals.is_empty() {
-        (-3, 0)
-    } else {
-        let mn = vals.iter().cloned().fold(f64::INFINITY, f64::min);
-        let mx = vals.iter().cloned().fold(0.0, f64::max);
-        let lo = mn.log10().floor() as i32;
-        let hi = (mx.log10().ceil() as i32).max(lo + 1);
-        (lo, hi)
-    };
-    let n = iters.len();
-    let x_max = (n.max(2) - 1) as f32;
-    let px = |i: f32| left + pw * i / x_max;
-    let py = |v: f64| {
-        let l = v.max(floor).log10();
-        top + ph * (1.0 - ((l - lo as f64) / (hi - lo) as f64) as f32)
-    };
-
-    let grid = [220u8, 220, 220];
-    // Decade grid lines and labels.
-    for k in lo..=hi {
-        let y = py(10f64.powi(k));
-        fill(&mut pm, left, y, pw, 1.0, grid);
-        fill(&mut pm, left - 8.0, y, 8.0, 2.0, [0, 0, 0]);
-        let label = decade_percent_label(k);
-        let lw = text_width(&label, font) as f32;
-        draw_text(
-            &mut pm,
-            (left - 14.0 - lw) as i32,
-            (y - text_height(font) as f32 / 2.0) as i32,
-            &label,
-            font,
-            black,
-        );
+    if vals.is_empty() {
+        return (-3, 0);
     }
-    // Iteration ticks: at most ~10 labels.
-    let step = n.div_ceil(10).max(1);
-    for i in (0..n.max(2)).step_by(step) {
-        let x = px(i as f32);
-        fill(&mut pm, x, top, 1.0, ph, grid);
-        fill(&mut pm, x, top + ph, 2.0, 8.0, [0, 0, 0]);
-        let label = i.to_string();
-        let lw = text_width(&label, font) as f32;
-        draw_text(
-            &mut pm,
-            (x - lw / 2.0) as i32,
-            (top + ph + 14.0) as i32,
-            &label,
-            font,
-            black,
-        );
-    }
-    // Axes.
-    fill(&mut pm, left, top, 2.0, ph, [0, 0, 0]);
-    fill(&mut pm, left, top + ph, pw, 2.0, [0, 0, 0]);
-    let xl = "ITERATION";
-    draw_text(
-        &mut pm,
-        (left + pw / 2.0 - text_width(xl, font) as f32 / 2.0) as i32,
-        (h as f32 - 30.0) as i32,
-        xl,
-        font,
-        black,
-    );
-    draw_text(&mut pm, 20, 20, "REL. ERROR", font, black);
+    let mn = vals.iter().cloned().fold(f64::INFINITY, f64::min);
+    let mx = vals.iter().cloned().fold(0.0, f64::max);
+    let lo = mn.log10().floor() as i32;
+    let hi = (mx.log10().ceil() as i32).max(lo + 1);
+    (lo, hi)
+}
 
+/// The convergence plot: RMS and maximum per-texel relative error per iteration on a log
+/// axis (decades labelled in percent), iterations along x.
+pub fn convergence_plot(iters: &[IterationStats]) -> Pixmap {
+    let (w, h) = (800u32, 500u32);
+    let mut pm = Pixmap::new(w, h).expect("fixed plot size");
+    pm.fill(Color::WHITE);
+    let (left, right, top, bottom) = (130.0f32, 30.0f32, 60.0f32, 80.0f32);
+    let (lo, hi) = decade_range(iters);
+    let f = Frame {
+        left,
+        top,
+        pw: w as f32 - left - right,
+        ph: h as f32 - top - bottom,
+        lo,
+        hi,
+        x_max: (iters.len().max(2) - 1) as f32,
+    };
+    draw_axes(&mut pm, &f, iters.len());
     type Series = ([u8; 3], &'static str, fn(&IterationStats) -> f64);
     let series: [Series; 2] = [
         ([31, 119, 180], "RMS", |s| s.rms_rel_error),
         ([214, 39, 40], "MAX", |s| s.max_rel_error),
     ];
     for (si, (color, name, get)) in series.iter().enumerate() {
-        let mut paint = Paint::default();
-        paint.set_color_rgba8(color[0], color[1], color[2], 255);
-        paint.anti_alias = true;
         let pts: Vec<(f32, f32)> = iters
             .iter()
             .enumerate()
             .filter(|(_, s)| get(s).is_finite())
-            .map(|(i, s)| (px(i as f32), py(get(s))))
+            .map(|(i, s)| (f.px(i as f32), f.py(get(s))))
             .collect();
-        if pts.len() >= 2 {
-            let mut pb = PathBuilder::new();
-            pb.move_to(pts[0].0, pts[0].1);
-            for &(x, y) in &pts[1..] {
-                pb.line_to(x, y);
-            }
-            if let Some(path) = pb.finish() {
-                let stroke = Stroke {
-                    width: 3.0,
-                    ..Default::default()
-                };
-                pm.stroke_path(&path, &paint, &stroke, Transform::identity(), None);
-            }
-        }
-        for &(x, y) in &pts {
-            fill(&mut pm, x - 4.0, y - 4.0, 8.0, 8.0, *color);
-        }
+        draw_series(&mut pm, &pts, *color);
         // Legend entry, top right.
         let ly = 20.0 + si as f32 * 24.0;
         let lx = w as f32 - 150.0;
         fill(&mut pm, lx, ly + 6.0, 36.0, 3.0, *color);
-        draw_text(&mut pm, (lx + 46.0) as i32, ly as i32, name, font, black);
+        draw_text(
+            &mut pm,
+            (lx + 46.0) as i32,
+            ly as i32,
+            name,
+            2,
+            Color::BLACK,
+        );
     }
     pm
+}
+
+/// Grid, ticks, labels and axes of the convergence plot for `n` iterations.
+fn draw_axes(pm: &mut Pixmap, f: &Frame, n: usize) {
+    let font = 2u32;
+    let black = Color::BLACK;
+    let grid = [220u8, 220, 220];
+    let (left, top, pw, ph) = (f.left, f.top, f.pw, f.ph);
+    // Decade grid lines and labels.
+    for k in f.lo..=f.hi {
+        let y = f.py(10f64.powi(k));
+        fill(pm, left, y, pw, 1.0, grid);
+        fill(pm, left - 8.0, y, 8.0, 2.0, [0, 0, 0]);
+        let label = decade_percent_label(k);
+        let lw = text_width(&label, font) as f32;
+        let ty = (y - text_height(font) as f32 / 2.0) as i32;
+        draw_text(pm, (left - 14.0 - lw) as i32, ty, &label, font, black);
+    }
+    // Iteration ticks: at most ~10 labels.
+    let step = n.div_ceil(10).max(1);
+    for i in (0..n.max(2)).step_by(step) {
+        let x = f.px(i as f32);
+        fill(pm, x, top, 1.0, ph, grid);
+        fill(pm, x, top + ph, 2.0, 8.0, [0, 0, 0]);
+        let label = i.to_string();
+        let lw = text_width(&label, font) as f32;
+        let tx = (x - lw / 2.0) as i32;
+        draw_text(pm, tx, (top + ph + 14.0) as i32, &label, font, black);
+    }
+    // Axes.
+    fill(pm, left, top, 2.0, ph, [0, 0, 0]);
+    fill(pm, left, top + ph, pw, 2.0, [0, 0, 0]);
+    let xl = "ITERATION";
+    let tx = (left + pw / 2.0 - text_width(xl, font) as f32 / 2.0) as i32;
+    draw_text(pm, tx, (pm.height() as f32 - 30.0) as i32, xl, font, black);
+    draw_text(pm, 20, 20, "REL. ERROR", font, black);
+}
+
+/// One data series: a polyline through `pts` and a square marker at each.
+fn draw_series(pm: &mut Pixmap, pts: &[(f32, f32)], color: [u8; 3]) {
+    let mut paint = Paint::default();
+    paint.set_color_rgba8(color[0], color[1], color[2], 255);
+    paint.anti_alias = true;
+    if pts.len() >= 2 {
+        let mut pb = PathBuilder::new();
+        pb.move_to(pts[0].0, pts[0].1);
+        for &(x, y) in &pts[1..] {
+            pb.line_to(x, y);
+        }
+        if let Some(path) = pb.finish() {
+            let stroke = Stroke {
+                width: 3.0,
+                ..Default::default()
+            };
+            pm.stroke_path(&path, &paint, &stroke, Transform::identity(), None);
+        }
+    }
+    for &(x, y) in pts {
+        fill(pm, x - 4.0, y - 4.0, 8.0, 8.0, color);
+    }
 }
 
 #[cfg(test)]

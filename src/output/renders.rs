@@ -2,14 +2,13 @@
 //! re-rendered from the recovered maps, side by side with its photo.
 //!
 //! A pixel is the mean of `k x k` stratified sub-pixel rays, as Mitsuba's box-filtered film
-//! is: a ray that hits a reconstructed shape reads its radiance texture
-//! `L_render = K_d / pi (E_d + E_i)` bilinearly; one that hits an emitter shape sees its
-//! known area radiance from the front and black from behind (the emitter is not
-//! reconstructed); a ray that hits nothing contributes black. Misses count in the mean, so
-//! silhouettes against the background come out partly dark, as in the photo
-//! (`render::render_view`, which averages over hits only, would brighten them). Pixels that
-//! lie wholly on emitters keep the ORIGINAL photo's value, so the light itself never shows
-//! up as reconstruction error.
+//! is ([`render::Film::Box`](crate::render::Film::Box)): a ray that hits a reconstructed shape
+//! reads its radiance texture `L_render = K_d / pi (E_d + E_i)` bilinearly; one that hits an
+//! emitter shape sees its known area radiance from the front and black from behind (the
+//! emitter is not reconstructed); a ray that hits nothing contributes black. Misses count in
+//! the mean, so silhouettes against the background come out partly dark, as in the photo.
+//! Pixels that lie wholly on emitters keep the ORIGINAL photo's value, so the light itself
+//! never shows up as reconstruction error.
 //!
 //! The table (`report.table`, the paper's "mean over a region, original vs re-rendered")
 //! takes, per view and reconstructed shape, the pixels where the view sees that shape
@@ -20,50 +19,23 @@
 
 use super::font::{draw_text, text_height, text_width};
 use super::plot::{draw_legend, legend_height, ErrorScale};
-use super::write_pixmap_png;
+use crate::atlas::Prepared;
 use crate::camera::Camera;
-use crate::image::{read_sensor_image, write_exr_rgb, write_png_srgb, Image};
-use crate::pipeline::{auto_exposure, Prepared};
+use crate::fsio;
+use crate::image::{
+    auto_exposure, read_sensor_image, write_exr_rgb, write_pixmap_png, write_png_srgb, Image,
+};
 use crate::project::{PixelInfo, View};
-use crate::render::{bilinear, Texture};
+use crate::render::{render_view, Film, Texture};
 use crate::report::ViewShapeRow;
 use crate::scene::{luminance, Scene};
 use crate::{Error, Result};
 use glam::Vec3;
-use rayon::prelude::*;
 use std::path::Path;
 use tiny_skia::{Color, Pixmap};
 
 /// Sub-pixel rays per pixel side.
 pub const SUPERSAMPLE: u32 = 4;
-
-/// What one sub-pixel ray sees.
-enum Seen {
-    Texture(Vec3),
-    Emitter(Vec3),
-    Nothing,
-}
-
-fn trace(p: &Prepared, camera: &Camera, textures: &[Option<Texture>], px: f32, py: f32) -> Seen {
-    let (o, d) = camera.ray(px, py);
-    let Some(hit) = p.accel.intersect(o, d, f32::INFINITY) else {
-        return Seen::Nothing;
-    };
-    let si = hit.shape as usize;
-    if let Some(tex) = textures.get(si).and_then(|t| t.as_ref()) {
-        let c = tex.corner_uv[hit.tri as usize];
-        let uv = c[0] * (1.0 - hit.b1 - hit.b2) + c[1] * hit.b1 + c[2] * hit.b2;
-        return Seen::Texture(bilinear(tex.texels, tex.width, tex.height, uv));
-    }
-    let shape = &p.scene.shapes[si];
-    match shape.emission {
-        Some(radiance) => {
-            let n = shape.mesh.shading_normal(hit.tri as usize, hit.b1, hit.b2);
-            Seen::Emitter(if n.dot(d) < 0.0 { radiance } else { Vec3::ZERO })
-        }
-        None => Seen::Nothing,
-    }
-}
 
 /// Re-render one view (see the module doc): `textures[shape]` is the radiance texture of each
 /// reconstructed shape; `photo` supplies the pixels that lie wholly on emitters.
@@ -74,35 +46,13 @@ pub fn render_recovered(
     photo: &Image,
     k: u32,
 ) -> Vec<Vec3> {
-    let (w, h) = (camera.width(), camera.height());
-    let k = k.max(1);
-    (0..h)
-        .into_par_iter()
-        .flat_map_iter(|y| {
-            (0..w).map(move |x| {
-                let mut sum = Vec3::ZERO;
-                let mut on_emitter = 0;
-                for j in 0..k {
-                    for i in 0..k {
-                        let px = x as f32 + (i as f32 + 0.5) / k as f32;
-                        let py = y as f32 + (j as f32 + 0.5) / k as f32;
-                        match trace(p, camera, textures, px, py) {
-                            Seen::Texture(v) => sum += v,
-                            Seen::Emitter(v) => {
-                                sum += v;
-                                on_emitter += 1;
-                            }
-                            Seen::Nothing => {}
-                        }
-                    }
-                }
-                if on_emitter == k * k && photo.is_valid(x, y) {
-                    photo.get(x, y)
-                } else {
-                    sum / (k * k) as f32
-                }
-            })
-        })
+    let film = Film::Box {
+        scene: &p.scene,
+        photo,
+    };
+    render_view(&p.accel, camera, textures, k, film)
+        .into_iter()
+        .map(|v| v.unwrap_or(Vec3::ZERO))
         .collect()
 }
 
@@ -220,8 +170,8 @@ fn write_masks_json(dir: &Path, scene: &Scene) -> Result<()> {
     let json = serde_json::json!({ "shapes": ids });
     let path = dir.join("masks.json");
     let text = serde_json::to_string_pretty(&json)
-        .map_err(|e| Error::input(&path, format!("cannot serialize: {e}")))?;
-    super::write_file_atomic(&path, text.as_bytes())
+        .map_err(|e| Error::internal(format!("cannot serialize masks.json: {e}")))?;
+    fsio::write_atomic(&path, text.as_bytes())
 }
 
 /// Re-render view `(sensor index, photo path)`, write its EXR, PNG and comparison PNG into
@@ -233,7 +183,7 @@ pub fn write_view(
     dir: &Path,
     scale: &ErrorScale,
 ) -> Result<Vec<ViewShapeRow>> {
-    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    fsio::create_dir(dir)?;
     let sensor = &p.scene.sensors[si];
     let photo = read_sensor_image(photo_path, sensor)?;
     let camera = Camera::from_sensor(sensor);

@@ -10,8 +10,8 @@
 //! Shapes are written in input order, so shape indices (and `shape_<index>` ids) survive a
 //! round trip through `scene::mitsuba::load`.
 
-use super::write_file_atomic;
-use crate::scene::{Emitter, FovAxis, Rgb, Scene, Sides};
+use crate::fsio::write_atomic;
+use crate::scene::{Emitter, FovAxis, Rgb, Scene, Sensor, Shape, Sides};
 use crate::Result;
 use glam::{Mat4, Vec3};
 use std::fmt::Write as _;
@@ -90,136 +90,149 @@ pub fn scene_xml(scene: &Scene) -> String {
     );
 
     for sensor in &scene.sensors {
-        let _ = writeln!(
-            w,
-            "  <sensor type=\"perspective\" id=\"{}\">",
-            esc(&sensor.id)
-        );
-        let _ = writeln!(w, "    <float name=\"fov\" value=\"{}\"/>", sensor.fov);
-        let _ = writeln!(
-            w,
-            "    <string name=\"fov_axis\" value=\"{}\"/>",
-            fov_axis_name(sensor.fov_axis)
-        );
-        let _ = writeln!(
-            w,
-            "    <transform name=\"to_world\"><matrix value=\"{}\"/></transform>",
-            matrix(&sensor.to_world)
-        );
-        let _ = writeln!(
-            w,
-            "    <sampler type=\"independent\"><integer name=\"sample_count\" value=\"$spp\"/></sampler>"
-        );
-        let _ = writeln!(
-            w,
-            "    <film type=\"hdrfilm\"><integer name=\"width\" value=\"{}\"/><integer name=\"height\" value=\"{}\"/>\
-             <string name=\"pixel_format\" value=\"rgb\"/><rfilter type=\"box\"/></film>",
-            sensor.width, sensor.height
-        );
-        let _ = writeln!(w, "  </sensor>");
+        write_sensor(w, sensor);
     }
-
     for e in &scene.emitters {
-        match e {
-            Emitter::Point {
-                position,
-                intensity,
-            } => {
-                let _ = writeln!(
-                    w,
-                    "  <emitter type=\"point\"><point name=\"position\" {}/><rgb name=\"intensity\" value=\"{}\"/></emitter>",
-                    xyz(*position),
-                    rgb(*intensity)
-                );
-            }
-            Emitter::Spot {
-                to_world,
-                intensity,
-                cutoff,
-                beam_width,
-                ..
-            } => {
-                let _ = writeln!(w, "  <emitter type=\"spot\">");
-                let _ = writeln!(
-                    w,
-                    "    <transform name=\"to_world\"><matrix value=\"{}\"/></transform>",
-                    matrix(to_world)
-                );
-                let _ = writeln!(
-                    w,
-                    "    <rgb name=\"intensity\" value=\"{}\"/>",
-                    rgb(*intensity)
-                );
-                let _ = writeln!(
-                    w,
-                    "    <float name=\"cutoff_angle\" value=\"{}\"/><float name=\"beam_width\" value=\"{}\"/>",
-                    degrees(*cutoff),
-                    degrees(*beam_width)
-                );
-                let _ = writeln!(w, "  </emitter>");
-            }
-            Emitter::Directional {
-                direction,
-                irradiance,
-            } => {
-                let _ = writeln!(
-                    w,
-                    "  <emitter type=\"directional\"><vector name=\"direction\" {}/><rgb name=\"irradiance\" value=\"{}\"/></emitter>",
-                    xyz(*direction),
-                    rgb(*irradiance)
-                );
-            }
-            // Written with their shape below.
-            Emitter::Area { .. } => {}
-        }
+        write_emitter(w, e);
     }
-
     for shape in &scene.shapes {
-        let id = esc(&shape.id);
-        let _ = writeln!(w, "  <shape type=\"obj\" id=\"{id}\">");
-        let _ = writeln!(
-            w,
-            "    <string name=\"filename\" value=\"meshes/{id}.obj\"/>"
-        );
-        if shape.mesh.normals.is_none() {
-            // No `vn` in the file: keep the facets flat as kdmap saw them, rather than the
-            // smooth normals Mitsuba would compute.
-            let _ = writeln!(w, "    <boolean name=\"face_normals\" value=\"true\"/>");
-        }
-        let diffuse = if shape.is_reconstructed() {
-            format!(
-                "<bsdf type=\"diffuse\"><texture type=\"bitmap\" name=\"reflectance\">\
-                 <string name=\"filename\" value=\"textures/{id}_albedo.exr\"/>\
-                 <boolean name=\"raw\" value=\"true\"/></texture></bsdf>"
-            )
-        } else {
-            "<bsdf type=\"diffuse\"><rgb name=\"reflectance\" value=\"0\"/></bsdf>".to_string()
-        };
-        match shape.sides {
-            Sides::Front => {
-                let _ = writeln!(w, "    {diffuse}");
-            }
-            Sides::Both => {
-                let _ = writeln!(w, "    <bsdf type=\"twosided\">{diffuse}</bsdf>");
-            }
-        }
-        if let Some(r) = shape.emission {
-            let _ = writeln!(
-                w,
-                "    <emitter type=\"area\"><rgb name=\"radiance\" value=\"{}\"/></emitter>",
-                rgb(r)
-            );
-        }
-        let _ = writeln!(w, "  </shape>");
+        write_shape(w, shape);
     }
     let _ = writeln!(w, "</scene>");
     s
 }
 
+/// One `<sensor>` as Mitsuba reads it back.
+fn write_sensor(w: &mut String, sensor: &Sensor) {
+    let _ = writeln!(
+        w,
+        "  <sensor type=\"perspective\" id=\"{}\">",
+        esc(&sensor.id)
+    );
+    let _ = writeln!(w, "    <float name=\"fov\" value=\"{}\"/>", sensor.fov);
+    let _ = writeln!(
+        w,
+        "    <string name=\"fov_axis\" value=\"{}\"/>",
+        fov_axis_name(sensor.fov_axis)
+    );
+    let _ = writeln!(
+        w,
+        "    <transform name=\"to_world\"><matrix value=\"{}\"/></transform>",
+        matrix(&sensor.to_world)
+    );
+    let _ = writeln!(
+        w,
+        "    <sampler type=\"independent\"><integer name=\"sample_count\" value=\"$spp\"/></sampler>"
+    );
+    let _ = writeln!(
+        w,
+        "    <film type=\"hdrfilm\"><integer name=\"width\" value=\"{}\"/><integer name=\"height\" value=\"{}\"/>\
+         <string name=\"pixel_format\" value=\"rgb\"/><rfilter type=\"box\"/></film>",
+        sensor.width, sensor.height
+    );
+    let _ = writeln!(w, "  </sensor>");
+}
+
+/// One emitter (area emitters are written with their shape).
+fn write_emitter(w: &mut String, e: &Emitter) {
+    match e {
+        Emitter::Point {
+            position,
+            intensity,
+        } => {
+            let _ = writeln!(
+                w,
+                "  <emitter type=\"point\"><point name=\"position\" {}/><rgb name=\"intensity\" value=\"{}\"/></emitter>",
+                xyz(*position),
+                rgb(*intensity)
+            );
+        }
+        Emitter::Spot {
+            to_world,
+            intensity,
+            cutoff,
+            beam_width,
+            ..
+        } => {
+            let _ = writeln!(w, "  <emitter type=\"spot\">");
+            let _ = writeln!(
+                w,
+                "    <transform name=\"to_world\"><matrix value=\"{}\"/></transform>",
+                matrix(to_world)
+            );
+            let _ = writeln!(
+                w,
+                "    <rgb name=\"intensity\" value=\"{}\"/>",
+                rgb(*intensity)
+            );
+            let _ = writeln!(
+                w,
+                "    <float name=\"cutoff_angle\" value=\"{}\"/><float name=\"beam_width\" value=\"{}\"/>",
+                degrees(*cutoff),
+                degrees(*beam_width)
+            );
+            let _ = writeln!(w, "  </emitter>");
+        }
+        Emitter::Directional {
+            direction,
+            irradiance,
+        } => {
+            let _ = writeln!(
+                w,
+                "  <emitter type=\"directional\"><vector name=\"direction\" {}/><rgb name=\"irradiance\" value=\"{}\"/></emitter>",
+                xyz(*direction),
+                rgb(*irradiance)
+            );
+        }
+        // Written with their shape below.
+        Emitter::Area { .. } => {}
+    }
+}
+
+/// One `<shape>`: its mesh, its recovered (or known) bsdf, its area emitter.
+fn write_shape(w: &mut String, shape: &Shape) {
+    let id = esc(&shape.id);
+    let _ = writeln!(w, "  <shape type=\"obj\" id=\"{id}\">");
+    let _ = writeln!(
+        w,
+        "    <string name=\"filename\" value=\"meshes/{id}.obj\"/>"
+    );
+    if shape.mesh.normals.is_none() {
+        // No `vn` in the file: keep the facets flat as kdmap saw them, rather than the
+        // smooth normals Mitsuba would compute.
+        let _ = writeln!(w, "    <boolean name=\"face_normals\" value=\"true\"/>");
+    }
+    let diffuse = if shape.is_reconstructed() {
+        format!(
+            "<bsdf type=\"diffuse\"><texture type=\"bitmap\" name=\"reflectance\">\
+             <string name=\"filename\" value=\"textures/{id}_albedo.exr\"/>\
+             <boolean name=\"raw\" value=\"true\"/></texture></bsdf>"
+        )
+    } else {
+        "<bsdf type=\"diffuse\"><rgb name=\"reflectance\" value=\"0\"/></bsdf>".to_string()
+    };
+    match shape.sides {
+        Sides::Front => {
+            let _ = writeln!(w, "    {diffuse}");
+        }
+        Sides::Both => {
+            let _ = writeln!(w, "    <bsdf type=\"twosided\">{diffuse}</bsdf>");
+        }
+    }
+    if let Some(r) = shape.emission {
+        let _ = writeln!(
+            w,
+            "    <emitter type=\"area\"><rgb name=\"radiance\" value=\"{}\"/></emitter>",
+            rgb(r)
+        );
+    }
+    let _ = writeln!(w, "  </shape>");
+}
+
 /// Write `<out>/scene.xml` for `scene` (the meshes and textures it names are written by the
 /// other parts of `output`).
 pub fn write_scene_xml(out: &Path, scene: &Scene) -> Result<()> {
-    write_file_atomic(&out.join("scene.xml"), scene_xml(scene).as_bytes())
+    write_atomic(&out.join("scene.xml"), scene_xml(scene).as_bytes())
 }
 
 #[cfg(test)]

@@ -6,7 +6,7 @@
 //! # A pass, for the caller
 //!
 //! ```text
-//! Receivers::new(..)            once per run (texel/triangle -> chart tables)
+//! Charts::new(..)            once per run (texel/triangle -> chart tables)
 //! AlbedoTextures::gather(..)    per pass: current K_d per slot, gutter dilated
 //! begin_pass(state)             accum := 0
 //! photon_pass(ctx, state, 0, on_group)   accum += photon flux, batch by batch
@@ -45,10 +45,14 @@ pub use smooth::{smooth_accum, smooth_within_charts};
 pub use trace::{trace_photon, PathCounts};
 
 use crate::accel::Accel;
+use crate::atlas::charts::Charts;
 use crate::atlas::layout::{Layout, TexelGeom, TexelState};
-use crate::atlas::texels::{dilate, TexelMap, NONE};
-use crate::atlas::tiles::TileStore;
+use crate::atlas::texels::{dilate, NONE};
+use crate::atlas::texture;
+use crate::atlas::tiles::{map_tiles, TileStore};
 use crate::atlas::unwrap::ShapeAtlas;
+use crate::atlas::Prepared;
+use crate::config::Config;
 use crate::light::EmitterSampler;
 use crate::scene::Scene;
 use crate::{Error, Result};
@@ -82,7 +86,7 @@ impl AlbedoTextures {
     /// Checks that there is one texture per slot of `layout`, of the slot's size.
     pub fn new(layout: &Layout, slots: Vec<AlbedoTexture>) -> Result<Self> {
         if slots.len() != layout.slots.len() {
-            return Err(Error::Config(format!(
+            return Err(Error::internal(format!(
                 "albedo textures: {} given for {} reconstructed shapes",
                 slots.len(),
                 layout.slots.len()
@@ -94,7 +98,7 @@ impl AlbedoTextures {
                 || t.width == 0
                 || t.height == 0
             {
-                return Err(Error::Config(format!(
+                return Err(Error::internal(format!(
                     "albedo texture of slot {i}: {}x{} with {} texels, the atlas is {}x{}",
                     t.width,
                     t.height,
@@ -126,28 +130,16 @@ impl AlbedoTextures {
     /// gutter filled by `dilate_passes` passes of [`dilate`] (use the atlas padding or more).
     pub fn gather(
         layout: &Layout,
-        receivers: &Receivers,
+        charts: &Charts,
         state: &TileStore<TexelState>,
+        geom: &TileStore<TexelGeom>,
         dilate_passes: u32,
     ) -> Result<Self> {
-        let ts = layout.tile_size;
         let mut out = Vec::with_capacity(layout.slots.len());
         for (slot, st) in layout.slots.iter().enumerate() {
-            let (w, h) = (st.width as usize, st.height as usize);
-            let mut vals = vec![Vec3::ZERO; w * h];
-            for ty in 0..st.tiles_y {
-                for tx in 0..st.tiles_x {
-                    let tile = (st.first_tile + ty * st.tiles_x + tx) as usize;
-                    let recs = state.read_tile(tile)?;
-                    for (off, r) in recs.iter().enumerate() {
-                        let (x, y) = (tx * ts + off as u32 % ts, ty * ts + off as u32 / ts);
-                        if x < st.width && y < st.height {
-                            vals[y as usize * w + x as usize] = Vec3::from_array(r.k_d);
-                        }
-                    }
-                }
-            }
-            let covered: Vec<bool> = receivers.slots[slot]
+            let mut vals =
+                texture::gather(layout, slot, state, geom, |s, _| Vec3::from_array(s.k_d))?;
+            let covered: Vec<bool> = charts.slots[slot]
                 .texel_chart
                 .iter()
                 .map(|&c| c != NONE)
@@ -178,95 +170,6 @@ impl AlbedoTextures {
     }
 }
 
-/// Per slot, which chart each texel's center and each triangle lie on: what decides whether
-/// a photon hit is deposited (see the module docs) and what smoothing must not cross.
-#[derive(Debug, Clone, PartialEq)]
-pub struct SlotCharts {
-    pub width: u32,
-    pub height: u32,
-    /// Per texel (row-major), the chart owning its center, or [`NONE`] (not covered).
-    pub texel_chart: Vec<u32>,
-    /// Per mesh triangle, its chart, or [`NONE`] (no texel-space area).
-    pub tri_chart: Vec<u32>,
-}
-
-/// The surfaces photons can land on: shape -> slot, and each slot's chart tables. Built once
-/// per run (it rasterizes every atlas's texel centers); 4 bytes per texel and per triangle.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Receivers {
-    /// Per scene shape, its layout slot (`None`: emitter or otherwise not reconstructed; a
-    /// photon hitting it is absorbed).
-    pub slot_of_shape: Vec<Option<usize>>,
-    pub slots: Vec<SlotCharts>,
-}
-
-impl Receivers {
-    /// `atlases[shape]` must be the atlas of every slot's shape, of the slot's size.
-    pub fn new(scene: &Scene, layout: &Layout, atlases: &[Option<ShapeAtlas>]) -> Result<Self> {
-        let mut slot_of_shape = vec![None; scene.shapes.len()];
-        let mut slots = Vec::with_capacity(layout.slots.len());
-        for (slot, st) in layout.slots.iter().enumerate() {
-            let shape = scene.shapes.get(st.shape).ok_or_else(|| {
-                Error::Config(format!(
-                    "layout slot {slot} names shape {}, the scene has {}",
-                    st.shape,
-                    scene.shapes.len()
-                ))
-            })?;
-            let atlas = atlases
-                .get(st.shape)
-                .and_then(|a| a.as_ref())
-                .filter(|a| (a.width, a.height) == (st.width, st.height))
-                .ok_or_else(|| {
-                    Error::Config(format!(
-                        "shape '{}' has no {}x{} atlas for its slot",
-                        shape.id, st.width, st.height
-                    ))
-                })?;
-            if atlas.corner_uv.len() != shape.mesh.triangles.len() {
-                return Err(Error::Config(format!(
-                    "shape '{}': atlas has {} triangles, the mesh {}",
-                    shape.id,
-                    atlas.corner_uv.len(),
-                    shape.mesh.triangles.len()
-                )));
-            }
-            let map = TexelMap::new(&shape.mesh, atlas);
-            let texel_chart = map
-                .owners()
-                .par_iter()
-                .map(|&o| {
-                    if o == NONE {
-                        NONE
-                    } else {
-                        map.chart_of(o).unwrap_or(NONE)
-                    }
-                })
-                .collect();
-            let tri_chart = (0..shape.mesh.triangles.len() as u32)
-                .map(|t| map.chart_of(t).unwrap_or(NONE))
-                .collect();
-            slot_of_shape[st.shape] = Some(slot);
-            slots.push(SlotCharts {
-                width: st.width,
-                height: st.height,
-                texel_chart,
-                tri_chart,
-            });
-        }
-        Ok(Receivers {
-            slot_of_shape,
-            slots,
-        })
-    }
-
-    /// The slot of scene shape `shape`, if photons can land on it.
-    #[inline]
-    pub fn slot_of_shape(&self, shape: usize) -> Option<usize> {
-        self.slot_of_shape.get(shape).copied().flatten()
-    }
-}
-
 /// Everything a photon pass reads. Borrowed, immutable and `Sync`.
 #[derive(Clone, Copy)]
 pub struct PassContext<'a> {
@@ -276,7 +179,7 @@ pub struct PassContext<'a> {
     pub layout: &'a Layout,
     /// Per scene shape, its atlas (`corner_uv` maps hits to texels).
     pub atlases: &'a [Option<ShapeAtlas>],
-    pub receivers: &'a Receivers,
+    pub charts: &'a Charts,
     pub albedo: &'a AlbedoTextures,
     pub seed: u64,
     /// Solver iteration: part of every photon's random key.
@@ -294,10 +197,44 @@ pub struct PassContext<'a> {
     pub group_batches: usize,
 }
 
-impl PassContext<'_> {
+impl<'a> PassContext<'a> {
+    /// The photon pass of iteration `iteration` as `cfg` sets it (seed, photons, batch size,
+    /// depth, tile window), over `p`'s scene with the given emitter sampler, charts and
+    /// current albedo.
+    pub fn new(
+        p: &'a Prepared,
+        cfg: &Config,
+        (sampler, charts, albedo): (&'a EmitterSampler, &'a Charts, &'a AlbedoTextures),
+        iteration: u64,
+    ) -> PassContext<'a> {
+        PassContext {
+            scene: &p.scene,
+            accel: &p.accel,
+            sampler,
+            layout: &p.layout,
+            atlases: &p.atlases,
+            charts,
+            albedo,
+            seed: cfg.seed,
+            iteration,
+            photons: cfg.photons,
+            batch_size: cfg.batch_size,
+            max_depth: cfg.max_depth,
+            window: p.window::<TexelState>(cfg),
+            group_batches: 0,
+        }
+    }
+
     /// Number of batches in the pass.
     pub fn batch_count(&self) -> u64 {
         self.photons.div_ceil(self.batch_size.max(1) as u64)
+    }
+
+    /// Photons in the first `batches` batches.
+    pub fn photons_in(&self, batches: u64) -> u64 {
+        batches
+            .saturating_mul(self.batch_size as u64)
+            .min(self.photons)
     }
 
     /// Photons in batch `b` (the last one may be partial; 0 past the end).
@@ -307,7 +244,7 @@ impl PassContext<'_> {
     }
 
     fn check(&self, state: &TileStore<TexelState>, first_batch: u64) -> Result<()> {
-        let bad = |m: String| Err(Error::Config(format!("photon pass: {m}")));
+        let bad = |m: String| Err(Error::internal(format!("photon pass: {m}")));
         if self.batch_size == 0 {
             return bad("batch_size must be > 0".into());
         }
@@ -326,10 +263,10 @@ impl PassContext<'_> {
             ));
         }
         if self.albedo.slots.len() != self.layout.slots.len()
-            || self.receivers.slots.len() != self.layout.slots.len()
-            || self.receivers.slot_of_shape.len() != self.scene.shapes.len()
+            || self.charts.slots.len() != self.layout.slots.len()
+            || self.charts.slot_of_shape.len() != self.scene.shapes.len()
         {
-            return bad("albedo textures or receivers do not match the layout".into());
+            return bad("albedo textures or charts do not match the layout".into());
         }
         for st in &self.layout.slots {
             if self
@@ -491,7 +428,7 @@ pub fn finish_pass(
     window: usize,
 ) -> Result<()> {
     if geom.tile_count() != state.tile_count() || geom.tile_texels() != state.tile_texels() {
-        return Err(Error::Config(format!(
+        return Err(Error::internal(format!(
             "finish_pass: geometry store has {} tiles of {}, state {} of {}",
             geom.tile_count(),
             geom.tile_texels(),
@@ -499,6 +436,6 @@ pub fn finish_pass(
             state.tile_texels()
         )));
     }
-    crate::atlas::tiles::map_tiles(state, geom, window, |_, g, recs| finish_tile(g, recs))?;
+    map_tiles(state, geom, window, |_, g, recs| finish_tile(g, recs))?;
     Ok(())
 }

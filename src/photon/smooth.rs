@@ -3,9 +3,10 @@
 //! little blur for less photon noise. The filter never crosses a chart border: texels that
 //! are adjacent in the atlas but not on the surface would mix unrelated light.
 
-use super::Receivers;
+use crate::atlas::charts::Charts;
 use crate::atlas::layout::{Layout, TexelGeom, TexelState};
 use crate::atlas::texels::NONE;
+use crate::atlas::texture;
 use crate::atlas::tiles::TileStore;
 use crate::{Error, Result};
 use glam::{DVec3, Vec3};
@@ -27,7 +28,7 @@ pub fn smooth_within_charts(
 ) -> Result<Vec<Vec3>> {
     let (w, h) = (width as usize, height as usize);
     if values.len() != w * h || weights.len() != w * h || charts.len() != w * h {
-        return Err(Error::Config(format!(
+        return Err(Error::internal(format!(
             "smoothing: {} values, {} weights and {} charts for a {width}x{height} texture",
             values.len(),
             weights.len(),
@@ -70,7 +71,7 @@ pub fn smooth_within_charts(
 /// texture in memory at a time). `radius = 0` does nothing.
 pub fn smooth_accum(
     layout: &Layout,
-    receivers: &Receivers,
+    charts: &Charts,
     geom: &TileStore<TexelGeom>,
     state: &mut TileStore<TexelState>,
     radius: u32,
@@ -78,43 +79,20 @@ pub fn smooth_accum(
     if radius == 0 {
         return Ok(());
     }
-    let ts = layout.tile_size;
     for (slot, st) in layout.slots.iter().enumerate() {
-        let (w, n) = (st.width as usize, st.width as usize * st.height as usize);
-        let tiles: Vec<(u32, u32, usize)> = (0..st.tiles_y)
-            .flat_map(|ty| (0..st.tiles_x).map(move |tx| (tx, ty)))
-            .map(|(tx, ty)| (tx, ty, (st.first_tile + ty * st.tiles_x + tx) as usize))
-            .collect();
-        // texel (x, y) of the slot -> index in its tile, if inside the texture
-        let texels = |tx: u32, ty: u32| {
-            (0..ts * ts).filter_map(move |off| {
-                let (x, y) = (tx * ts + off % ts, ty * ts + off / ts);
-                (x < st.width && y < st.height)
-                    .then_some((off as usize, y as usize * w + x as usize))
-            })
-        };
-        let mut vals = vec![Vec3::ZERO; n];
-        let mut wts = vec![0.0f32; n];
-        for &(tx, ty, tile) in &tiles {
-            let (s, g) = (state.read_tile(tile)?, geom.read_tile(tile)?);
-            for (off, i) in texels(tx, ty) {
-                vals[i] = Vec3::from_array(s[off].accum);
-                wts[i] = if g[off].covered() {
-                    g[off].bin_area
-                } else {
-                    0.0
-                };
-            }
-        }
-        let charts = &receivers.slots[slot].texel_chart;
+        let (vals, wts): (Vec<Vec3>, Vec<f32>) =
+            texture::gather(layout, slot, state, geom, |s, g| {
+                let w = if g.covered() { g.bin_area } else { 0.0 };
+                (Vec3::from_array(s.accum), w)
+            })?
+            .into_iter()
+            .unzip();
+        let charts = &charts.slots[slot].texel_chart;
         let smoothed = smooth_within_charts(&vals, &wts, charts, st.width, st.height, radius)?;
-        for &(tx, ty, tile) in &tiles {
-            let mut s = state.read_tile(tile)?;
-            for (off, i) in texels(tx, ty) {
-                s[off].accum = smoothed[i].to_array();
-            }
-            state.write_tile(tile, &s)?;
-        }
+        texture::scatter(layout, slot, state, &smoothed, |s, v| {
+            s.accum = v.to_array();
+            true
+        })?;
     }
     Ok(())
 }

@@ -2,11 +2,11 @@
 //! thread counts, group sizes and resumes, and the smoothing filter.
 
 use super::*;
-use crate::atlas::unwrap::{build_atlas, AtlasSettings};
-use crate::pipeline::{build_geometry, Prepared};
+use crate::atlas::unwrap::AtlasSettings;
+use crate::atlas::{build_geometry, Prepared};
 use crate::progress::Mode;
 use crate::scene::{mesh, Emitter, Mesh, Shape, Sides};
-use glam::{Mat4, Vec2, Vec3};
+use glam::{DVec3, Mat4, Vec2, Vec3};
 use std::f64::consts::PI;
 use std::path::PathBuf;
 
@@ -18,6 +18,7 @@ fn shape(id: &str, mesh: Mesh, sides: Sides) -> Shape {
         mesh,
         sides,
         emission: None,
+        reflectance: None,
     }
 }
 
@@ -28,12 +29,12 @@ fn point(position: Vec3, intensity: Vec3) -> Emitter {
     }
 }
 
-/// A scene with its atlases, layout, geometry store, receivers and photon sampler.
+/// A scene with its atlases, layout, geometry store, charts and photon sampler.
 struct Fixture {
     dir: tempfile::TempDir,
     p: Prepared,
     geom: TileStore<TexelGeom>,
-    receivers: Receivers,
+    charts: Charts,
     sampler: EmitterSampler,
 }
 
@@ -44,38 +45,22 @@ impl Fixture {
             shapes,
             emitters,
             sensors: vec![],
+            files: vec![],
         };
         let settings = AtlasSettings {
             texels_per_unit,
             ..Default::default()
         };
-        let mut atlases = Vec::new();
-        let mut textures = Vec::new();
-        for (i, s) in scene.shapes.iter().enumerate() {
-            if s.is_reconstructed() {
-                let a = build_atlas(&s.mesh, &settings).unwrap();
-                textures.push((i, a.width, a.height));
-                atlases.push(Some(a));
-            } else {
-                atlases.push(None);
-            }
-        }
-        let p = Prepared {
-            accel: Accel::build(&scene),
-            layout: Layout::new(16, &textures),
-            scene,
-            atlases,
-            views: vec![],
-        };
+        let p = Prepared::new(scene, vec![], &settings, 16).unwrap();
         let dir = tempfile::tempdir().unwrap();
         let geom = build_geometry(&p, &dir.path().join("geom.tiles"), Mode::Quiet).unwrap();
-        let receivers = Receivers::new(&p.scene, &p.layout, &p.atlases).unwrap();
+        let charts = Charts::new(&p.scene, &p.layout, &p.atlases).unwrap();
         let sampler = EmitterSampler::new(&p.scene);
         Fixture {
             dir,
             p,
             geom,
-            receivers,
+            charts,
             sampler,
         }
     }
@@ -87,7 +72,7 @@ impl Fixture {
             sampler: &self.sampler,
             layout: &self.p.layout,
             atlases: &self.p.atlases,
-            receivers: &self.receivers,
+            charts: &self.charts,
             albedo,
             seed: 7,
             iteration: 3,
@@ -135,25 +120,19 @@ impl Fixture {
 
     /// Per slot, the texture-space arrays `(E, bin_area)` of `accum`.
     fn slot_arrays(&self, s: &TileStore<TexelState>, slot: usize) -> (Vec<Vec3>, Vec<f32>) {
-        let (e, _) =
-            crate::pipeline::gather(&self.p, slot, s, &self.geom, |r| Vec3::from_array(r.accum))
-                .unwrap();
-        let (b, cov) = crate::pipeline::gather(&self.p, slot, &self.geom, &self.geom, |g| {
-            Vec3::splat(g.bin_area)
+        texture::gather(&self.p.layout, slot, s, &self.geom, |r, g| {
+            let w = if g.covered() { g.bin_area } else { 0.0 };
+            (Vec3::from_array(r.accum), w)
         })
-        .unwrap();
-        let w = b
-            .iter()
-            .zip(cov)
-            .map(|(b, c)| if c { b.x } else { 0.0 })
-            .collect();
-        (e, w)
+        .unwrap()
+        .into_iter()
+        .unzip()
     }
 }
 
 /// Area-weighted mean of `accum` over covered texels.
 fn area_mean(texels: &[(TexelGeom, Vec3)]) -> Vec3 {
-    let (mut s, mut a) = (glam::DVec3::ZERO, 0.0f64);
+    let (mut s, mut a) = (DVec3::ZERO, 0.0f64);
     for (g, e) in texels.iter().filter(|(g, _)| g.covered()) {
         s += e.as_dvec3() * g.bin_area as f64;
         a += g.bin_area as f64;
@@ -232,9 +211,16 @@ fn furnace_sphere_matches_the_closed_form() {
         .filter(|(g, _)| !g.covered())
         .all(|(_, e)| *e == Vec3::ZERO));
 
-    // Smoothing: accuracy per photon (E_i is uniform here, so this is pure noise reduction).
+    check_smoothing(&fx, s, want.x);
+    check_colored_and_one_bounce(&fx, ed, n);
+}
+
+/// Smoothing the furnace's `E_i` (uniform, `want`) cuts per-texel noise, and the store-level
+/// filter is the same function as the in-memory one.
+fn check_smoothing(fx: &Fixture, s: TileStore<TexelState>, want: f64) {
+    // E_i is uniform here, so this is pure noise reduction.
     let (e, wts) = fx.slot_arrays(&s, 0);
-    let charts = &fx.receivers.slots[0].texel_chart;
+    let charts = &fx.charts.slots[0].texel_chart;
     let st = fx.p.layout.slots[0];
     let mut rms0 = 0.0;
     for r in 0..=3u32 {
@@ -242,7 +228,7 @@ fn furnace_sphere_matches_the_closed_form() {
         let (mut s2, mut sm_mean, mut m) = (0.0f64, 0.0f64, 0usize);
         for (j, v) in sm.iter().enumerate() {
             if charts[j] != NONE && wts[j] > 0.0 {
-                let d = v.x as f64 / want.x - 1.0;
+                let d = v.x as f64 / want - 1.0;
                 s2 += d * d;
                 sm_mean += d;
                 m += 1;
@@ -267,7 +253,7 @@ fn furnace_sphere_matches_the_closed_form() {
     }
     // The store-level filter is the same function.
     let mut s = s;
-    smooth_accum(&fx.p.layout, &fx.receivers, &fx.geom, &mut s, 2).unwrap();
+    smooth_accum(&fx.p.layout, &fx.charts, &fx.geom, &mut s, 2).unwrap();
     let (e2, _) = fx.slot_arrays(&s, 0);
     let sm = smooth_within_charts(&e, &wts, charts, st.width, st.height, 2).unwrap();
     for j in 0..e2.len() {
@@ -275,7 +261,11 @@ fn furnace_sphere_matches_the_closed_form() {
             assert_eq!(e2[j], sm[j]);
         }
     }
+}
 
+/// Coloured albedo gives per channel `E_i = E_d rho_c / (1 - rho_c)` (Russian roulette on
+/// max K_d); one bounce only gives `E_i = E_d rho`.
+fn check_colored_and_one_bounce(fx: &Fixture, ed: DVec3, n: u64) {
     // Colored albedo: per channel E_i = E_d rho_c / (1 - rho_c) (Russian roulette on max K_d).
     let rho = Vec3::new(0.5, 0.25, 0.8);
     let albedo = AlbedoTextures::uniform(&fx.p.layout, rho);
@@ -402,8 +392,8 @@ fn albedo_lookup_is_the_texel_under_the_point_and_gather_dilates() {
         }
     })
     .unwrap();
-    let alb = AlbedoTextures::gather(&fx.p.layout, &fx.receivers, &s, 2).unwrap();
-    let charts = &fx.receivers.slots[0].texel_chart;
+    let alb = AlbedoTextures::gather(&fx.p.layout, &fx.charts, &s, &fx.geom, 2).unwrap();
+    let charts = &fx.charts.slots[0].texel_chart;
     let (mut covered, mut filled) = (0, 0);
     for y in 0..st.height {
         for x in 0..st.width {
@@ -484,7 +474,7 @@ fn passes_are_bit_identical_across_threads_groups_and_resume() {
     let e = photon_pass(&ctx, &mut s, 0, |done| {
         at = done;
         if done >= 7 {
-            Err(Error::Config("simulated crash".into()))
+            Err(Error::internal("simulated crash"))
         } else {
             Ok(())
         }
@@ -564,7 +554,7 @@ fn smoothing_tradeoff_on_a_gradient() {
     let st = fx.p.layout.slots[0];
     let (e_ref, _) = fx.slot_arrays(&reference, 0);
     let (e, w) = fx.slot_arrays(&s, 0);
-    let charts = &fx.receivers.slots[0].texel_chart;
+    let charts = &fx.charts.slots[0].texel_chart;
     let mut ref_var = 0.0;
     for r in 0..=4u32 {
         let sm = smooth_within_charts(&e, &w, charts, st.width, st.height, r).unwrap();

@@ -63,7 +63,7 @@ pub fn trace_photon(
             break;
         };
         let si = hit.shape as usize;
-        let Some(slot) = ctx.receivers.slot_of_shape(si) else {
+        let Some(slot) = ctx.charts.slot_of_shape(si) else {
             break;
         };
         let shape = &ctx.scene.shapes[si];
@@ -85,7 +85,7 @@ pub fn trace_photon(
         let b0 = 1.0 - b1 - b2;
         let uv = u0 * b0 + u1 * b1 + u2 * b2;
         if bounces > 0 {
-            let charts = &ctx.receivers.slots[slot];
+            let charts = &ctx.charts.slots[slot];
             let (fx, fy) = (uv.x.floor(), uv.y.floor());
             let tc = charts.tri_chart.get(t).copied().unwrap_or(NONE);
             let inside = fx >= 0.0

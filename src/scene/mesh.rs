@@ -128,51 +128,41 @@ fn check_obj_index(
     Ok(())
 }
 
+/// Per-record counts while scanning an OBJ file: seen so far, and in the whole file (OBJ
+/// indices may point forward or, when negative, back from the current count).
+#[derive(Default)]
+struct ObjCounts {
+    seen: [usize; 3],
+    total: [usize; 3],
+    /// Whether some face corner has / lacks a texture coordinate and a normal.
+    uv: (bool, bool),
+    normal: (bool, bool),
+}
+
 fn scan_obj(text: &str, path: &Path) -> Result<ObjScan> {
-    let keyword = |l: &str| l.split_whitespace().next().map(str::to_string);
-    let (mut nv_total, mut nt_total, mut nn_total) = (0usize, 0usize, 0usize);
+    let mut c = ObjCounts::default();
     for l in text.lines() {
-        match keyword(l).as_deref() {
-            Some("v") => nv_total += 1,
-            Some("vt") => nt_total += 1,
-            Some("vn") => nn_total += 1,
+        match l.split_whitespace().next() {
+            Some("v") => c.total[0] += 1,
+            Some("vt") => c.total[1] += 1,
+            Some("vn") => c.total[2] += 1,
             _ => {}
         }
     }
-    let (mut nv, mut nt, mut nn) = (0usize, 0usize, 0usize);
-    let (mut uv_some, mut uv_missing, mut n_some, mut n_missing) = (false, false, false, false);
     let mut faces = 0usize;
     let mut out = String::with_capacity(text.len());
     for (i, l) in text.lines().enumerate() {
         let line = i + 1;
         let mut words = l.split_whitespace();
-        let kw = words.next();
-        match kw {
+        match words.next() {
             Some("v") => {
-                let toks: Vec<&str> = words.collect();
-                if !matches!(toks.len(), 3 | 4 | 6) {
-                    return Err(at_line(
-                        path,
-                        line,
-                        "v",
-                        format!(
-                            "expected 3 coordinates (+ w or r g b), found {}",
-                            toks.len()
-                        ),
-                    ));
-                }
-                for t in &toks {
-                    parse_obj_float(path, line, "v", Some(t))?;
-                }
-                if toks.len() == 4 && toks[3].parse::<f32>().ok() == Some(0.0) {
-                    return Err(at_line(path, line, "v", "homogeneous w = 0"));
-                }
-                nv += 1;
+                check_obj_vertex(path, line, words.collect())?;
+                c.seen[0] += 1;
             }
             Some("vt") => {
                 parse_obj_float(path, line, "vt", words.next())?;
                 parse_obj_float(path, line, "vt", words.next())?;
-                nt += 1;
+                c.seen[1] += 1;
             }
             Some("vn") => {
                 let n = Vec3::new(
@@ -183,44 +173,10 @@ fn scan_obj(text: &str, path: &Path) -> Result<ObjScan> {
                 if n.length_squared() == 0.0 || !n.normalize().is_finite() {
                     return Err(at_line(path, line, "vn", "zero-length normal"));
                 }
-                nn += 1;
+                c.seen[2] += 1;
             }
             Some("f") => {
-                let corners: Vec<&str> = words.collect();
-                if corners.len() < 3 {
-                    return Err(at_line(
-                        path,
-                        line,
-                        "f",
-                        format!("a face needs at least 3 vertices, found {}", corners.len()),
-                    ));
-                }
-                for c in corners {
-                    let parts: Vec<&str> = c.split('/').collect();
-                    if parts.len() > 3 || parts[0].is_empty() {
-                        return Err(at_line(
-                            path,
-                            line,
-                            "f",
-                            format!("malformed face vertex '{c}'"),
-                        ));
-                    }
-                    check_obj_index(path, line, "vertex", parts[0], nv, nv_total)?;
-                    match parts.get(1).filter(|s| !s.is_empty()) {
-                        Some(t) => {
-                            check_obj_index(path, line, "texture coordinate", t, nt, nt_total)?;
-                            uv_some = true;
-                        }
-                        None => uv_missing = true,
-                    }
-                    match parts.get(2).filter(|s| !s.is_empty()) {
-                        Some(t) => {
-                            check_obj_index(path, line, "normal", t, nn, nn_total)?;
-                            n_some = true;
-                        }
-                        None => n_missing = true,
-                    }
-                }
+                check_obj_face(path, line, words.collect(), &mut c)?;
                 faces += 1;
             }
             // Points and polylines are not surfaces; tobj would make triangles of them.
@@ -238,9 +194,70 @@ fn scan_obj(text: &str, path: &Path) -> Result<ObjScan> {
     }
     Ok(ObjScan {
         text: out,
-        all_uv: uv_some && !uv_missing,
-        all_normal: n_some && !n_missing,
+        all_uv: c.uv.0 && !c.uv.1,
+        all_normal: c.normal.0 && !c.normal.1,
     })
+}
+
+/// A `v` record: 3 coordinates (+ w, or r g b), all numbers, w not 0.
+fn check_obj_vertex(path: &Path, line: usize, toks: Vec<&str>) -> Result<()> {
+    if !matches!(toks.len(), 3 | 4 | 6) {
+        return Err(at_line(
+            path,
+            line,
+            "v",
+            format!(
+                "expected 3 coordinates (+ w or r g b), found {}",
+                toks.len()
+            ),
+        ));
+    }
+    for t in &toks {
+        parse_obj_float(path, line, "v", Some(t))?;
+    }
+    if toks.len() == 4 && toks[3].parse::<f32>().ok() == Some(0.0) {
+        return Err(at_line(path, line, "v", "homogeneous w = 0"));
+    }
+    Ok(())
+}
+
+/// An `f` record: at least 3 corners `v[/vt[/vn]]`, every index in range.
+fn check_obj_face(path: &Path, line: usize, corners: Vec<&str>, c: &mut ObjCounts) -> Result<()> {
+    if corners.len() < 3 {
+        return Err(at_line(
+            path,
+            line,
+            "f",
+            format!("a face needs at least 3 vertices, found {}", corners.len()),
+        ));
+    }
+    for corner in corners {
+        let parts: Vec<&str> = corner.split('/').collect();
+        if parts.len() > 3 || parts[0].is_empty() {
+            return Err(at_line(
+                path,
+                line,
+                "f",
+                format!("malformed face vertex '{corner}'"),
+            ));
+        }
+        check_obj_index(path, line, "vertex", parts[0], c.seen[0], c.total[0])?;
+        match parts.get(1).filter(|s| !s.is_empty()) {
+            Some(t) => {
+                check_obj_index(path, line, "texture coordinate", t, c.seen[1], c.total[1])?;
+                c.uv.0 = true;
+            }
+            None => c.uv.1 = true,
+        }
+        match parts.get(2).filter(|s| !s.is_empty()) {
+            Some(t) => {
+                check_obj_index(path, line, "normal", t, c.seen[2], c.total[2])?;
+                c.normal.0 = true;
+            }
+            None => c.normal.1 = true,
+        }
+    }
+    Ok(())
 }
 
 /// Load a Wavefront OBJ file (all objects and groups merged, polygons fan-triangulated),

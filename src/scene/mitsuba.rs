@@ -26,7 +26,9 @@
 //! sensor and sphere transforms may not shear either (Mitsuba only checks scale).
 
 use crate::error::{Error, Location};
-use crate::scene::{mesh, Emitter, FovAxis, Mesh, Rgb, Scene, Sensor, Shape, Sides};
+use crate::scene::{
+    mesh, Emitter, FovAxis, Mesh, ReflectanceSpec, Rgb, Scene, Sensor, Shape, Sides,
+};
 use crate::Result;
 use glam::{DMat3, DMat4, DVec3, Vec3};
 use roxmltree::{Document, Node};
@@ -71,7 +73,9 @@ pub fn parse(text: &str, path: &Path) -> Result<Scene> {
         dir,
         params: Vec::new(),
         bsdfs: HashMap::new(),
+        textures: HashMap::new(),
         ids: HashSet::new(),
+        files: Vec::new(),
     };
     p.scene(doc.root_element())
 }
@@ -234,10 +238,21 @@ struct Parser<'a, 'i> {
     dir: PathBuf,
     /// `<default>` parameters, in file order.
     params: Vec<(String, String)>,
-    /// Sides of every bsdf declared with an id so far.
-    bsdfs: HashMap<String, Sides>,
+    /// Every bsdf declared with an id so far.
+    bsdfs: HashMap<String, Bsdf>,
+    /// The bitmap file of every top-level `<texture type="bitmap" id>` so far.
+    textures: HashMap<String, PathBuf>,
     /// Every id used so far (Mitsuba ids share one namespace).
     ids: HashSet<String>,
+    /// Every file named so far (meshes, bitmaps), in file order.
+    files: Vec<PathBuf>,
+}
+
+/// What kdmap reads of a bsdf: which sides reflect, and the reflectance it states.
+#[derive(Debug, Clone)]
+struct Bsdf {
+    sides: Sides,
+    reflectance: Option<ReflectanceSpec>,
 }
 
 /// `<tag type=".." id=".." name="..">` as written, for messages.
@@ -647,6 +662,7 @@ impl<'a, 'i> Parser<'a, 'i> {
             shapes: Vec::new(),
             emitters: Vec::new(),
             sensors: Vec::new(),
+            files: Vec::new(),
         };
         for c in Self::elements(root) {
             match c.tag_name().name() {
@@ -686,10 +702,14 @@ impl<'a, 'i> Parser<'a, 'i> {
                 }
                 // Rendering settings that cannot change the answer.
                 "integrator" | "sampler" => {}
-                // Textures only feed bsdfs, which are not trusted; keep their ids reserved.
+                // Textures only feed bsdfs, which are not trusted; keep their ids reserved
+                // and remember bitmaps for the truth reader.
                 "texture" => {
                     if let Some(id) = self.attr(c, "id")? {
                         self.register_id(c, &id)?;
+                        if let Some(f) = self.bitmap_file(c) {
+                            self.textures.insert(id, f);
+                        }
                     }
                 }
                 other => {
@@ -697,6 +717,7 @@ impl<'a, 'i> Parser<'a, 'i> {
                 }
             }
         }
+        scene.files = std::mem::take(&mut self.files);
         Ok(scene)
     }
 
@@ -743,66 +764,15 @@ impl<'a, 'i> Parser<'a, 'i> {
         let mut file = None;
         let mut local: Mesh = match kind.as_str() {
             "obj" | "ply" => {
-                let fnode = props
-                    .take("filename")
-                    .ok_or_else(|| self.err(node, "missing property 'filename'"))?;
-                let name = self.string_of(fnode)?;
-                let p = self.dir.join(&name);
-                let loaded = if kind == "obj" {
-                    mesh::load_obj(&p)
-                } else {
-                    mesh::load_ply(&p)
-                };
-                let mut mesh =
-                    loaded.map_err(|e| self.err(node, format!("cannot load mesh: {e}")))?;
-                if kind == "obj" {
-                    let flip_tc = props
-                        .take("flip_tex_coords")
-                        .map(|n| self.bool_of(n))
-                        .transpose()?
-                        .unwrap_or(true);
-                    if !flip_tc {
-                        // The file's v already runs down (Mitsuba's convention).
-                        mesh::flip_v(&mut mesh);
-                    }
-                }
+                let (mesh, p) = self.mesh_file(node, &kind, &mut props)?;
                 file = Some(p);
                 mesh
             }
             "rectangle" => mesh::rectangle(),
             "cube" => mesh::cube(),
             _ => {
-                let center = props
-                    .take("center")
-                    .map(|n| self.vec3_of(n))
-                    .transpose()?
-                    .unwrap_or(DVec3::ZERO);
-                let radius = match props.take("radius") {
-                    Some(n) => {
-                        let r = self.float_of(n)?;
-                        if r <= 0.0 {
-                            return Err(self.err(n, "'radius' must be positive"));
-                        }
-                        r
-                    }
-                    None => 1.0,
-                };
-                m = m * DMat4::from_translation(center) * DMat4::from_scale(DVec3::splat(radius));
-                let l = DMat3::from_mat4(m);
-                let s = l.x_axis.length();
-                let similar = [l.x_axis, l.y_axis, l.z_axis]
-                    .iter()
-                    .all(|c| (c.length() - s).abs() <= 1e-4 * s)
-                    && l.x_axis.dot(l.y_axis).abs() <= 1e-4 * s * s
-                    && l.y_axis.dot(l.z_axis).abs() <= 1e-4 * s * s
-                    && l.x_axis.dot(l.z_axis).abs() <= 1e-4 * s * s;
-                if !similar {
-                    let at = to_world.map(|(_, n)| n).unwrap_or(node);
-                    return Err(self.err(
-                        at,
-                        "a sphere's to_world may only rotate, scale uniformly and translate",
-                    ));
-                }
+                let at = to_world.map(|(_, n)| n).unwrap_or(node);
+                m = self.sphere_frame(&mut props, m, at)?;
                 mesh::sphere()
             }
         };
@@ -827,18 +797,111 @@ impl<'a, 'i> Parser<'a, 'i> {
         mesh::check_finite(&local, file.as_deref().unwrap_or(self.path))
             .map_err(|e| self.err(node, format!("after to_world: {e}")))?;
 
-        // Nested objects: the bsdf (or a reference to one) and an area emitter.
-        let mut sides = None;
+        let (bsdf, emission) = self.shape_objects(objects)?;
+        if let Some(radiance) = emission {
+            emitters.push(Emitter::Area {
+                shape: index,
+                radiance,
+            });
+        }
+        // Mitsuba's default bsdf is a one-sided diffuse.
+        let bsdf = bsdf.unwrap_or(Bsdf {
+            sides: Sides::Front,
+            reflectance: None,
+        });
+        Ok(Shape {
+            id,
+            kind,
+            file,
+            mesh: local,
+            sides: bsdf.sides,
+            emission,
+            reflectance: bsdf.reflectance,
+        })
+    }
+
+    /// An `obj` or `ply` shape's mesh (local space) and its file.
+    fn mesh_file(
+        &mut self,
+        node: Node<'a, 'i>,
+        kind: &str,
+        props: &mut Props<'a, 'i>,
+    ) -> Result<(Mesh, PathBuf)> {
+        let fnode = props
+            .take("filename")
+            .ok_or_else(|| self.err(node, "missing property 'filename'"))?;
+        let name = self.string_of(fnode)?;
+        let p = self.dir.join(&name);
+        let loaded = if kind == "obj" {
+            mesh::load_obj(&p)
+        } else {
+            mesh::load_ply(&p)
+        };
+        let mut mesh = loaded.map_err(|e| self.err(node, format!("cannot load mesh: {e}")))?;
+        if kind == "obj" {
+            let flip_tc = props
+                .take("flip_tex_coords")
+                .map(|n| self.bool_of(n))
+                .transpose()?
+                .unwrap_or(true);
+            if !flip_tc {
+                // The file's v already runs down (Mitsuba's convention).
+                mesh::flip_v(&mut mesh);
+            }
+        }
+        self.files.push(p.clone());
+        Ok((mesh, p))
+    }
+
+    /// A `sphere`'s frame: `m` with its `center` and `radius` applied; only rotation, uniform
+    /// scale and translation are accepted (`at` is the element blamed otherwise).
+    fn sphere_frame(&self, props: &mut Props<'a, 'i>, m: DMat4, at: Node) -> Result<DMat4> {
+        let center = props
+            .take("center")
+            .map(|n| self.vec3_of(n))
+            .transpose()?
+            .unwrap_or(DVec3::ZERO);
+        let radius = match props.take("radius") {
+            Some(n) => {
+                let r = self.float_of(n)?;
+                if r <= 0.0 {
+                    return Err(self.err(n, "'radius' must be positive"));
+                }
+                r
+            }
+            None => 1.0,
+        };
+        let m = m * DMat4::from_translation(center) * DMat4::from_scale(DVec3::splat(radius));
+        let l = DMat3::from_mat4(m);
+        let s = l.x_axis.length();
+        let similar = [l.x_axis, l.y_axis, l.z_axis]
+            .iter()
+            .all(|c| (c.length() - s).abs() <= 1e-4 * s)
+            && l.x_axis.dot(l.y_axis).abs() <= 1e-4 * s * s
+            && l.y_axis.dot(l.z_axis).abs() <= 1e-4 * s * s
+            && l.x_axis.dot(l.z_axis).abs() <= 1e-4 * s * s;
+        if !similar {
+            return Err(self.err(
+                at,
+                "a sphere's to_world may only rotate, scale uniformly and translate",
+            ));
+        }
+        Ok(m)
+    }
+
+    /// A shape's nested objects: the bsdf (or a reference to one) and an area emitter.
+    fn shape_objects(&mut self, objects: Vec<Node<'a, 'i>>) -> Result<(Option<Bsdf>, Option<Rgb>)> {
+        let mut bsdf = None;
         let mut emission = None;
         for o in objects {
             match o.tag_name().name() {
                 "bsdf" | "ref" => {
-                    let s = if o.tag_name().name() == "bsdf" {
+                    let b = if o.tag_name().name() == "bsdf" {
                         self.bsdf(o)?
                     } else {
                         self.bsdf_ref(o)?
                     };
-                    if sides.replace(s).is_some() {
+                    if bsdf.replace(b).is_some() {
                         return Err(self.err(o, "a shape can have only one bsdf"));
                     }
                 }
@@ -853,35 +916,26 @@ impl<'a, 'i> Parser<'a, 'i> {
                 }
             }
         }
-        if let Some(radiance) = emission {
-            emitters.push(Emitter::Area {
-                shape: index,
-                radiance,
-            });
-        }
-        Ok(Shape {
-            id,
-            kind,
-            file,
-            mesh: local,
-            // Mitsuba's default bsdf is a one-sided diffuse.
-            sides: sides.unwrap_or(Sides::Front),
-            emission,
-        })
+        Ok((bsdf, emission))
     }
 
     // ---- bsdfs -------------------------------------------------------------------------------
 
-    /// Which sides reflect. Parameters (reflectance) are read past: they are not trusted.
-    fn bsdf(&mut self, node: Node<'a, 'i>) -> Result<Sides> {
+    /// Which sides reflect, and the reflectance the file states (read leniently: it is not
+    /// trusted, so a form kdmap cannot read is no error, just no stated reflectance).
+    fn bsdf(&mut self, node: Node<'a, 'i>) -> Result<Bsdf> {
         self.check_attrs(node, &["type", "id", "name"])?;
         let kind = self.req_attr(node, "type")?;
+        let mut reflectance = None;
         let sides = match kind.as_str() {
-            "diffuse" => Sides::Front,
+            "diffuse" => {
+                reflectance = self.stated_reflectance(node);
+                Sides::Front
+            }
             "twosided" => {
                 let mut inner = 0;
                 for c in Self::elements(node) {
-                    let s = match c.tag_name().name() {
+                    let b = match c.tag_name().name() {
                         // Checked before recursing, so nesting depth stays bounded.
                         "bsdf" if c.attribute("type") != Some("diffuse") => {
                             return Err(self.err(c, "twosided must wrap a diffuse bsdf"))
@@ -895,8 +949,11 @@ impl<'a, 'i> Parser<'a, 'i> {
                             ))
                         }
                     };
-                    if s != Sides::Front {
+                    if b.sides != Sides::Front {
                         return Err(self.err(c, "twosided must wrap a diffuse bsdf"));
+                    }
+                    if inner == 0 {
+                        reflectance = b.reflectance;
                     }
                     inner += 1;
                 }
@@ -912,18 +969,50 @@ impl<'a, 'i> Parser<'a, 'i> {
                 ))
             }
         };
+        let b = Bsdf { sides, reflectance };
         if let Some(id) = self.attr(node, "id")? {
             self.register_id(node, &id)?;
-            self.bsdfs.insert(id, sides);
+            self.bsdfs.insert(id, b.clone());
         }
-        Ok(sides)
+        Ok(b)
     }
 
-    fn bsdf_ref(&self, node: Node) -> Result<Sides> {
+    /// The `reflectance` a diffuse bsdf states: a constant, a nested bitmap texture or a
+    /// reference to a top-level one. `None` for any other form.
+    fn stated_reflectance(&mut self, node: Node<'a, 'i>) -> Option<ReflectanceSpec> {
+        let c = Self::elements(node).find(|c| c.attribute("name") == Some("reflectance"))?;
+        match c.tag_name().name() {
+            "rgb" | "spectrum" | "float" | "integer" => {
+                Some(ReflectanceSpec::Constant(self.color_of(c).ok()?.as_vec3()))
+            }
+            "texture" => self.bitmap_file(c).map(ReflectanceSpec::Bitmap),
+            "ref" => {
+                let id = self.attr(c, "id").ok()??;
+                self.textures.get(&id).cloned().map(ReflectanceSpec::Bitmap)
+            }
+            _ => None,
+        }
+    }
+
+    /// The file of a `<texture type="bitmap">` (recorded among the scene's files), if it is
+    /// one and names a file.
+    fn bitmap_file(&mut self, node: Node<'a, 'i>) -> Option<PathBuf> {
+        if self.attr(node, "type").ok()?.as_deref() != Some("bitmap") {
+            return None;
+        }
+        let f = Self::elements(node)
+            .find(|n| n.attribute("name") == Some("filename"))
+            .and_then(|n| self.attr(n, "value").ok().flatten())?;
+        let p = self.dir.join(f);
+        self.files.push(p.clone());
+        Some(p)
+    }
+
+    fn bsdf_ref(&self, node: Node) -> Result<Bsdf> {
         self.check_attrs(node, &["id", "name"])?;
         let id = self.req_attr(node, "id")?;
         match self.bsdfs.get(&id) {
-            Some(s) => Ok(*s),
+            Some(b) => Ok(b.clone()),
             None if self.ids.contains(&id) => {
                 Err(self.err(node, format!("'{id}' does not name a bsdf")))
             }
@@ -1061,27 +1150,11 @@ impl<'a, 'i> Parser<'a, 'i> {
 
     // ---- sensors -----------------------------------------------------------------------------
 
-    fn sensor(&mut self, node: Node<'a, 'i>, index: usize) -> Result<Sensor> {
-        self.check_attrs(node, &["type", "id"])?;
-        let kind = self.req_attr(node, "type")?;
-        if kind != "perspective" {
-            return Err(self.err(
-                node,
-                format!("unsupported sensor plugin '{kind}' (only 'perspective')"),
-            ));
-        }
-        let id = self
-            .attr(node, "id")?
-            .unwrap_or_else(|| format!("sensor_{index}"));
-        self.register_id(node, &id)?;
-        let mut props = self.props(node)?;
-
-        if let Some(n) = props.take("focal_length") {
-            return Err(self.err(n, "'focal_length' is not supported; give 'fov' in degrees"));
-        }
+    /// A sensor's `fov` and `fov_axis` (Mitsuba's defaults when absent).
+    fn sensor_fov(&self, props: &mut Props<'a, 'i>) -> Result<(f64, FovAxis)> {
         let fov_node = props.take("fov");
         let axis_node = props.take("fov_axis");
-        let (fov, fov_axis) = match fov_node {
+        Ok(match fov_node {
             Some(n) => {
                 let f = self.float_of(n)?;
                 if !(f > 0.0 && f < 180.0) {
@@ -1121,8 +1194,12 @@ impl<'a, 'i> Parser<'a, 'i> {
                     FovAxis::Diagonal,
                 )
             }
-        };
-        let to_world = match self.to_world(&mut props)? {
+        })
+    }
+
+    /// A sensor's `to_world`: rotation and translation only, as Mitsuba requires.
+    fn camera_frame(&self, props: &mut Props<'a, 'i>) -> Result<DMat4> {
+        Ok(match self.to_world(props)? {
             Some((m, n)) => {
                 let l = DMat3::from_mat4(m);
                 let cols = [l.x_axis, l.y_axis, l.z_axis];
@@ -1139,7 +1216,29 @@ impl<'a, 'i> Parser<'a, 'i> {
                 m
             }
             None => DMat4::IDENTITY,
-        };
+        })
+    }
+
+    fn sensor(&mut self, node: Node<'a, 'i>, index: usize) -> Result<Sensor> {
+        self.check_attrs(node, &["type", "id"])?;
+        let kind = self.req_attr(node, "type")?;
+        if kind != "perspective" {
+            return Err(self.err(
+                node,
+                format!("unsupported sensor plugin '{kind}' (only 'perspective')"),
+            ));
+        }
+        let id = self
+            .attr(node, "id")?
+            .unwrap_or_else(|| format!("sensor_{index}"));
+        self.register_id(node, &id)?;
+        let mut props = self.props(node)?;
+
+        if let Some(n) = props.take("focal_length") {
+            return Err(self.err(n, "'focal_length' is not supported; give 'fov' in degrees"));
+        }
+        let (fov, fov_axis) = self.sensor_fov(&mut props)?;
+        let to_world = self.camera_frame(&mut props)?;
         let objects = props.finish(self, &["near_clip", "far_clip"])?;
 
         let (mut width, mut height) = DEFAULT_FILM;

@@ -6,6 +6,7 @@
 
 pub mod mesh;
 pub mod mitsuba;
+pub mod truth;
 
 use glam::{Mat4, Vec2, Vec3};
 use std::path::PathBuf;
@@ -105,6 +106,19 @@ pub struct Shape {
     pub sides: Sides,
     /// One-sided area emitter radiance on the front side, if the shape emits.
     pub emission: Option<Rgb>,
+    /// The diffuse reflectance its BSDF states, if it states one kdmap can read. Never an
+    /// input of a reconstruction (that is what kdmap recovers); the truth reader uses it.
+    pub reflectance: Option<ReflectanceSpec>,
+}
+
+/// A diffuse reflectance as a scene file writes it.
+#[derive(Debug, Clone, PartialEq)]
+pub enum ReflectanceSpec {
+    /// `<rgb>`, `<spectrum>` or `<float>`: linear RGB.
+    Constant(Rgb),
+    /// A `bitmap` texture: the image file (sRGB-encoded unless stated otherwise), looked up
+    /// at the mesh's UVs.
+    Bitmap(PathBuf),
 }
 
 impl Shape {
@@ -168,6 +182,9 @@ pub struct Scene {
     pub shapes: Vec<Shape>,
     pub emitters: Vec<Emitter>,
     pub sensors: Vec<Sensor>,
+    /// Every file the scene file names (meshes, textures), in file order: with the scene
+    /// file itself, what a run's inputs are.
+    pub files: Vec<PathBuf>,
 }
 
 impl Scene {

@@ -9,12 +9,14 @@
 //! within a small margin of it, and uniform shapes (whose floor is zero) must meet absolute
 //! bounds.
 
+use kdmap::accuracy::ShapeAccuracy;
 use kdmap::atlas::layout::{TexelGeom, TexelState};
 use kdmap::atlas::tiles::TileStore;
+use kdmap::atlas::{prepare, state_dir};
 use kdmap::config::Config;
-use kdmap::pipeline::{prepare, reconstruct, run_projection, state_dir};
+use kdmap::pipeline::{reconstruct, run_projection};
 use kdmap::progress::Mode;
-use kdmap::truth::{Reflectance, ShapeAccuracy, Truth};
+use kdmap::scene::truth::{Reflectance, Truth};
 use std::path::Path;
 
 fn run(scene: &str, photons: u64, iterations: u32) -> (Config, Vec<ShapeAccuracy>) {
@@ -76,7 +78,7 @@ fn score(root: &Path, cfg: &Config, out: &Path) -> Vec<ShapeAccuracy> {
     let p = prepare(cfg, Mode::Quiet).unwrap();
     let (geom, state) = stores(out);
     let truth = Truth::load(&root.join("truth.xml")).unwrap();
-    truth.accuracy(&p, &geom, &state).unwrap()
+    kdmap::accuracy::accuracy(&truth, &p, &geom, &state).unwrap()
 }
 
 /// The geometry and state stores a run left in `out`.
@@ -109,7 +111,7 @@ fn floor(root: &Path, cfg: &Config) -> Vec<ShapeAccuracy> {
         })
         .unwrap();
     let truth = Truth::load(&root.join("truth.xml")).unwrap();
-    let acc = truth.accuracy(&p, &geom, &state).unwrap();
+    let acc = kdmap::accuracy::accuracy(&truth, &p, &geom, &state).unwrap();
     print_acc("resolution floor", &acc);
     acc
 }

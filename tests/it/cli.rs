@@ -128,6 +128,11 @@ fn accuracy_of_a_finished_run(out: &Path) {
     ]);
     let line = one_line_error(&o);
     assert!(line.contains("report.json"), "{line}");
+    assert_eq!(
+        o.status.code(),
+        Some(66),
+        "a missing report is a missing input"
+    );
 }
 
 #[test]
@@ -158,6 +163,7 @@ fn photo_of_the_wrong_size_is_refused_naming_it() {
         e.contains("small.exr") && e.contains("64x64") && e.contains("256x256"),
         "{e}"
     );
+    assert_eq!(o.status.code(), Some(65));
 }
 
 #[test]
@@ -174,6 +180,7 @@ fn impossible_settings_and_bad_config_are_refused() {
     ]);
     let e = one_line_error(&o);
     assert!(e.contains("photons"), "{e}");
+    assert_eq!(o.status.code(), Some(78), "impossible settings: EX_CONFIG");
 
     let cfg = tmp.path().join("run.toml");
     std::fs::write(&cfg, "scene = \"x.xml\"\n[solver]\niterations = \"many\"\n").unwrap();
@@ -185,6 +192,7 @@ fn impossible_settings_and_bad_config_are_refused() {
     ]);
     let e = one_line_error(&o);
     assert!(e.contains("run.toml") && e.contains("line 3"), "{e}");
+    assert_eq!(o.status.code(), Some(65), "a malformed config: EX_DATAERR");
 
     let o = kdmap(&[
         "reconstruct",
@@ -194,6 +202,7 @@ fn impossible_settings_and_bad_config_are_refused() {
     ]);
     let e = one_line_error(&o);
     assert!(e.contains("/nonexistent/scene.xml"), "{e}");
+    assert_eq!(o.status.code(), Some(66), "a missing scene: EX_NOINPUT");
 }
 
 #[test]
@@ -215,4 +224,5 @@ fn unwritable_output_is_a_clear_error() {
     ]);
     let e = one_line_error(&o);
     assert!(e.contains("out"), "{e}");
+    assert_eq!(o.status.code(), Some(74), "an unwritable output: EX_IOERR");
 }

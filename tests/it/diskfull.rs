@@ -6,7 +6,8 @@
 //! sandbox), by a real small tmpfs.
 
 use super::resume::{assert_same_outputs, fast_args, manifest, run, write_fast_config};
-use kdmap::checkpoint::{decode, load, Manifest, Stage, PREV_MANIFEST};
+use kdmap::checkpoint::{decode, load, Manifest, PREV_MANIFEST};
+use kdmap::pipeline::{Progress, RunStage};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
@@ -52,8 +53,11 @@ struct Sizes {
 fn sizes(full: &Path) -> Sizes {
     let ck = full.join("checkpoint");
     let prev = std::fs::read(ck.join(PREV_MANIFEST)).unwrap();
-    let m = decode(&prev).unwrap();
-    assert!(matches!(m.stage, Stage::Iterations { stopped: true, .. }));
+    let m = decode::<Progress>(&prev).unwrap();
+    assert!(matches!(
+        m.payload.stage,
+        RunStage::Iterations { stopped: true, .. }
+    ));
     let len = |p: &Path| std::fs::metadata(p).unwrap().len();
     Sizes {
         snapshot: m.snapshot.unwrap().bytes,
@@ -68,11 +72,11 @@ fn sizes(full: &Path) -> Sizes {
     }
 }
 
-/// The run failed cleanly: exit code 1, no panic, exactly one `error:` line on stderr, which
-/// contains every one of `parts`. Returns that line.
+/// The run failed cleanly: exit code 74 (EX_IOERR), no panic, exactly one `error:` line on
+/// stderr, which contains every one of `parts`. Returns that line.
 fn one_error_line(o: &Output, parts: &[&str]) -> String {
     let err = String::from_utf8_lossy(&o.stderr);
-    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert_eq!(o.status.code(), Some(74), "{err}");
     assert!(!err.contains("panicked"), "{err}");
     let lines: Vec<&str> = err.lines().filter(|l| l.starts_with("error")).collect();
     assert_eq!(lines.len(), 1, "{err}");
@@ -90,7 +94,7 @@ fn one_error_line(o: &Output, parts: &[&str]) -> String {
 /// The checkpoint in `out` is whole: the manifest decodes and loads (its snapshot exists with
 /// the length and checksum it names), with no note about an unusable one; no temporary file
 /// is left anywhere in `out`.
-fn assert_checkpoint_intact(out: &Path) -> Manifest {
+fn assert_checkpoint_intact(out: &Path) -> Manifest<Progress> {
     let ck = out.join("checkpoint");
     let tmps: Vec<PathBuf> = walk(out)
         .into_iter()
@@ -104,7 +108,7 @@ fn assert_checkpoint_intact(out: &Path) -> Manifest {
     let s = m.snapshot.as_ref().expect("a snapshot");
     let len = std::fs::metadata(ck.join(&s.file)).unwrap().len();
     assert_eq!(len, s.bytes, "{}", s.file);
-    let (loaded, notes) = load(&ck);
+    let (loaded, notes) = load::<Progress>(&ck);
     assert!(notes.is_empty(), "{notes:?}");
     assert_eq!(loaded.as_ref(), Some(&m));
     m
@@ -117,7 +121,7 @@ fn resume_to_the_end(a: &[&str], full: &Path, out: &Path) {
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(o.status.success(), "{err}");
     assert!(err.contains("resuming from checkpoint"), "{err}");
-    assert!(manifest(out).is_some_and(|m| m.stage == Stage::Finished));
+    assert!(manifest(out).is_some_and(|m| m.payload.stage == RunStage::Finished));
     assert_same_outputs(full, out);
 }
 
@@ -143,7 +147,7 @@ fn a_full_disk_or_unwritable_output_fails_in_one_line_and_resume_ends_bit_for_bi
         &[dir.to_str().unwrap(), "state.2.", "No space left on device"],
     );
     let m = assert_checkpoint_intact(&out);
-    assert_eq!((m.seq, m.stage), (1, Stage::Direct));
+    assert_eq!((m.seq, m.payload.stage), (1, RunStage::Direct));
     resume_to_the_end(&a, &full, &out);
 
     // 2. The disk fills half-way through the outputs: every checkpoint was written.
@@ -155,7 +159,10 @@ fn a_full_disk_or_unwritable_output_fails_in_one_line_and_resume_ends_bit_for_bi
     assert!(!line.contains("checkpoint"), "{line}");
     let m = assert_checkpoint_intact(&out);
     assert_eq!(m.seq, 7);
-    assert!(matches!(m.stage, Stage::Iterations { stopped: true, .. }));
+    assert!(matches!(
+        m.payload.stage,
+        RunStage::Iterations { stopped: true, .. }
+    ));
     assert!(!out.join("report.json").exists());
     resume_to_the_end(&a, &full, &out);
 

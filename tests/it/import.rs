@@ -348,18 +348,20 @@ fn inspect_binary_summarizes_the_scene() {
 
 #[test]
 fn inspect_binary_fails_in_one_line() {
-    for (args, file) in [
-        (vec!["inspect", "bad/malformed.xml"], "malformed.xml"),
-        (vec!["inspect", "bad/bad_index.xml"], "bad_index.obj"),
+    // malformed input exits 65 (EX_DATAERR), a missing file 66 (EX_NOINPUT)
+    for (args, file, code) in [
+        (vec!["inspect", "bad/malformed.xml"], "malformed.xml", 65),
+        (vec!["inspect", "bad/bad_index.xml"], "bad_index.obj", 65),
         (
             vec!["inspect", "bad/no_such_scene.xml"],
             "no_such_scene.xml",
+            66,
         ),
     ] {
         let full = fixture(args[1]);
         let out = kdmap(&[args[0], full.to_str().unwrap()]);
         let stderr = String::from_utf8_lossy(&out.stderr);
-        assert_eq!(out.status.code(), Some(1), "{stderr}");
+        assert_eq!(out.status.code(), Some(code), "{stderr}");
         assert_eq!(stderr.lines().count(), 1, "{stderr}");
         assert!(
             stderr.starts_with("error: ") && stderr.contains(file),

@@ -6,6 +6,7 @@ mod camera;
 mod cli;
 mod diskfull;
 mod import;
+mod layers;
 mod output;
 mod projection;
 mod resume;

@@ -5,13 +5,15 @@
 
 use glam::{Vec2, Vec3};
 use kdmap::atlas::layout::{flags, TexelGeom, TexelState};
+use kdmap::atlas::texture::gather;
 use kdmap::atlas::tiles::TileStore;
+use kdmap::atlas::{state_dir, Prepared};
 use kdmap::camera::Camera;
 use kdmap::config::Config;
 use kdmap::image::{read_exr, read_sensor_image};
 use kdmap::output::renders::xy_chromaticity;
 use kdmap::output::write_outputs;
-use kdmap::pipeline::{gather, run_projection, state_dir, Prepared};
+use kdmap::pipeline::run_projection;
 use kdmap::progress::Mode;
 use kdmap::project::View;
 use kdmap::report::{IterationStats, Report};
@@ -166,27 +168,12 @@ fn every_contract_file_exists() {
 
 /// Per slot: (state records in texture order, covered mask).
 fn texture_state(r: &Run, slot: usize) -> (Vec<TexelState>, Vec<bool>) {
-    // gather one field at a time and stitch the records back together
-    let p = &r.p;
-    let g = |f: fn(&TexelState) -> Vec3| gather(p, slot, &r.state, &r.geom, f).unwrap();
-    let (kd, cov) = g(|s| Vec3::from_array(s.k_d));
-    let (ed, _) = g(|s| Vec3::from_array(s.e_d));
-    let (ei, _) = g(|s| Vec3::from_array(s.e_i));
-    let (lo, _) = g(|s| Vec3::from_array(s.l_orig));
-    let (misc, _) = g(|s| Vec3::new(s.weight, s.error, s.flags as f32));
-    let recs = (0..kd.len())
-        .map(|i| TexelState {
-            k_d: kd[i].to_array(),
-            e_d: ed[i].to_array(),
-            e_i: ei[i].to_array(),
-            l_orig: lo[i].to_array(),
-            weight: misc[i].x,
-            error: misc[i].y,
-            flags: misc[i].z as u32,
-            ..Default::default()
-        })
-        .collect();
-    (recs, cov)
+    gather(&r.p.layout, slot, &r.state, &r.geom, |s, g| {
+        (*s, g.covered())
+    })
+    .unwrap()
+    .into_iter()
+    .unzip()
 }
 
 #[test]

@@ -8,16 +8,17 @@
 
 use glam::{Vec2, Vec3};
 use kdmap::atlas::layout::{TexelGeom, TexelState};
+use kdmap::atlas::texture::gather;
 use kdmap::atlas::tiles::TileStore;
+use kdmap::atlas::{build_geometry, prepare, state_dir, Prepared};
 use kdmap::camera::Camera;
 use kdmap::config::Config;
+use kdmap::config::REFINE_PASSES;
 use kdmap::image::{read_exr, read_sensor_image, write_exr_rgb, write_png_srgb, Image};
-use kdmap::pipeline::{
-    build_geometry, gather, prepare, project_all, state_dir, write_map, Prepared,
-};
+use kdmap::output::write_map;
 use kdmap::progress::Mode;
-use kdmap::project::{refine, View, REFINE_PASSES};
-use kdmap::render::{bilinear, render_view, Texture};
+use kdmap::project::{refine, View};
+use kdmap::render::{bilinear, render_view, Film, Texture};
 use kdmap::scene::luminance;
 use std::path::{Path, PathBuf};
 
@@ -48,7 +49,7 @@ fn refine_passes() -> u32 {
         .unwrap_or(REFINE_PASSES)
 }
 
-/// The projection stage: the weighted mean (`pipeline::project_all`), then `passes` of
+/// The projection stage: the weighted mean (`project::run`), then `passes` of
 /// `project::refine`, with the luminance maps written to `<out>/maps` and read back as a user
 /// would. Returns the prepared scene and the maps by shape. (Spelled out, with the config's
 /// own `refine_passes` at 0, so the number of passes is the test's to choose.)
@@ -60,7 +61,7 @@ fn project(cfg: &Config, out: &Path, passes: u32) -> (Prepared, Vec<Option<Image
     let mut state = p
         .create_store(dir.join("state.tiles"), TexelState::default())
         .unwrap();
-    let stats = project_all(&p, cfg, &geom, &mut state, Mode::Quiet).unwrap();
+    let stats = kdmap::project::run(&p, cfg, &geom, &mut state, Mode::Quiet).unwrap();
     assert!(stats.views >= 1);
     assert!(
         stats.observed_texels > stats.covered_texels / 2,
@@ -72,9 +73,13 @@ fn project(cfg: &Config, out: &Path, passes: u32) -> (Prepared, Vec<Option<Image
     let mut maps: Vec<Option<Image>> = (0..p.scene.shapes.len()).map(|_| None).collect();
     for (slot, st) in p.layout.slots.iter().enumerate() {
         let id = &p.scene.shapes[st.shape].id;
-        let (lum, _) = gather(&p, slot, &state, &geom, |s| Vec3::from_array(s.l_orig)).unwrap();
-        let (wt, _) = gather(&p, slot, &state, &geom, |s| Vec3::splat(s.weight)).unwrap();
-        let observed: Vec<bool> = wt.iter().map(|v| v.x > 0.0).collect();
+        let (lum, observed): (Vec<Vec3>, Vec<bool>) =
+            gather(&p.layout, slot, &state, &geom, |s, _| {
+                (Vec3::from_array(s.l_orig), s.weight > 0.0)
+            })
+            .unwrap()
+            .into_iter()
+            .unzip();
         let size = (st.width, st.height);
         write_map(&maps_dir, id, "luminance", size, lum, &observed, false).unwrap();
         let img = read_exr(maps_dir.join(format!("{id}_luminance.exr"))).unwrap();
@@ -120,7 +125,7 @@ fn reprojection_error(
         let photo = read_sensor_image(path, sensor).unwrap();
         let cam = Camera::from_sensor(sensor);
         let view = View::new(&p.scene, &p.accel, cam.clone(), &photo);
-        let render = render_view(&p.accel, &cam, &textures, 4);
+        let render = render_view(&p.accel, &cam, &textures, 4, Film::HitsOnly);
         let (w, h) = (photo.width as i64, photo.height as i64);
         let clean = |x: i64, y: i64| {
             x >= 0 && y >= 0 && x < w && y < h && view.pixels[(y * w + x) as usize].clean
@@ -366,10 +371,16 @@ fn synthetic_photos_of_known_textures_reproject_and_refine_towards_the_truth() {
     let mut photos = Vec::new();
     for si in sensors {
         let s = &p.scene.sensors[si];
-        let img: Vec<Vec3> = render_view(&p.accel, &Camera::from_sensor(s), &field.textures(), 8)
-            .into_iter()
-            .map(|v| v.unwrap_or(Vec3::ZERO))
-            .collect();
+        let img: Vec<Vec3> = render_view(
+            &p.accel,
+            &Camera::from_sensor(s),
+            &field.textures(),
+            8,
+            Film::HitsOnly,
+        )
+        .into_iter()
+        .map(|v| v.unwrap_or(Vec3::ZERO))
+        .collect();
         let f = photos_dir.path().join(format!("{}.exr", s.id));
         write_exr_rgb(&f, s.width, s.height, &img, false).unwrap();
         cfg.views.insert(s.id.clone(), f.clone());

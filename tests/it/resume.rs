@@ -5,7 +5,8 @@
 //! killed exactly inside a checkpoint write (paused there by the `KDMAP_FAULT` test hook, half
 //! of the snapshot or of the manifest written) resume bit-identically too.
 
-use kdmap::checkpoint::{decode, Manifest, Stage, MANIFEST};
+use kdmap::checkpoint::{decode, Manifest, MANIFEST};
+use kdmap::pipeline::{Progress, RunStage};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
@@ -75,9 +76,9 @@ fn spawn(a: &[&str]) -> Child {
         .expect("spawn kdmap")
 }
 
-pub(super) fn manifest(out: &Path) -> Option<Manifest> {
+pub(super) fn manifest(out: &Path) -> Option<Manifest<Progress>> {
     let bytes = std::fs::read(out.join("checkpoint").join(MANIFEST)).ok()?;
-    decode(&bytes).ok()
+    decode::<Progress>(&bytes).ok()
 }
 
 /// Runs kdmap with `a` and SIGKILLs it as soon as `when(out)` holds (or lets it finish).
@@ -139,8 +140,8 @@ fn killed_and_resumed_runs_match_an_uninterrupted_run_bit_for_bit() {
     // 2. During iteration 1's photon pass (a mid-pass checkpoint was just written).
     let mid_pass = |o: &Path| {
         matches!(
-            manifest(o).map(|m| m.stage),
-            Some(Stage::Pass { iteration: 0, batches_done, .. }) if batches_done >= 32
+            manifest(o).map(|m| m.payload.stage),
+            Some(RunStage::Pass { iteration: 0, batches_done, .. }) if batches_done >= 32
         )
     };
     kills.push(kill_when(&resume, &out, mid_pass));
@@ -150,7 +151,7 @@ fn killed_and_resumed_runs_match_an_uninterrupted_run_bit_for_bit() {
     let mut other = args(&cfg, &out, "300000");
     other.push("--resume");
     let o = run(&other);
-    assert_eq!(o.status.code(), Some(1));
+    assert_eq!(o.status.code(), Some(65));
     let err = String::from_utf8_lossy(&o.stderr);
     let lines: Vec<&str> = err.lines().filter(|l| l.starts_with("error:")).collect();
     assert_eq!(lines.len(), 1, "{err}");
@@ -161,12 +162,12 @@ fn killed_and_resumed_runs_match_an_uninterrupted_run_bit_for_bit() {
     let mut one = resume.clone();
     one.extend(["--threads", "1"]);
     kills.push(kill_when(&one, &out, |o| {
-        manifest(o).is_some_and(|m| matches!(m.stage, Stage::Iterations { .. }))
+        manifest(o).is_some_and(|m| matches!(m.payload.stage, RunStage::Iterations { .. }))
     }));
 
     // 4. Soon after a checkpoint during iteration 3's pass.
     kills.push(kill_when(&resume, &out, |o| {
-        manifest(o).is_some_and(|m| matches!(m.stage, Stage::Pass { iteration: 2, .. }))
+        manifest(o).is_some_and(|m| matches!(m.payload.stage, RunStage::Pass { iteration: 2, .. }))
     }));
     // Every moment is reached long before the run ends (projection and each pass take
     // hundreds of milliseconds; the manifest is polled every 2 ms).
@@ -193,7 +194,7 @@ fn killed_and_resumed_runs_match_an_uninterrupted_run_bit_for_bit() {
         let o = run(&resume);
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     }
-    assert!(manifest(&out).is_some_and(|m| m.stage == Stage::Finished));
+    assert!(manifest(&out).is_some_and(|m| m.payload.stage == RunStage::Finished));
     assert_same_outputs(&full, &out);
 
     // A finished run resumed is a no-op.
@@ -283,7 +284,10 @@ fn runs_killed_inside_a_checkpoint_write_resume_bit_for_bit() {
             assert!(!ck.join("state.4.tiles").exists());
         } else {
             let torn = std::fs::read(ck.join("progress.new")).unwrap();
-            assert!(decode(&torn).is_err(), "{fault}: progress.new is whole");
+            assert!(
+                decode::<Progress>(&torn).is_err(),
+                "{fault}: progress.new is whole"
+            );
             assert!(ck.join("state.3.tiles").exists());
         }
 
@@ -298,7 +302,7 @@ fn runs_killed_inside_a_checkpoint_write_resume_bit_for_bit() {
             "{fault}: {err}"
         );
         assert!(!err.contains("unusable checkpoint"), "{fault}: {err}");
-        assert!(manifest(&out).is_some_and(|m| m.stage == Stage::Finished));
+        assert!(manifest(&out).is_some_and(|m| m.payload.stage == RunStage::Finished));
         assert_same_outputs(&full, &out);
         // Later checkpoints removed the half-written copy.
         assert!(!ck.join("state.4.tmp").exists(), "{fault}");

@@ -1,0 +1,100 @@
+//! Which chart (UV island) every texel center and every triangle of each atlas lies on: what
+//! decides whether a light hit on a triangle may be binned into the texel under it (the texel
+//! must be on the same chart), and what texture-space filters (E_i smoothing, the fill of
+//! unobserved texels) must not cross.
+
+use super::layout::Layout;
+use super::texels::{TexelMap, NONE};
+use super::unwrap::ShapeAtlas;
+use crate::error::{Error, Result};
+use crate::scene::Scene;
+use rayon::prelude::*;
+
+/// Per slot, which chart each texel's center and each triangle lie on: what decides whether
+/// a photon hit is deposited (see the module docs) and what smoothing must not cross.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SlotCharts {
+    pub width: u32,
+    pub height: u32,
+    /// Per texel (row-major), the chart owning its center, or [`NONE`] (not covered).
+    pub texel_chart: Vec<u32>,
+    /// Per mesh triangle, its chart, or [`NONE`] (no texel-space area).
+    pub tri_chart: Vec<u32>,
+}
+
+/// The surfaces light can land on: shape -> slot, and each slot's chart tables. Built once per
+/// run (it rasterizes every atlas's texel centers); 4 bytes per texel and per triangle.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Charts {
+    /// Per scene shape, its layout slot (`None`: emitter or otherwise not reconstructed; a
+    /// photon hitting it is absorbed).
+    pub slot_of_shape: Vec<Option<usize>>,
+    pub slots: Vec<SlotCharts>,
+}
+
+impl Charts {
+    /// `atlases[shape]` must be the atlas of every slot's shape, of the slot's size.
+    pub fn new(scene: &Scene, layout: &Layout, atlases: &[Option<ShapeAtlas>]) -> Result<Self> {
+        let mut slot_of_shape = vec![None; scene.shapes.len()];
+        let mut slots = Vec::with_capacity(layout.slots.len());
+        for (slot, st) in layout.slots.iter().enumerate() {
+            let shape = scene.shapes.get(st.shape).ok_or_else(|| {
+                Error::internal(format!(
+                    "layout slot {slot} names shape {}, the scene has {}",
+                    st.shape,
+                    scene.shapes.len()
+                ))
+            })?;
+            let atlas = atlases
+                .get(st.shape)
+                .and_then(|a| a.as_ref())
+                .filter(|a| (a.width, a.height) == (st.width, st.height))
+                .ok_or_else(|| {
+                    Error::internal(format!(
+                        "shape '{}' has no {}x{} atlas for its slot",
+                        shape.id, st.width, st.height
+                    ))
+                })?;
+            if atlas.corner_uv.len() != shape.mesh.triangles.len() {
+                return Err(Error::internal(format!(
+                    "shape '{}': atlas has {} triangles, the mesh {}",
+                    shape.id,
+                    atlas.corner_uv.len(),
+                    shape.mesh.triangles.len()
+                )));
+            }
+            let map = TexelMap::new(&shape.mesh, atlas);
+            let texel_chart = map
+                .owners()
+                .par_iter()
+                .map(|&o| {
+                    if o == NONE {
+                        NONE
+                    } else {
+                        map.chart_of(o).unwrap_or(NONE)
+                    }
+                })
+                .collect();
+            let tri_chart = (0..shape.mesh.triangles.len() as u32)
+                .map(|t| map.chart_of(t).unwrap_or(NONE))
+                .collect();
+            slot_of_shape[st.shape] = Some(slot);
+            slots.push(SlotCharts {
+                width: st.width,
+                height: st.height,
+                texel_chart,
+                tri_chart,
+            });
+        }
+        Ok(Charts {
+            slot_of_shape,
+            slots,
+        })
+    }
+
+    /// The slot of scene shape `shape`, if photons can land on it.
+    #[inline]
+    pub fn slot_of_shape(&self, shape: usize) -> Option<usize> {
+        self.slot_of_shape.get(shape).copied().flatten()
+    }
+}

@@ -1,0 +1,230 @@
+//! Everything fixed about a run before any stage: the scene, its ray-casting structure, the
+//! atlas of every reconstructed shape, their tile layout and the photos, plus the helpers every
+//! stage needs to address them (a shape's atlas, a store shaped like the layout, the tile
+//! window under the memory budget) and the fingerprint of the run's inputs.
+
+use super::layout::Layout;
+use super::tiles::{window_tiles_for_budget, TileStore};
+use super::unwrap::{build_atlas, AtlasSettings, ShapeAtlas};
+use crate::accel::Accel;
+use crate::config::Config;
+use crate::error::{Error, Result};
+use crate::fsio::Fnv;
+use crate::progress::{note, Mode};
+use crate::scene::{mitsuba, Mesh, Scene, Sides};
+use glam::Vec2;
+use std::path::{Path, PathBuf};
+
+/// The scene with its acceleration structure, atlases and tile layout: everything fixed.
+pub struct Prepared {
+    pub scene: Scene,
+    pub accel: Accel,
+    /// Per shape: its atlas if reconstructed (emitters have none).
+    pub atlases: Vec<Option<ShapeAtlas>>,
+    pub layout: Layout,
+    /// Sensor index -> photo path, for the sensors that have a photo.
+    pub views: Vec<(usize, PathBuf)>,
+}
+
+/// Everything a stage needs about one reconstructed shape's surface and atlas.
+pub struct ShapeRef<'a> {
+    /// Index into `Scene::shapes`.
+    pub index: u32,
+    pub mesh: &'a Mesh,
+    pub sides: Sides,
+    /// Per-triangle corner UVs in texel units.
+    pub corner_uv: &'a [[Vec2; 3]],
+}
+
+/// Where a run keeps its tile stores (and its checkpoints): `<out>/checkpoint`.
+pub fn state_dir(out: &Path) -> PathBuf {
+    out.join("checkpoint")
+}
+
+/// Load the scene, pick the views, unwrap every reconstructed shape and lay out the tiles.
+pub fn prepare(cfg: &Config, mode: Mode) -> Result<Prepared> {
+    let scene = mitsuba::load(&cfg.scene)?;
+    let views = match_views(&scene, cfg, mode)?;
+    let settings = AtlasSettings {
+        texels_per_unit: cfg.atlas.texels_per_unit,
+        padding: cfg.atlas.padding,
+        use_mesh_uvs: cfg.atlas.use_mesh_uvs,
+        max_size: cfg.atlas.max_texture_size,
+    };
+    Prepared::new(scene, views, &settings, cfg.atlas.tile_size)
+}
+
+/// The (sensor, photo) pairs of a run: the config's `views`, or every sensor with an
+/// `images/<id>.exr` beside the scene (sensors without one are skipped with a note).
+pub fn match_views(scene: &Scene, cfg: &Config, mode: Mode) -> Result<Vec<(usize, PathBuf)>> {
+    let mut views = Vec::new();
+    if cfg.views.is_empty() {
+        let dir = scene.dir().join("images");
+        for (i, s) in scene.sensors.iter().enumerate() {
+            let p = dir.join(format!("{}.exr", s.id));
+            if p.is_file() {
+                views.push((i, p));
+            } else {
+                note(
+                    mode,
+                    &format!("sensor '{}' has no photo {}: skipped", s.id, p.display()),
+                );
+            }
+        }
+    } else {
+        for (id, p) in &cfg.views {
+            let i = scene
+                .sensors
+                .iter()
+                .position(|s| &s.id == id)
+                .ok_or_else(|| {
+                    Error::input(
+                        &cfg.scene,
+                        format!("views names sensor '{id}', which the scene does not have"),
+                    )
+                })?;
+            views.push((i, p.clone()));
+        }
+    }
+    if views.is_empty() {
+        return Err(Error::input(
+            &cfg.scene,
+            "no photos: no sensor has an images/<sensor id>.exr and the config names no views",
+        ));
+    }
+    Ok(views)
+}
+
+impl Prepared {
+    /// `scene` with its acceleration structure, every reconstructed shape unwrapped by
+    /// `settings` and the textures laid out in tiles of `tile_size`; `views` are the (sensor,
+    /// photo) pairs. An atlas that cannot be made is an error naming the shape.
+    pub fn new(
+        scene: Scene,
+        views: Vec<(usize, PathBuf)>,
+        settings: &AtlasSettings,
+        tile_size: u32,
+    ) -> Result<Prepared> {
+        let accel = Accel::build(&scene);
+        let mut atlases = Vec::with_capacity(scene.shapes.len());
+        let mut textures = Vec::new();
+        for (i, s) in scene.shapes.iter().enumerate() {
+            if !s.is_reconstructed() {
+                atlases.push(None);
+                continue;
+            }
+            let a = build_atlas(&s.mesh, settings).map_err(|e| match e {
+                Error::Config { msg, .. } => {
+                    Error::config_in(&scene.path, format!("shape '{}': {msg}", s.id))
+                }
+                Error::Input { msg, .. } => {
+                    Error::input(&scene.path, format!("shape '{}': {msg}", s.id))
+                }
+                other => other,
+            })?;
+            textures.push((i, a.width, a.height));
+            atlases.push(Some(a));
+        }
+        let layout = Layout::new(tile_size, &textures);
+        Ok(Prepared {
+            scene,
+            accel,
+            atlases,
+            layout,
+            views,
+        })
+    }
+
+    /// The shape of layout slot `slot`.
+    pub fn shape_ref(&self, slot: usize) -> ShapeRef<'_> {
+        let si = self.layout.slots[slot].shape;
+        let s = &self.scene.shapes[si];
+        ShapeRef {
+            index: si as u32,
+            mesh: &s.mesh,
+            sides: s.sides,
+            corner_uv: &self.atlases[si]
+                .as_ref()
+                .expect("reconstructed shape has an atlas")
+                .corner_uv,
+        }
+    }
+
+    /// The id of the shape of layout slot `slot`.
+    pub fn slot_id(&self, slot: usize) -> &str {
+        &self.scene.shapes[self.layout.slots[slot].shape].id
+    }
+
+    /// A new tile store at `path` shaped like this layout (every tile, every texel), each
+    /// record `fill`.
+    pub fn create_store<T: bytemuck::Pod + Send + Sync>(
+        &self,
+        path: impl AsRef<Path>,
+        fill: T,
+    ) -> Result<TileStore<T>> {
+        TileStore::create(
+            path,
+            self.layout.tile_count as usize,
+            self.layout.tile_texels(),
+            fill,
+        )
+    }
+
+    /// Opens a run's existing store at `path` and checks that it is shaped like this layout.
+    pub fn open_store<T: bytemuck::Pod + Send + Sync>(
+        &self,
+        path: impl AsRef<Path>,
+    ) -> Result<TileStore<T>> {
+        let store = TileStore::open(path.as_ref())?;
+        if store.tile_count() != self.layout.tile_count as usize
+            || store.tile_texels() != self.layout.tile_texels()
+        {
+            return Err(Error::corrupt(
+                path.as_ref(),
+                format!(
+                    "tile store has {} tiles of {} texels, the atlas layout {} of {}",
+                    store.tile_count(),
+                    store.tile_texels(),
+                    self.layout.tile_count,
+                    self.layout.tile_texels()
+                ),
+            ));
+        }
+        Ok(store)
+    }
+
+    /// Tiles per mapped window for a store of `T` under the configured memory budget.
+    pub fn window<T>(&self, cfg: &Config) -> usize {
+        let tile_bytes = (self.layout.tile_texels() * std::mem::size_of::<T>()) as u64;
+        window_tiles_for_budget(cfg.memory_budget_mib << 20, tile_bytes).max(1)
+    }
+
+    /// Hash of everything that changes a run's result: the settings without `threads`,
+    /// `checkpoint_every_batches` and `memory_budget_mib` (which never change results), the
+    /// scene file, every file it names (meshes, textures) and the photos. A checkpoint made
+    /// with other inputs must not be resumed.
+    pub fn fingerprint(&self, cfg: &Config) -> Result<u64> {
+        let mut h = Fnv::default();
+        let mut c = cfg.clone();
+        c.threads = 0;
+        c.checkpoint_every_batches = 1;
+        c.memory_budget_mib = 0;
+        let json = serde_json::to_vec(&c).map_err(|e| Error::internal(format!("settings: {e}")))?;
+        h.update(&json);
+        let mut hash_file = |p: &Path| -> Result<()> {
+            h.update(p.to_string_lossy().as_bytes());
+            let bytes = std::fs::read(p).map_err(|e| Error::io(p, e))?;
+            h.update(&(bytes.len() as u64).to_le_bytes());
+            h.update(&bytes);
+            Ok(())
+        };
+        hash_file(&cfg.scene)?;
+        for f in &self.scene.files {
+            hash_file(f)?;
+        }
+        for (_, photo) in &self.views {
+            hash_file(photo)?;
+        }
+        Ok(h.finish())
+    }
+}

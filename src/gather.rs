@@ -1,0 +1,385 @@
+//! Secondary irradiance `E_i` gathered from the observed radiance (`[solver] method =
+//! "gather"`, the default). The light arriving at a surface point from other surfaces is their
+//! outgoing radiance, and wherever a photo saw a surface that radiance is in the luminance map
+//! already, every bounce included (the idea of Inverse Global Illumination, Yu, Debevec, Malik
+//! and Hawkins, SIGGRAPH 1999). So from a point, cosine-weighted rays: a hit on an observed
+//! texel returns its observed radiance `L_orig`, a hit on an unobserved one its current
+//! estimate `K_d (E_d + E_i) / pi`, a hit on an emitter (its light is `E_d`), on nothing, or on
+//! the back of a one-sided surface returns 0; `E_i = pi * mean`. Observed surfaces need no
+//! `K_d`, so it converges in one or two passes where photon tracing needs many.
+//!
+//! `E_i` varies slowly, so it is gathered on a coarser set of points and interpolated: each
+//! texture is cut into cells of `stride x stride` texels (`stride` from the scene-unit
+//! `spacing` and the shape's texel density), each chart present in a cell gets one point (its
+//! covered texel nearest the cell's center), and a texel interpolates bilinearly between the
+//! points of its own chart in the four cells around it. The rays, and the noise, per unit of
+//! surface therefore do not depend on the atlas resolution.
+//!
+//! Radiance at a hit is read bilinearly from the hit texel's neighbourhood, using only texels
+//! of the hit triangle's chart (so light never leaks across a chart seam or the gutter).
+//! Every random number is `Rng::new(seed ^ tag, iteration, point, 0)`: results do not depend
+//! on threads or chunking.
+
+use crate::accel::{offset_origin, Accel};
+use crate::atlas::charts::Charts;
+use crate::atlas::hits::HitTable;
+use crate::atlas::layout::{flags, Layout, TexelGeom, TexelState};
+use crate::atlas::texels::NONE;
+use crate::atlas::texture;
+use crate::atlas::tiles::{map_tiles, TileStore};
+use crate::atlas::Prepared;
+use crate::error::Result;
+use crate::rng::Rng;
+use glam::{Vec2, Vec3};
+use rayon::prelude::*;
+use std::f32::consts::{PI, TAU};
+use std::time::Instant;
+
+/// Mixed into the seed so gather rays never share a stream with photons or shadow rays.
+const STREAM_TAG: u64 = 0x6a7e_5ca1_ab1e_0001;
+
+/// One gather point: a covered texel standing for the chart's part of its cell.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Point {
+    pub x: u32,
+    pub y: u32,
+    pub chart: u32,
+    pub p: Vec3,
+    /// Unit shading normal (light is gathered over its hemisphere).
+    pub n: Vec3,
+    /// Unit geometric normal (ray origins are offset along it).
+    pub ng: Vec3,
+}
+
+/// One slot's cells.
+#[derive(Debug, Clone, PartialEq)]
+struct SlotCells {
+    stride: u32,
+    cells_x: u32,
+    cells_y: u32,
+    /// Per cell (row-major) the range of its points in `GatherPoints::points`:
+    /// `start[c]..start[c + 1]`, one point per chart present, in chart order.
+    start: Vec<u32>,
+}
+
+/// The gather points of every slot.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GatherPoints {
+    slots: Vec<SlotCells>,
+    pub points: Vec<Point>,
+}
+
+impl GatherPoints {
+    /// Points for every slot of `p`'s layout, `spacing` scene units apart (at least one
+    /// texel: `stride = max(1, round(spacing * texel density))`).
+    pub fn new(
+        p: &Prepared,
+        geom: &TileStore<TexelGeom>,
+        charts: &Charts,
+        spacing: f32,
+    ) -> Result<GatherPoints> {
+        let mut out = GatherPoints {
+            slots: Vec::with_capacity(p.layout.slots.len()),
+            points: Vec::new(),
+        };
+        for (slot, st) in p.layout.slots.iter().enumerate() {
+            let density = p.atlases[st.shape]
+                .as_ref()
+                .map_or(1.0, |a| a.texel_density);
+            let stride = ((spacing * density).round() as u32).max(1);
+            let g = texture::gather(&p.layout, slot, geom, geom, |g, _| *g)?;
+            let cells = out.add_slot(
+                &g,
+                &charts.slots[slot].texel_chart,
+                st.width,
+                st.height,
+                stride,
+            );
+            out.slots.push(cells);
+        }
+        Ok(out)
+    }
+
+    /// Cuts one texture (`geom` and `chart` row-major) into cells and adds their points.
+    fn add_slot(&mut self, geom: &[TexelGeom], chart: &[u32], w: u32, h: u32, s: u32) -> SlotCells {
+        let (cells_x, cells_y) = (w.div_ceil(s), h.div_ceil(s));
+        let mut start = Vec::with_capacity((cells_x * cells_y + 1) as usize);
+        let center = (s as f32) * 0.5;
+        for cy in 0..cells_y {
+            for cx in 0..cells_x {
+                start.push(self.points.len() as u32);
+                // (chart, squared distance to the cell center, x, y) of the best texel per chart
+                let mut best: Vec<(u32, f32, u32, u32)> = Vec::new();
+                for y in cy * s..((cy + 1) * s).min(h) {
+                    for x in cx * s..((cx + 1) * s).min(w) {
+                        let i = (y * w + x) as usize;
+                        let c = chart[i];
+                        if c == NONE || !geom[i].covered() {
+                            continue;
+                        }
+                        let dx = (x - cx * s) as f32 + 0.5 - center;
+                        let dy = (y - cy * s) as f32 + 0.5 - center;
+                        let d2 = dx * dx + dy * dy;
+                        match best.iter_mut().find(|b| b.0 == c) {
+                            Some(b) if d2 < b.1 => *b = (c, d2, x, y),
+                            Some(_) => {}
+                            None => best.push((c, d2, x, y)),
+                        }
+                    }
+                }
+                best.sort_by_key(|b| b.0);
+                for (c, _, x, y) in best {
+                    let g = &geom[(y * w + x) as usize];
+                    self.points.push(Point {
+                        x,
+                        y,
+                        chart: c,
+                        p: g.p(),
+                        n: g.n(),
+                        ng: g.ng(),
+                    });
+                }
+            }
+        }
+        start.push(self.points.len() as u32);
+        SlotCells {
+            stride: s,
+            cells_x,
+            cells_y,
+            start,
+        }
+    }
+
+    /// Texels per cell side in slot `slot`.
+    pub fn stride(&self, slot: usize) -> u32 {
+        self.slots[slot].stride
+    }
+
+    /// The point of chart `chart` in cell `(cx, cy)` of `slot`, if any.
+    fn point_in(&self, slot: usize, cx: i64, cy: i64, chart: u32) -> Option<usize> {
+        let c = &self.slots[slot];
+        if cx < 0 || cy < 0 || cx >= c.cells_x as i64 || cy >= c.cells_y as i64 {
+            return None;
+        }
+        let cell = (cy as u32 * c.cells_x + cx as u32) as usize;
+        (c.start[cell]..c.start[cell + 1])
+            .map(|i| i as usize)
+            .find(|&i| self.points[i].chart == chart)
+    }
+
+    /// `E_i` at texel `(x, y)` of chart `chart` in `slot`: bilinear between the points of its
+    /// chart in the four cells around it (renormalized over the cells that have one; the
+    /// texel's own cell always does, with a weight of at least 1/4).
+    pub fn interpolate(&self, values: &[Vec3], slot: usize, x: u32, y: u32, chart: u32) -> Vec3 {
+        let s = self.slots[slot].stride as f32;
+        let fx = (x as f32 + 0.5) / s - 0.5;
+        let fy = (y as f32 + 0.5) / s - 0.5;
+        let (x0, y0) = (fx.floor(), fy.floor());
+        let (tx, ty) = (fx - x0, fy - y0);
+        let (mut sum, mut wsum) = (Vec3::ZERO, 0.0f32);
+        for (dx, dy, w) in [
+            (0, 0, (1.0 - tx) * (1.0 - ty)),
+            (1, 0, tx * (1.0 - ty)),
+            (0, 1, (1.0 - tx) * ty),
+            (1, 1, tx * ty),
+        ] {
+            if w <= 0.0 {
+                continue;
+            }
+            if let Some(i) = self.point_in(slot, x0 as i64 + dx, y0 as i64 + dy, chart) {
+                sum += values[i] * w;
+                wsum += w;
+            }
+        }
+        if wsum > 0.0 {
+            sum / wsum
+        } else {
+            Vec3::ZERO
+        }
+    }
+}
+
+/// Every slot's outgoing radiance for a gather pass: `L_orig` where observed, the current
+/// `K_d (E_d + E_i) / pi` elsewhere on the surface, 0 off it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Radiance {
+    slots: Vec<(u32, u32, Vec<Vec3>)>,
+}
+
+impl Radiance {
+    pub fn from_state(
+        layout: &Layout,
+        state: &TileStore<TexelState>,
+        geom: &TileStore<TexelGeom>,
+    ) -> Result<Radiance> {
+        let mut slots = Vec::with_capacity(layout.slots.len());
+        for (slot, st) in layout.slots.iter().enumerate() {
+            let t = texture::gather(layout, slot, state, geom, outgoing)?;
+            slots.push((st.width, st.height, t));
+        }
+        Ok(Radiance { slots })
+    }
+
+    /// Radiance of `slot` at continuous texel coordinates `uv` on chart `chart`: bilinear over
+    /// the four nearest texels of that chart (renormalized), else the nearest texel of that
+    /// chart in the 3 x 3 around `uv`, else 0.
+    pub fn lookup(&self, charts: &Charts, slot: usize, uv: Vec2, chart: u32) -> Vec3 {
+        let (w, h, tex) = &self.slots[slot];
+        let (w, h) = (*w as i64, *h as i64);
+        let tc = &charts.slots[slot].texel_chart;
+        let on = |x: i64, y: i64| {
+            (x >= 0 && y >= 0 && x < w && y < h && tc[(y * w + x) as usize] == chart)
+                .then(|| tex[(y * w + x) as usize])
+        };
+        let (fx, fy) = (uv.x - 0.5, uv.y - 0.5);
+        let (x0, y0) = (fx.floor(), fy.floor());
+        let (tx, ty) = (fx - x0, fy - y0);
+        let (x0, y0) = (x0 as i64, y0 as i64);
+        let (mut sum, mut wsum) = (Vec3::ZERO, 0.0f32);
+        for (dx, dy, wt) in [
+            (0, 0, (1.0 - tx) * (1.0 - ty)),
+            (1, 0, tx * (1.0 - ty)),
+            (0, 1, (1.0 - tx) * ty),
+            (1, 1, tx * ty),
+        ] {
+            if let Some(v) = on(x0 + dx, y0 + dy) {
+                sum += v * wt;
+                wsum += wt;
+            }
+        }
+        if wsum > 0.0 {
+            return sum / wsum;
+        }
+        let (cx, cy) = (uv.x.floor() as i64, uv.y.floor() as i64);
+        (-1..=1)
+            .flat_map(|dy| (-1..=1).map(move |dx| (dx, dy)))
+            .find_map(|(dx, dy)| on(cx + dx, cy + dy))
+            .unwrap_or(Vec3::ZERO)
+    }
+}
+
+/// A texel's outgoing radiance for gathering (see [`Radiance`]).
+fn outgoing(s: &TexelState, g: &TexelGeom) -> Vec3 {
+    if !g.covered() {
+        Vec3::ZERO
+    } else if s.flags & flags::OBSERVED != 0 {
+        Vec3::from_array(s.l_orig)
+    } else {
+        Vec3::from_array(s.k_d) / PI * (Vec3::from_array(s.e_d) + Vec3::from_array(s.e_i))
+    }
+}
+
+/// Everything a gather pass reads.
+#[derive(Clone, Copy)]
+pub struct GatherContext<'a> {
+    pub accel: &'a Accel,
+    pub hits: &'a HitTable,
+    pub charts: &'a Charts,
+    pub radiance: &'a Radiance,
+    pub seed: u64,
+    pub iteration: u64,
+    /// Rays per point (rounded up to a square: stratified `k x k`).
+    pub rays: u32,
+}
+
+/// What a gather pass did.
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
+pub struct GatherStats {
+    pub points: u64,
+    pub rays: u64,
+    pub seconds: f64,
+}
+
+/// `E_i` at every point (in `points.points` order).
+pub fn gather_pass(ctx: &GatherContext, points: &GatherPoints) -> (Vec<Vec3>, GatherStats) {
+    let t0 = Instant::now();
+    let values: Vec<Vec3> = points
+        .points
+        .par_iter()
+        .enumerate()
+        .map(|(i, pt)| gather_point(ctx, i as u64, pt))
+        .collect();
+    let k = strata(ctx.rays) as u64;
+    let stats = GatherStats {
+        points: values.len() as u64,
+        rays: values.len() as u64 * k * k,
+        seconds: t0.elapsed().as_secs_f64(),
+    };
+    (values, stats)
+}
+
+/// Strata per side for `rays` rays.
+fn strata(rays: u32) -> u32 {
+    ((rays.max(1) as f64).sqrt().ceil() as u32).max(1)
+}
+
+/// `E_i` at one point: `pi` times the mean radiance seen along `k x k` stratified
+/// cosine-weighted directions about its shading normal.
+pub fn gather_point(ctx: &GatherContext, index: u64, pt: &Point) -> Vec3 {
+    let mut rng = Rng::new(ctx.seed ^ STREAM_TAG, ctx.iteration, index, 0);
+    let k = strata(ctx.rays);
+    let (u, v) = pt.n.any_orthonormal_pair();
+    // Rays must leave on the side of the geometric surface the shading normal is on.
+    let side = pt.n.dot(pt.ng).signum();
+    let mut sum = Vec3::ZERO;
+    for i in 0..k {
+        for j in 0..k {
+            let r2 = (i as f32 + rng.f32()) / k as f32;
+            let phi = TAU * (j as f32 + rng.f32()) / k as f32;
+            let r = r2.sqrt();
+            let d = (u * (r * phi.cos()) + v * (r * phi.sin()) + pt.n * (1.0 - r2).max(0.0).sqrt())
+                .normalize();
+            if d.dot(pt.ng) * side <= 0.0 {
+                continue;
+            }
+            sum += radiance_along(ctx, offset_origin(pt.p, pt.ng, d), d);
+        }
+    }
+    sum * (PI / (k * k) as f32)
+}
+
+/// The outgoing radiance of the first surface along the ray (0 for emitters, misses and the
+/// back of one-sided surfaces).
+#[inline]
+fn radiance_along(ctx: &GatherContext, o: Vec3, d: Vec3) -> Vec3 {
+    let Some((hit, prim)) = ctx.hits.trace(ctx.accel, o, d, f32::INFINITY) else {
+        return Vec3::ZERO;
+    };
+    if prim.slot == NONE || prim.chart == NONE || (prim.one_sided && d.dot(hit.ns) >= 0.0) {
+        return Vec3::ZERO;
+    }
+    ctx.radiance
+        .lookup(ctx.charts, prim.slot as usize, hit.uv, prim.chart)
+}
+
+/// Writes the gathered `E_i` into `TexelState::accum` of every covered texel (interpolated
+/// between points, see [`GatherPoints::interpolate`]); 0 elsewhere. After it `accum` holds
+/// this pass's `E_i`, as after a photon pass.
+pub fn write_accum(
+    layout: &Layout,
+    points: &GatherPoints,
+    values: &[Vec3],
+    charts: &Charts,
+    geom: &TileStore<TexelGeom>,
+    state: &mut TileStore<TexelState>,
+    window: usize,
+) -> Result<()> {
+    map_tiles(state, geom, window, |t, g, st| {
+        let span = layout.span(t as u32);
+        let tc = &charts.slots[span.slot].texel_chart;
+        for s in st.iter_mut() {
+            s.accum = [0.0; 3];
+        }
+        for (off, x, y) in span.texels() {
+            let c = tc[(y * span.texture_width + x) as usize];
+            if !g[off].covered() || c == NONE {
+                continue;
+            }
+            st[off].accum = points.interpolate(values, span.slot, x, y, c).to_array();
+        }
+    })?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests;

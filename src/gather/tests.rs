@@ -1,0 +1,332 @@
+//! The gather against closed forms (a furnace, the configuration factor of a square), its
+//! rules (one-sided surfaces, emitters, unobserved texels, chart seams), and determinism.
+
+use super::*;
+use crate::atlas::layout::TexelGeom;
+use crate::atlas::unwrap::AtlasSettings;
+use crate::atlas::{build_geometry, Prepared};
+use crate::light::area::projected_solid_angle;
+use crate::progress::Mode;
+use crate::scene::{mesh, Mesh, Scene, Shape, Sides};
+use glam::{DVec3, Mat4};
+use std::path::PathBuf;
+
+fn shape(id: &str, mesh: Mesh, emission: Option<Vec3>) -> Shape {
+    Shape {
+        id: id.into(),
+        kind: "test".into(),
+        file: None,
+        mesh,
+        sides: Sides::Front,
+        emission,
+        reflectance: None,
+    }
+}
+
+/// A scene ready to gather in: prepared, geometry, charts, hit table, a state store.
+struct Fixture {
+    _dir: tempfile::TempDir,
+    p: Prepared,
+    geom: TileStore<TexelGeom>,
+    charts: Charts,
+    hits: HitTable,
+    state: TileStore<TexelState>,
+}
+
+impl Fixture {
+    fn new(shapes: Vec<Shape>, texels_per_unit: f32) -> Fixture {
+        let scene = Scene {
+            path: PathBuf::from("test.xml"),
+            shapes,
+            emitters: vec![],
+            sensors: vec![],
+            files: vec![],
+        };
+        let settings = AtlasSettings {
+            texels_per_unit,
+            ..Default::default()
+        };
+        let p = Prepared::new(scene, vec![], &settings, 16).unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let geom = build_geometry(&p, &dir.path().join("g"), Mode::Quiet).unwrap();
+        let charts = Charts::new(&p.scene, &p.layout, &p.atlases).unwrap();
+        let hits = HitTable::new(&p, &charts);
+        let state = p
+            .create_store(dir.path().join("s"), TexelState::default())
+            .unwrap();
+        Fixture {
+            _dir: dir,
+            p,
+            geom,
+            charts,
+            hits,
+            state,
+        }
+    }
+
+    /// Sets every covered texel of shape `id` with `f`.
+    fn set(&mut self, id: &str, f: impl Fn(&mut TexelState) + Sync + Send) {
+        let si = self.p.scene.shapes.iter().position(|s| s.id == id).unwrap();
+        let Some(slot) = self.p.layout.slot_of_shape(si) else {
+            return;
+        };
+        let layout = &self.p.layout;
+        map_tiles(&mut self.state, &self.geom, 4, |t, g, st| {
+            if layout.slot_of_tile(t as u32) != slot {
+                return;
+            }
+            for (g, s) in g.iter().zip(st.iter_mut()) {
+                if g.covered() {
+                    f(s);
+                }
+            }
+        })
+        .unwrap();
+    }
+
+    fn observe(&mut self, id: &str, l: Vec3) {
+        self.set(id, |s| {
+            s.l_orig = l.to_array();
+            s.weight = 1.0;
+            s.flags |= flags::OBSERVED;
+        });
+    }
+
+    fn gather(&self, spacing: f32, rays: u32) -> (GatherPoints, Vec<Vec3>) {
+        let points = GatherPoints::new(&self.p, &self.geom, &self.charts, spacing).unwrap();
+        let radiance = Radiance::from_state(&self.p.layout, &self.state, &self.geom).unwrap();
+        let ctx = GatherContext {
+            accel: &self.p.accel,
+            hits: &self.hits,
+            charts: &self.charts,
+            radiance: &radiance,
+            seed: 5,
+            iteration: 1,
+            rays,
+        };
+        let (values, stats) = gather_pass(&ctx, &points);
+        assert_eq!(stats.points as usize, points.points.len());
+        (points, values)
+    }
+
+    fn slot_of(&self, id: &str) -> usize {
+        let si = self.p.scene.shapes.iter().position(|s| s.id == id).unwrap();
+        self.p.layout.slot_of_shape(si).unwrap()
+    }
+}
+
+/// Points of slot `slot` with their values.
+fn slot_points(fx: &Fixture, pts: &GatherPoints, vals: &[Vec3], slot: usize) -> Vec<(Point, Vec3)> {
+    let c = &pts.slots[slot];
+    let (a, b) = (c.start[0] as usize, *c.start.last().unwrap() as usize);
+    let _ = fx;
+    (a..b).map(|i| (pts.points[i], vals[i])).collect()
+}
+
+/// Inside a closed sphere of uniform observed radiance `L` every ray sees `L`: `E_i = pi L`.
+/// (Flat facets: with smooth normals the rays below a facet count as nothing, as in Mitsuba.)
+#[test]
+fn furnace_gathers_pi_l_everywhere() {
+    let mut m = mesh::sphere();
+    m.normals = None;
+    mesh::flip_normals(&mut m); // facing inwards
+    let mut fx = Fixture::new(vec![shape("ball", m, None)], 24.0);
+    let l = Vec3::new(0.5, 1.0, 2.0);
+    fx.observe("ball", l);
+    let (pts, vals) = fx.gather(0.1, 64);
+    assert!(pts.points.len() > 100, "{} points", pts.points.len());
+    let want = l * PI;
+    let mut worst = 0.0f32;
+    for v in &vals {
+        worst = worst.max(((*v - want).abs() / want).max_element());
+    }
+    assert!(worst < 2e-3, "worst relative error {worst}");
+}
+
+/// A unit square of radiance `L` one unit above a floor: at a floor point `E_i` is `L` times
+/// the square's projected solid angle (Lambert's polygon formula).
+#[test]
+fn square_above_a_floor_matches_the_configuration_factor() {
+    let mut floor = mesh::rectangle(); // z = 0 plane, normal +z
+    floor.transform(&Mat4::from_scale(Vec3::splat(2.0)));
+    let mut top = mesh::rectangle();
+    mesh::flip_normals(&mut top); // facing down, towards the floor
+    top.transform(
+        &(Mat4::from_translation(Vec3::new(0.3, 0.0, 1.0)) * Mat4::from_scale(Vec3::splat(0.5))),
+    );
+    let mut fx = Fixture::new(
+        vec![shape("floor", floor, None), shape("top", top, None)],
+        8.0,
+    );
+    let l = Vec3::new(1.0, 2.0, 3.0);
+    fx.observe("top", l);
+    fx.observe("floor", Vec3::splat(7.0));
+    let (pts, vals) = fx.gather(0.25, 4096);
+    let corners = [(-0.5, -0.5), (0.5, -0.5), (0.5, 0.5), (-0.5, 0.5)]
+        .map(|(x, y)| DVec3::new(0.3 + x, y, 1.0));
+    let slot = fx.slot_of("floor");
+    let floor_pts = slot_points(&fx, &pts, &vals, slot);
+    assert!(floor_pts.len() > 20);
+    let want: Vec<Vec3> = floor_pts
+        .iter()
+        .map(|(pt, _)| {
+            let poly: Vec<DVec3> = corners.iter().map(|c| *c - pt.p.as_dvec3()).collect();
+            l * projected_solid_angle(&poly, DVec3::Z) as f32
+        })
+        .collect();
+    // Far points see the square through a few dozen of the 4096 rays (the stratified grid
+    // catches its edges only to a few rays): within 2% of the largest value at every point,
+    // and unbiased over the floor.
+    let peak = want.iter().fold(Vec3::ZERO, |a, w| a.max(*w));
+    let (mut sum_got, mut sum_want) = (Vec3::ZERO, Vec3::ZERO);
+    for ((pt, v), w) in floor_pts.iter().zip(&want) {
+        let err = ((*v - *w).abs() / peak).max_element();
+        assert!(err < 0.02, "at {}: {v} vs {w} ({err} of the peak)", pt.p);
+        sum_got += *v;
+        sum_want += *w;
+    }
+    let mean_err = ((sum_got - sum_want).abs() / sum_want).max_element();
+    eprintln!(
+        "configuration factor: mean over {} floor points off by {mean_err:.5}",
+        want.len()
+    );
+    assert!(mean_err < 0.003, "mean over the floor off by {mean_err}");
+}
+
+/// The back of a one-sided surface, an emitter and an unobserved texel (its current estimate
+/// `K_d (E_d + E_i) / pi`) under the same square.
+#[test]
+fn back_faces_emitters_and_unobserved_texels() {
+    let build = |flip: bool, emission: Option<Vec3>| {
+        let mut top = mesh::rectangle();
+        if flip {
+            mesh::flip_normals(&mut top);
+        }
+        top.transform(&(Mat4::from_translation(Vec3::Z) * Mat4::from_scale(Vec3::splat(0.5))));
+        Fixture::new(
+            vec![
+                shape("floor", mesh::rectangle(), None),
+                shape("top", top, emission),
+            ],
+            8.0,
+        )
+    };
+    let floor_mean = |fx: &Fixture| {
+        let (pts, vals) = fx.gather(0.25, 256);
+        let v = slot_points(fx, &pts, &vals, fx.slot_of("floor"));
+        v.iter().map(|(_, e)| *e).sum::<Vec3>() / v.len() as f32
+    };
+    // facing away from the floor: the floor sees its back, which reflects nothing
+    let mut fx = build(false, None);
+    fx.observe("top", Vec3::ONE);
+    assert_eq!(floor_mean(&fx), Vec3::ZERO);
+    // facing the floor but an emitter: its light is E_d, not E_i
+    let fx = build(true, Some(Vec3::splat(10.0)));
+    assert_eq!(floor_mean(&fx), Vec3::ZERO);
+    // unobserved: K_d (E_d + E_i) / pi = 0.5 (2 + 1) / pi, the same as observing it
+    let mut fx = build(true, None);
+    fx.set("top", |s| {
+        s.k_d = [0.5; 3];
+        s.e_d = [2.0; 3];
+        s.e_i = [1.0; 3];
+    });
+    let unobserved = floor_mean(&fx);
+    fx.observe("top", Vec3::splat(1.5 / PI));
+    let observed = floor_mean(&fx);
+    assert!(unobserved.x > 0.0);
+    assert!(((unobserved - observed).abs() / observed).max_element() < 1e-5);
+}
+
+/// Interpolation reproduces a constant and never mixes charts: with every point of a cube
+/// (six charts at least) valued by its chart, each texel gets exactly its chart's value.
+#[test]
+fn interpolation_stays_within_the_chart() {
+    let fx = Fixture::new(vec![shape("cube", mesh::cube(), None)], 16.0);
+    let pts = GatherPoints::new(&fx.p, &fx.geom, &fx.charts, 0.3).unwrap();
+    assert!(pts.stride(0) > 1);
+    let vals: Vec<Vec3> = pts
+        .points
+        .iter()
+        .map(|p| Vec3::splat(p.chart as f32 + 1.0))
+        .collect();
+    let tc = &fx.charts.slots[0].texel_chart;
+    let st = fx.p.layout.slots[0];
+    let mut n = 0;
+    for y in 0..st.height {
+        for x in 0..st.width {
+            let c = tc[(y * st.width + x) as usize];
+            if c == NONE {
+                continue;
+            }
+            let v = pts.interpolate(&vals, 0, x, y, c);
+            let want = c as f32 + 1.0;
+            assert!(
+                (v - want).abs().max_element() <= 1e-5 * want,
+                "({x}, {y}): {v}"
+            );
+            n += 1;
+        }
+    }
+    assert!(n > 100);
+}
+
+/// Bilinear radiance lookups read only the hit chart's texels: next to a chart border the
+/// other chart's (very different) values never leak in.
+#[test]
+fn radiance_lookup_ignores_other_charts() {
+    let mut fx = Fixture::new(vec![shape("cube", mesh::cube(), None)], 16.0);
+    fx.observe("cube", Vec3::ONE);
+    let mut rad = Radiance::from_state(&fx.p.layout, &fx.state, &fx.geom).unwrap();
+    // poison every texel of chart 0
+    let tc = &fx.charts.slots[0].texel_chart;
+    for (v, &c) in rad.slots[0].2.iter_mut().zip(tc) {
+        if c == 0 {
+            *v = Vec3::splat(1e6);
+        }
+    }
+    let (w, h) = (rad.slots[0].0, rad.slots[0].1);
+    let mut checked = 0;
+    for y in 0..h {
+        for x in 0..w {
+            let c = tc[(y * w + x) as usize];
+            if c == NONE || c == 0 {
+                continue;
+            }
+            for (dx, dy) in [(0.0, 0.0), (0.9, 0.1), (0.5, 0.99)] {
+                let uv = Vec2::new(x as f32 + dx, y as f32 + dy);
+                assert_eq!(rad.lookup(&fx.charts, 0, uv, c), Vec3::ONE, "({x}, {y})");
+                checked += 1;
+            }
+        }
+    }
+    assert!(checked > 100);
+}
+
+/// The same points and values with 1 and 2 worker threads, bit for bit.
+#[test]
+fn gather_is_bit_identical_across_thread_counts() {
+    let mut m = mesh::sphere();
+    mesh::flip_normals(&mut m);
+    let mut inner = mesh::sphere();
+    inner.transform(
+        &(Mat4::from_translation(Vec3::new(0.2, 0.1, 0.0)) * Mat4::from_scale(Vec3::splat(0.3))),
+    );
+    let mut fx = Fixture::new(
+        vec![shape("room", m, None), shape("ball", inner, None)],
+        12.0,
+    );
+    fx.observe("room", Vec3::new(0.3, 0.2, 0.1));
+    fx.set("ball", |s| {
+        s.k_d = [0.4; 3];
+        s.e_d = [1.0, 2.0, 3.0];
+    });
+    let run = |threads| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        pool.install(|| fx.gather(0.2, 16).1)
+    };
+    let (a, b) = (run(1), run(2));
+    assert_eq!(a, b);
+}

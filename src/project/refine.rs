@@ -1,0 +1,218 @@
+//! Iterative back-projection (SIRT) after the weighted mean: re-render every view from the
+//! current maps, back-project the residuals `photo - render` with the projection's own lookups
+//! and weights, add their weighted mean (see the module notes of [`super`]).
+
+use super::view::{PixelInfo, View};
+use super::{apply_refinement, backproject_tile, RESIDUAL_SHRINK};
+use crate::atlas::layout::{TexelGeom, TexelState};
+use crate::atlas::texels::dilate;
+use crate::atlas::texture::gather;
+use crate::atlas::tiles::TileStore;
+use crate::atlas::Prepared;
+use crate::camera::Camera;
+use crate::error::{Error, Result};
+use crate::image::{read_sensor_image, Image};
+use crate::progress::{Mode, Stage};
+use crate::render::{render_view, Film, Texture};
+use glam::Vec3;
+use rayon::prelude::*;
+use std::sync::Mutex;
+
+/// Sub-pixel rays per side when a view is re-rendered for refinement (a box pixel filter).
+pub const REFINE_SUPERSAMPLE: u32 = 4;
+/// Texels of dilation around observed texels before re-rendering, as for written maps.
+const REFINE_DILATE: u32 = 4;
+
+/// Soft-threshold a residual image at `RESIDUAL_SHRINK` times its noise level: every clean
+/// pixel's residual `r` (judged on its channel sum, relative to the photo's) shrinks towards
+/// zero by `RESIDUAL_SHRINK * sigma * photo`, where `sigma` is the median relative residual
+/// over clean pixels scaled to a standard deviation (1.4826 x MAD): a robust estimate of the
+/// photo noise, since most pixels are noise-dominated. Refinement then corrects disagreements
+/// larger than the noise (blurred texture edges) without fitting each photo's noise, which
+/// would make the map grainier with every pass. Photos without noise get `sigma` near zero and
+/// are left as they are.
+pub fn shrink_residual(residual: &mut [Vec3], photo: &[Vec3], pixels: &[PixelInfo]) {
+    let rel = |r: &Vec3, p: &Vec3| r.element_sum().abs() / p.element_sum();
+    let mut rels: Vec<f32> = residual
+        .iter()
+        .zip(photo)
+        .zip(pixels)
+        .filter(|((_, p), px)| px.clean && p.element_sum() > 0.0)
+        .map(|((r, p), _)| rel(r, p))
+        .filter(|v| v.is_finite())
+        .collect();
+    if rels.is_empty() {
+        return;
+    }
+    let mid = rels.len() / 2;
+    let sigma = 1.4826 * *rels.select_nth_unstable_by(mid, f32::total_cmp).1;
+    for (r, p) in residual.iter_mut().zip(photo) {
+        let (a, t) = (
+            r.element_sum().abs(),
+            RESIDUAL_SHRINK * sigma * p.element_sum().abs(),
+        );
+        *r = if a > t && a > 0.0 {
+            *r * ((a - t) / a)
+        } else {
+            Vec3::ZERO
+        };
+    }
+}
+
+/// Every reconstructed shape's current luminance map (unobserved and gutter texels filled by
+/// dilation, as written maps are), indexed by shape.
+fn current_maps(
+    p: &Prepared,
+    geom: &TileStore<TexelGeom>,
+    state: &TileStore<TexelState>,
+) -> Result<Vec<Option<Vec<Vec3>>>> {
+    let mut maps: Vec<Option<Vec<Vec3>>> = (0..p.scene.shapes.len()).map(|_| None).collect();
+    for (slot, st) in p.layout.slots.iter().enumerate() {
+        let (mut vals, observed): (Vec<Vec3>, Vec<bool>) =
+            gather(&p.layout, slot, state, geom, |s, _| {
+                (Vec3::from_array(s.l_orig), s.weight > 0.0)
+            })?
+            .into_iter()
+            .unzip();
+        dilate(&mut vals, &observed, st.width, st.height, REFINE_DILATE)?;
+        maps[st.shape] = Some(vals);
+    }
+    Ok(maps)
+}
+
+/// Iterative back-projection after [`finish_tile`]: `passes` times, re-render every view from
+/// the current maps, back-project the residuals `photo - render` (clean pixels only) and add
+/// their weighted mean to `l_orig` (see the module notes). Reads each photo once per pass;
+/// holds the maps and one residual per texel in memory while it runs.
+pub fn refine(
+    p: &Prepared,
+    geom: &TileStore<TexelGeom>,
+    state: &mut TileStore<TexelState>,
+    window: usize,
+    passes: u32,
+    mode: Mode,
+) -> Result<()> {
+    if passes == 0 {
+        return Ok(());
+    }
+    let stage = Stage::new(
+        mode,
+        "refinement",
+        passes as u64 * p.views.len() as u64,
+        "views",
+    );
+    let tile_texels = p.layout.tile_texels();
+    for _ in 0..passes {
+        let maps = current_maps(p, geom, state)?;
+        let textures: Vec<Option<Texture>> = maps
+            .iter()
+            .enumerate()
+            .map(|(i, m)| {
+                let m = m.as_ref()?;
+                let slot = p.layout.slot_of_shape(i)?;
+                let st = &p.layout.slots[slot];
+                Some(Texture {
+                    width: st.width,
+                    height: st.height,
+                    texels: m,
+                    corner_uv: &p.atlases[i].as_ref()?.corner_uv,
+                })
+            })
+            .collect();
+        let mut delta: Vec<Vec<Vec3>> = vec![Vec::new(); p.layout.tile_count as usize];
+        for (si, path) in &p.views {
+            let sensor = &p.scene.sensors[*si];
+            let photo = read_sensor_image(path, sensor)?;
+            let camera = Camera::from_sensor(sensor);
+            let view = View::new(&p.scene, &p.accel, camera, &photo);
+            let render = render_view(
+                &p.accel,
+                &view.camera,
+                &textures,
+                REFINE_SUPERSAMPLE,
+                Film::HitsOnly,
+            );
+            let mut residual: Vec<Vec3> = photo
+                .pixels
+                .iter()
+                .zip(&render)
+                .zip(&view.pixels)
+                .map(|((ph, r), px)| match r {
+                    Some(r) if px.clean => *ph - *r,
+                    _ => Vec3::ZERO,
+                })
+                .collect();
+            shrink_residual(&mut residual, &photo.pixels, &view.pixels);
+            let residual = Image {
+                width: photo.width,
+                height: photo.height,
+                pixels: residual,
+                valid: photo.valid.clone(),
+                masked: photo.masked,
+            };
+            let rview = view.with_image(&residual);
+            let err: Mutex<Option<Error>> = Mutex::new(None);
+            delta.par_iter_mut().enumerate().for_each(|(t, d)| {
+                let g = match geom.read_tile(t) {
+                    Ok(g) => g,
+                    Err(e) => {
+                        *err.lock().unwrap_or_else(|e| e.into_inner()) = Some(e);
+                        return;
+                    }
+                };
+                if !g.iter().any(|g| g.covered()) {
+                    return;
+                }
+                if d.is_empty() {
+                    *d = vec![Vec3::ZERO; tile_texels];
+                }
+                let slot = p.layout.slot_of_tile(t as u32);
+                backproject_tile(&rview, &p.accel, &p.shape_ref(slot), &g, d);
+            });
+            if let Some(e) = err.into_inner().unwrap_or_else(|e| e.into_inner()) {
+                return Err(e);
+            }
+            stage.inc(1);
+        }
+        state.for_each_tile_mut(window, |t, st| {
+            if !delta[t].is_empty() {
+                apply_refinement(st, &delta[t]);
+            }
+        })?;
+    }
+    stage.finish();
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn shrinking_drops_noise_sized_residuals_and_keeps_large_ones() {
+        let clean = PixelInfo {
+            shape: 0,
+            normal: Vec3::Y,
+            clean: true,
+        };
+        let n = 101;
+        let photo = vec![Vec3::splat(2.0); n];
+        // relative residuals +-1% on 100 pixels (sigma = 1.4826%), one of 50%
+        let mut r: Vec<Vec3> = (0..n)
+            .map(|i| Vec3::splat(if i % 2 == 0 { 0.02 } else { -0.02 }))
+            .collect();
+        r[7] = Vec3::splat(1.0);
+        let mut pixels = vec![clean; n];
+        pixels[3].clean = false;
+        shrink_residual(&mut r, &photo, &pixels);
+        assert_eq!(r[0], Vec3::ZERO);
+        assert_eq!(r[1], Vec3::ZERO);
+        let want = 1.0 - RESIDUAL_SHRINK * 0.014826 * 2.0;
+        assert!((r[7].x - want).abs() < 1e-4, "{}", r[7]);
+        // noise-free photos: residuals left alone
+        let mut r = vec![Vec3::ZERO; n];
+        r[7] = Vec3::splat(1.0);
+        shrink_residual(&mut r, &photo, &pixels);
+        assert_eq!(r[7], Vec3::splat(1.0));
+    }
+}
