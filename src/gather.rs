@@ -17,8 +17,12 @@
 //!
 //! Radiance at a hit is read bilinearly from the hit texel's neighbourhood, using only texels
 //! of the hit triangle's chart (so light never leaks across a chart seam or the gutter).
-//! Every random number is `Rng::new(seed ^ tag, iteration, point, 0)`: results do not depend
-//! on threads or chunking.
+//!
+//! The rays are cast once ([`trace_points`]): what they see of observed surfaces is final,
+//! and only the hits on unobserved texels are kept and re-read with each iteration's estimates
+//! ([`GatherCache::evaluate`]), so iterations after the first cost lookups, not rays. Every
+//! random number is `Rng::new(seed ^ tag, 0, point, 0)`: results do not depend on threads or
+//! chunking, and a resumed run casts the same rays again.
 
 use crate::accel::{offset_origin, Accel};
 use crate::atlas::charts::Charts;
@@ -200,10 +204,18 @@ impl GatherPoints {
 }
 
 /// Every slot's outgoing radiance for a gather pass: `L_orig` where observed, the current
-/// `K_d (E_d + E_i) / pi` elsewhere on the surface, 0 off it.
+/// `K_d (E_d + E_i) / pi` elsewhere on the surface, 0 off it; with which texels are observed.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Radiance {
-    slots: Vec<(u32, u32, Vec<Vec3>)>,
+    slots: Vec<SlotRadiance>,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+struct SlotRadiance {
+    width: u32,
+    height: u32,
+    texels: Vec<Vec3>,
+    observed: Vec<bool>,
 }
 
 impl Radiance {
@@ -214,47 +226,57 @@ impl Radiance {
     ) -> Result<Radiance> {
         let mut slots = Vec::with_capacity(layout.slots.len());
         for (slot, st) in layout.slots.iter().enumerate() {
-            let t = texture::gather(layout, slot, state, geom, outgoing)?;
-            slots.push((st.width, st.height, t));
+            let t = texture::gather(layout, slot, state, geom, |s, g| {
+                (outgoing(s, g), s.flags & flags::OBSERVED != 0)
+            })?;
+            let (texels, observed) = t.into_iter().unzip();
+            slots.push(SlotRadiance {
+                width: st.width,
+                height: st.height,
+                texels,
+                observed,
+            });
         }
         Ok(Radiance { slots })
     }
 
     /// Radiance of `slot` at continuous texel coordinates `uv` on chart `chart`: bilinear over
     /// the four nearest texels of that chart (renormalized), else the nearest texel of that
-    /// chart in the 3 x 3 around `uv`, else 0.
-    pub fn lookup(&self, charts: &Charts, slot: usize, uv: Vec2, chart: u32) -> Vec3 {
-        let (w, h, tex) = &self.slots[slot];
-        let (w, h) = (*w as i64, *h as i64);
+    /// chart in the 3 x 3 around `uv`, else 0; and whether every texel it read is observed
+    /// (so the value will not change as the solver goes on).
+    pub fn lookup(&self, charts: &Charts, slot: usize, uv: Vec2, chart: u32) -> (Vec3, bool) {
+        let r = &self.slots[slot];
+        let (w, h) = (r.width as i64, r.height as i64);
         let tc = &charts.slots[slot].texel_chart;
         let on = |x: i64, y: i64| {
             (x >= 0 && y >= 0 && x < w && y < h && tc[(y * w + x) as usize] == chart)
-                .then(|| tex[(y * w + x) as usize])
+                .then_some((y * w + x) as usize)
         };
         let (fx, fy) = (uv.x - 0.5, uv.y - 0.5);
         let (x0, y0) = (fx.floor(), fy.floor());
         let (tx, ty) = (fx - x0, fy - y0);
         let (x0, y0) = (x0 as i64, y0 as i64);
-        let (mut sum, mut wsum) = (Vec3::ZERO, 0.0f32);
+        let (mut sum, mut wsum, mut fixed) = (Vec3::ZERO, 0.0f32, true);
         for (dx, dy, wt) in [
             (0, 0, (1.0 - tx) * (1.0 - ty)),
             (1, 0, tx * (1.0 - ty)),
             (0, 1, (1.0 - tx) * ty),
             (1, 1, tx * ty),
         ] {
-            if let Some(v) = on(x0 + dx, y0 + dy) {
-                sum += v * wt;
+            if let Some(i) = on(x0 + dx, y0 + dy) {
+                sum += r.texels[i] * wt;
                 wsum += wt;
+                fixed &= r.observed[i];
             }
         }
         if wsum > 0.0 {
-            return sum / wsum;
+            return (sum / wsum, fixed);
         }
         let (cx, cy) = (uv.x.floor() as i64, uv.y.floor() as i64);
         (-1..=1)
             .flat_map(|dy| (-1..=1).map(move |dx| (dx, dy)))
             .find_map(|(dx, dy)| on(cx + dx, cy + dy))
-            .unwrap_or(Vec3::ZERO)
+            .map_or((Vec3::ZERO, true), |i| (r.texels[i], r.observed[i]))
     }
 }
 
@@ -269,7 +291,7 @@ fn outgoing(s: &TexelState, g: &TexelGeom) -> Vec3 {
     }
 }
 
-/// Everything a gather pass reads.
+/// Everything the gather's ray pass reads.
 #[derive(Clone, Copy)]
 pub struct GatherContext<'a> {
     pub accel: &'a Accel,
@@ -277,35 +299,97 @@ pub struct GatherContext<'a> {
     pub charts: &'a Charts,
     pub radiance: &'a Radiance,
     pub seed: u64,
-    pub iteration: u64,
     /// Rays per point (rounded up to a square: stratified `k x k`).
     pub rays: u32,
 }
 
-/// What a gather pass did.
+/// What a gather ray pass did.
 #[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
 pub struct GatherStats {
     pub points: u64,
     pub rays: u64,
+    /// Rays whose radiance depends on the solver's estimates (hits on unobserved texels),
+    /// kept for re-evaluation.
+    pub cached_hits: u64,
     pub seconds: f64,
 }
 
-/// `E_i` at every point (in `points.points` order).
-pub fn gather_pass(ctx: &GatherContext, points: &GatherPoints) -> (Vec<Vec3>, GatherStats) {
+/// A hit whose radiance is re-evaluated every iteration.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct CachedHit {
+    slot: u32,
+    chart: u32,
+    uv: Vec2,
+}
+
+/// The rays of a gather, cast once: per point, the part of `E_i` from observed surfaces
+/// (fixed: it needs no `K_d`) and the hits on unobserved texels, whose radiance is the
+/// solver's current estimate and is re-read every iteration ([`GatherCache::evaluate`]).
+/// Every iteration after the first thus costs lookups, not rays.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GatherCache {
+    /// Per point, `pi / N` times the radiance summed over its rays that saw observed texels.
+    fixed: Vec<Vec3>,
+    /// Per point `start[i]..start[i + 1]` of `hits`.
+    start: Vec<u64>,
+    hits: Vec<CachedHit>,
+    /// `pi / N`.
+    scale: f32,
+    pub stats: GatherStats,
+}
+
+/// Cast every point's rays (see [`GatherCache`]). A pure function of the scene, the
+/// observed radiance and `ctx.seed`: a resumed run recomputes it bit for bit.
+pub fn trace_points(ctx: &GatherContext, points: &GatherPoints) -> GatherCache {
     let t0 = Instant::now();
-    let values: Vec<Vec3> = points
+    let per_point: Vec<(Vec3, Vec<CachedHit>)> = points
         .points
         .par_iter()
         .enumerate()
-        .map(|(i, pt)| gather_point(ctx, i as u64, pt))
+        .map(|(i, pt)| trace_point(ctx, i as u64, pt))
         .collect();
-    let k = strata(ctx.rays) as u64;
+    let k = strata(ctx.rays);
+    let scale = PI / (k * k) as f32;
+    let mut start = Vec::with_capacity(per_point.len() + 1);
+    let mut hits = Vec::new();
+    let mut fixed = Vec::with_capacity(per_point.len());
+    for (f, h) in per_point {
+        start.push(hits.len() as u64);
+        hits.extend_from_slice(&h);
+        fixed.push(f * scale);
+    }
+    start.push(hits.len() as u64);
     let stats = GatherStats {
-        points: values.len() as u64,
-        rays: values.len() as u64 * k * k,
+        points: fixed.len() as u64,
+        rays: fixed.len() as u64 * (k * k) as u64,
+        cached_hits: hits.len() as u64,
         seconds: t0.elapsed().as_secs_f64(),
     };
-    (values, stats)
+    GatherCache {
+        fixed,
+        start,
+        hits,
+        scale,
+        stats,
+    }
+}
+
+impl GatherCache {
+    /// `E_i` at every point with the radiance of this iteration for the cached hits.
+    pub fn evaluate(&self, radiance: &Radiance, charts: &Charts) -> Vec<Vec3> {
+        self.fixed
+            .par_iter()
+            .enumerate()
+            .map(|(i, f)| {
+                let hits = &self.hits[self.start[i] as usize..self.start[i + 1] as usize];
+                let sum: Vec3 = hits
+                    .iter()
+                    .map(|h| radiance.lookup(charts, h.slot as usize, h.uv, h.chart).0)
+                    .sum();
+                *f + sum * self.scale
+            })
+            .collect()
+    }
 }
 
 /// Strata per side for `rays` rays.
@@ -313,15 +397,15 @@ fn strata(rays: u32) -> u32 {
     ((rays.max(1) as f64).sqrt().ceil() as u32).max(1)
 }
 
-/// `E_i` at one point: `pi` times the mean radiance seen along `k x k` stratified
-/// cosine-weighted directions about its shading normal.
-pub fn gather_point(ctx: &GatherContext, index: u64, pt: &Point) -> Vec3 {
-    let mut rng = Rng::new(ctx.seed ^ STREAM_TAG, ctx.iteration, index, 0);
+/// One point's `k x k` stratified cosine-weighted rays about its shading normal: the radiance
+/// summed over the rays that saw observed texels, and the hits on the others.
+fn trace_point(ctx: &GatherContext, index: u64, pt: &Point) -> (Vec3, Vec<CachedHit>) {
+    let mut rng = Rng::new(ctx.seed ^ STREAM_TAG, 0, index, 0);
     let k = strata(ctx.rays);
     let (u, v) = pt.n.any_orthonormal_pair();
     // Rays must leave on the side of the geometric surface the shading normal is on.
     let side = pt.n.dot(pt.ng).signum();
-    let mut sum = Vec3::ZERO;
+    let (mut sum, mut cached) = (Vec3::ZERO, Vec::new());
     for i in 0..k {
         for j in 0..k {
             let r2 = (i as f32 + rng.f32()) / k as f32;
@@ -332,24 +416,34 @@ pub fn gather_point(ctx: &GatherContext, index: u64, pt: &Point) -> Vec3 {
             if d.dot(pt.ng) * side <= 0.0 {
                 continue;
             }
-            sum += radiance_along(ctx, offset_origin(pt.p, pt.ng, d), d);
+            let Some(h) = surface_along(ctx, offset_origin(pt.p, pt.ng, d), d) else {
+                continue;
+            };
+            match ctx
+                .radiance
+                .lookup(ctx.charts, h.slot as usize, h.uv, h.chart)
+            {
+                (l, true) => sum += l,
+                (_, false) => cached.push(h),
+            }
         }
     }
-    sum * (PI / (k * k) as f32)
+    (sum, cached)
 }
 
-/// The outgoing radiance of the first surface along the ray (0 for emitters, misses and the
-/// back of one-sided surfaces).
+/// The reconstructed surface the ray sees first (`None` for emitters, misses and the back
+/// of one-sided surfaces: they send no secondary light).
 #[inline]
-fn radiance_along(ctx: &GatherContext, o: Vec3, d: Vec3) -> Vec3 {
-    let Some((hit, prim)) = ctx.hits.trace(ctx.accel, o, d, f32::INFINITY) else {
-        return Vec3::ZERO;
-    };
+fn surface_along(ctx: &GatherContext, o: Vec3, d: Vec3) -> Option<CachedHit> {
+    let (hit, prim) = ctx.hits.trace(ctx.accel, o, d, f32::INFINITY)?;
     if prim.slot == NONE || prim.chart == NONE || (prim.one_sided && d.dot(hit.ns) >= 0.0) {
-        return Vec3::ZERO;
+        return None;
     }
-    ctx.radiance
-        .lookup(ctx.charts, prim.slot as usize, hit.uv, prim.chart)
+    Some(CachedHit {
+        slot: prim.slot,
+        chart: prim.chart,
+        uv: hit.uv,
+    })
 }
 
 /// Writes the gathered `E_i` into `TexelState::accum` of every covered texel (interpolated

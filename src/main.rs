@@ -5,7 +5,7 @@
 
 use clap::{Parser, Subcommand};
 use glam::Vec3;
-use kdmap::config::{Config, Overrides, Preset};
+use kdmap::config::{Config, Method, Overrides, Preset};
 use kdmap::pipeline::{self, RunStage, Start};
 use kdmap::progress::Mode;
 use kdmap::scene::{luminance, mitsuba, Emitter, Scene, Sides};
@@ -44,7 +44,11 @@ enum Command {
         /// method); the run config and the other flags apply over it.
         #[arg(long)]
         preset: Option<Preset>,
-        /// Light paths (photons) per iteration.
+        /// How E_i is estimated: gather (from the observed radiance) or photons (the paper's
+        /// light tracing).
+        #[arg(long)]
+        method: Option<Method>,
+        /// Light paths (photons) per iteration (method photons).
         #[arg(long)]
         photons: Option<u64>,
         /// Most solver iterations.
@@ -119,6 +123,7 @@ fn run(command: Command) -> Result<()> {
             input,
             out,
             preset,
+            method,
             photons,
             iterations,
             seed,
@@ -127,6 +132,7 @@ fn run(command: Command) -> Result<()> {
         } => {
             let ov = Overrides {
                 preset,
+                method,
                 photons,
                 iterations,
                 seed,

@@ -20,7 +20,9 @@ use crate::checkpoint::{self as ck, Manifest, Writer};
 use crate::config::{Config, Method, UpdateRule};
 use crate::error::{Error, Result};
 use crate::fsio;
-use crate::gather::{gather_pass, write_accum, GatherContext, GatherPoints, Radiance};
+use crate::gather::{
+    trace_points, write_accum, GatherCache, GatherContext, GatherPoints, Radiance,
+};
 use crate::light::EmitterSampler;
 use crate::output::{write_map, write_outputs};
 use crate::photon::{
@@ -191,6 +193,7 @@ struct Run<'a> {
     /// Made on first use by the gather.
     hits: OnceLock<HitTable>,
     points: OnceLock<GatherPoints>,
+    gather: OnceLock<GatherCache>,
     window: usize,
     load_s: f64,
     atlas_s: f64,
@@ -247,6 +250,7 @@ impl<'a> Run<'a> {
             charts,
             hits: OnceLock::new(),
             points: OnceLock::new(),
+            gather: OnceLock::new(),
             window: p.window::<TexelState>(cfg),
             state_path: dir.join("state.tiles"),
             cfg,
@@ -425,7 +429,7 @@ impl<'a> Run<'a> {
         };
         let (est, rule) = match cfg.method {
             Method::Photons => (self.photon_estimate(r, n, &mut pass, sampler)?, cfg.update),
-            Method::Gather => (self.gather_estimate(r, n)?, UpdateRule::FixedPoint),
+            Method::Gather => (self.gather_estimate(r)?, UpdateRule::FixedPoint),
         };
         let t = Instant::now();
         let prev = r
@@ -505,31 +509,24 @@ impl<'a> Run<'a> {
         })
     }
 
-    /// E_i gathered from the observed radiance into `accum`.
-    fn gather_estimate(&self, r: &mut Running, n: u32) -> Result<Estimate> {
-        let (cfg, p) = (self.cfg, &self.p);
+    /// E_i gathered from the observed radiance into `accum`: the rays are cast in the first
+    /// gather of a run (or of a resumed attempt), later iterations re-read their hits.
+    fn gather_estimate(&self, r: &mut Running) -> Result<Estimate> {
+        let p = &self.p;
         let t = Instant::now();
-        let points = self.gather_points()?;
         let radiance = Radiance::from_state(&p.layout, &r.state, &self.geom)?;
-        let ctx = GatherContext {
-            accel: &p.accel,
-            hits: self.hits(),
-            charts: &self.charts,
-            radiance: &radiance,
-            seed: cfg.seed,
-            iteration: n as u64,
-            rays: cfg.gather_rays,
+        let mut rays = 0;
+        let cache = match self.gather.get() {
+            Some(c) => c,
+            None => {
+                let cache = self.trace_gather(&radiance)?;
+                rays = cache.stats.rays;
+                self.gather.get_or_init(|| cache)
+            }
         };
-        let stage = Stage::new(
-            self.mode,
-            &format!("gather {}/{}", n + 1, cfg.iterations),
-            1,
-            "passes",
-        );
-        let (values, stats) = gather_pass(&ctx, points);
-        stage.inc(1);
-        stage.finish();
-        let (layout, charts, geom) = (&p.layout, &self.charts, &self.geom);
+        let values = cache.evaluate(&radiance, &self.charts);
+        let (points, layout, charts, geom) =
+            (self.gather_points()?, &p.layout, &self.charts, &self.geom);
         write_accum(
             layout,
             points,
@@ -540,10 +537,33 @@ impl<'a> Run<'a> {
             self.window,
         )?;
         Ok(Estimate {
-            gather_rays: stats.rays,
+            gather_rays: rays,
             gather_seconds: t.elapsed().as_secs_f64(),
             ..Default::default()
         })
+    }
+
+    /// The gather's rays from every point (see `gather::GatherCache`).
+    fn trace_gather(&self, radiance: &Radiance) -> Result<GatherCache> {
+        let points = self.gather_points()?;
+        let ctx = GatherContext {
+            accel: &self.p.accel,
+            hits: self.hits(),
+            charts: &self.charts,
+            radiance,
+            seed: self.cfg.seed,
+            rays: self.cfg.gather_rays,
+        };
+        let stage = Stage::new(
+            self.mode,
+            "gather rays",
+            points.points.len() as u64,
+            "points",
+        );
+        let cache = trace_points(&ctx, points);
+        stage.inc(points.points.len() as u64);
+        stage.finish();
+        Ok(cache)
     }
 
     /// The gather points of this run (made on first use).

@@ -16,7 +16,13 @@ tools/requirements.txt, and re-runs itself in it. Then:
 3. checks report.json's re-render table against a recomputation from the EXRs with
    colour-science (tools/validate_table.py); a disagreement fails the run;
 4. renders the held-out views with Mitsuba 3 from the recovered scene.xml, under the
-   original and the relit lighting, against truth/*.exr (tools/heldout.py);
+   original and the relit lighting, against truth/*.exr, and judges the recovered albedo on
+   them (albedo AOV vs the true one over pixels a training camera saw) (tools/heldout.py);
+4b. with --anchor, runs the competitor anchor (tools/mitsuba_inverse.py: Mitsuba 3 `prb` +
+   Adam on 256x256 textures, 150 iterations) on the same scene: by default a warm-up and
+   --anchor-iterations timed iterations extrapolated to 150, with --anchor-full the real
+   150 iterations, scored by the same held-out judge; records the speed-up (anchor seconds /
+   kdmap wall seconds, both from this run) under the history key "anchor";
 5. appends one JSON line per scene to the history (default bench-history/history.jsonl,
    git-ignored; --history or $KDMAP_BENCH_HISTORY to keep it elsewhere) and redraws the
    PNG plots beside it (tools/plot_history.py).
@@ -41,6 +47,7 @@ VENV = os.path.join(REPO, ".venv")
 VENV_PY = os.path.join(VENV, "bin", "python")
 REQUIREMENTS = os.path.join(TOOLS, "requirements.txt")
 SCENES = ["cbox", "cbox-tex", "lights"]
+ANCHOR_TIMED_ITERATIONS = 3  # --anchor without --anchor-full: warm-up + this many, extrapolated
 QUICK = {"photons": 200_000, "iterations": 2, "spp": 8}
 DEFAULT_SPP = 64
 
@@ -213,10 +220,103 @@ def run_scene(scene, args, kdmap, logs):
                      for k in ("original", "relit") if k in m]
             log(f"{scene}: Mitsuba held-out at {args.spp} spp: " + "; ".join(parts)
                 + f" [{m['seconds']:.0f} s]")
+            alb = m.get("albedo", {})
+            if "error" in alb:
+                rec["failures"].append(f"{scene}: held-out albedo judge failed: {alb['error']}")
+            elif alb:
+                log(f"{scene}: held-out albedo over {alb['masked_pixels']} pixels seen in "
+                    f"training ({100 * alb['masked_fraction']:.1f}%): mean rel. "
+                    f"{100 * alb['albedo_mean_rel_error']:.2f}%, rel. L1 "
+                    f"{100 * alb['albedo_rel_l1']:.2f}%")
         except Exception as e:  # a Mitsuba failure is a finding, not a crash of the harness
             rec["failures"].append(f"{scene}: Mitsuba held-out scoring failed: "
                                    f"{type(e).__name__}: {e}")
+    if args.anchor:
+        rec["anchor"] = run_anchor(scene, scene_dir, args, rec, logs)
     return rec
+
+
+HELDOUT_FIGURES = [("albedo", "albedo_mean_rel_error"), ("albedo", "albedo_rel_l1"),
+                   ("original", "rel_l1_error"), ("original", "mean_rel_lum_error"),
+                   ("original", "block8_rel_lum_error"), ("relit", "rel_l1_error"),
+                   ("relit", "mean_rel_lum_error"), ("relit", "block8_rel_lum_error")]
+
+
+def run_anchor(scene, scene_dir, args, rec, logs):
+    """The competitor anchor on `scene` (a subprocess: its own Mitsuba variant and Dr.Jit
+    threads); returns the history record's "anchor" entry."""
+    out = os.path.join(args.out, "anchor", scene)
+    if os.path.exists(out):
+        shutil.rmtree(out)
+    cmd = [sys.executable, os.path.join(TOOLS, "mitsuba_inverse.py"), scene_dir, "--out", out]
+    if args.anchor_full:
+        cmd += ["--iterations", str(args.anchor_full)]
+    else:
+        cmd += ["--time-only", str(args.anchor_iterations)]
+    if args.threads is not None:
+        cmd += ["--threads", str(args.threads)]
+    a = {"mode": "full" if args.anchor_full else "time_only",
+         "iterations": args.anchor_full or 150,
+         "command": " ".join(os.path.relpath(c, REPO) if os.path.isabs(c) else c for c in cmd)}
+    log(f"{scene}: anchor: {a['command']}")
+    log_path = os.path.join(logs, f"{scene}-anchor.log")
+    code, wall, rss = run_measured(cmd, log_path)
+    a.update(exit_code=code, wall_seconds=wall, peak_rss_mib=rss)
+    js = os.path.join(out, "anchor.json")
+    if code != 0 or not os.path.exists(js):
+        rec["failures"].append(f"{scene}: anchor (tools/mitsuba_inverse.py) exited {code}: "
+                               f"{tail(log_path)}")
+        return a
+    with open(js) as f:
+        aj = json.load(f)
+    for k in ("settings", "shapes", "skipped", "views", "load_seconds", "warmup_seconds",
+              "compile_seconds", "seconds_per_iteration", "extrapolated_iterations",
+              "extrapolated_seconds", "optimize_seconds", "measured_iterations",
+              "iteration_seconds", "loss", "machine"):
+        a[k] = aj.get(k)
+    kd = rec.get("wall_seconds") if rec.get("exit_code") == 0 else None
+    a["kdmap_wall_seconds"] = kd
+    # The anchor's time: its measured optimisation (every iteration, the JIT warm-up included)
+    # in a full run, else warm-up + K iterations extrapolated to 150. Scene loading (~0.1 s)
+    # and Python start-up are left out, in the anchor's favour.
+    a["anchor_seconds"] = aj["optimize_seconds"] if args.anchor_full else aj["extrapolated_seconds"]
+    a["speedup"] = a["anchor_seconds"] / kd if kd else None
+    a["speedup_extrapolated"] = aj["extrapolated_seconds"] / kd if kd else None
+    msg = (f"{scene}: anchor {aj['seconds_per_iteration']:.2f} s/iteration, compile "
+           f"{aj['compile_seconds']:.1f} s, {aj['extrapolated_iterations']} iterations "
+           f"extrapolated {aj['extrapolated_seconds']:.0f} s")
+    if args.anchor_full:
+        msg += f" (measured: {aj['optimize_seconds']:.0f} s optimising, {wall:.0f} s process)"
+    if kd:
+        msg += f"; kdmap {kd:.1f} s: speed-up x{a['speedup']:.1f}"
+    log(msg)
+    if args.anchor_full and not args.no_mitsuba:
+        import heldout
+
+        t0 = time.perf_counter()
+        try:
+            m = heldout.score(out, scene_dir, spp=args.spp)
+            m["seconds"] = time.perf_counter() - t0
+            a["mitsuba"] = m
+            a["compare"] = {}
+            for part, key in HELDOUT_FIGURES:
+                a["compare"][f"{part}.{key}"] = {
+                    "kdmap": (rec.get("mitsuba") or {}).get(part, {}).get(key),
+                    "anchor": m.get(part, {}).get(key)}
+            log(f"{scene}: held-out, kdmap vs anchor: " + "; ".join(
+                f"{k} {_pct(v['kdmap'])} vs {_pct(v['anchor'])}"
+                for k, v in a["compare"].items()))
+            if "error" in m.get("albedo", {}):
+                rec["failures"].append(f"{scene}: held-out albedo judge failed on the anchor: "
+                                       f"{m['albedo']['error']}")
+        except Exception as e:
+            rec["failures"].append(f"{scene}: Mitsuba held-out scoring of the anchor failed: "
+                                   f"{type(e).__name__}: {e}")
+    return a
+
+
+def _pct(v):
+    return "-" if v is None else f"{100 * v:.2f}%"
 
 
 def main():
@@ -245,7 +345,23 @@ def main():
     ap.add_argument("--kdmap", help="kdmap binary to measure (default: target/release/kdmap; "
                     "implies --no-build)")
     ap.add_argument("--fixtures", default=os.path.join(REPO, "tests", "fixtures"))
+    ap.add_argument("--anchor", action="store_true",
+                    help="also run the competitor anchor (tools/mitsuba_inverse.py, Mitsuba 3 "
+                    "prb + Adam) per scene and record the speed-up")
+    ap.add_argument("--anchor-iterations", type=int, default=ANCHOR_TIMED_ITERATIONS,
+                    metavar="K", help="anchor: timed iterations after the warm-up, "
+                    "extrapolated to 150 (default %(default)s)")
+    ap.add_argument("--anchor-full", nargs="?", type=int, const=150, metavar="N",
+                    help="anchor: really run the 150 iterations (N: another count, for trying "
+                    "the harness; not the anchor's definition) and score the result with the "
+                    "held-out judge (implies --anchor)")
     args = ap.parse_args()
+    if args.anchor_full is not None and args.anchor_full < 1:
+        ap.error("--anchor-full N needs N >= 1")
+    if args.anchor_full:
+        args.anchor = True
+    if args.anchor_iterations < 1:
+        ap.error("--anchor-iterations must be >= 1")
 
     ensure_venv()
     sys.path.insert(0, TOOLS)
@@ -327,8 +443,9 @@ def print_summary(records):
         return d
 
     print("\n| scene | albedo mean rel. | albedo rel. L1 | re-render RMS | total s | photons s | "
-          "M photons/s | peak RSS MiB | Mitsuba orig. L1 | Mitsuba relit L1 | table check |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+          "M photons/s | peak RSS MiB | Mitsuba orig. L1 | Mitsuba relit L1 | "
+          "held-out albedo mean rel. | held-out albedo rel. L1 | table check |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in records:
         pps = r.get("photons_per_second")
         print(f"| {r['scene']} | {pct(g(r, 'accuracy', 'mean_rel_error'))} | "
@@ -337,7 +454,34 @@ def print_summary(records):
               f"{(pps or 0) / 1e6:.2f} | {r.get('peak_rss_mib', 0):.0f} | "
               f"{pct(g(r, 'mitsuba', 'original', 'rel_l1_error'))} | "
               f"{pct(g(r, 'mitsuba', 'relit', 'rel_l1_error'))} | "
+              f"{pct(g(r, 'mitsuba', 'albedo', 'albedo_mean_rel_error'))} | "
+              f"{pct(g(r, 'mitsuba', 'albedo', 'albedo_rel_l1'))} | "
               f"{'OK' if g(r, 'table_check', 'ok') else 'FAIL'} |")
+    anchored = [r for r in records if r.get("anchor")]
+    if anchored:
+        print("\n| scene | anchor mode (iterations) | anchor s/it. | compile s | anchor s | "
+              "kdmap s | speed-up | held-out albedo mean rel. kdmap / anchor | albedo rel. L1 | "
+              "orig. L1 | relit L1 |")
+        print("|---|---|---|---|---|---|---|---|---|---|---|")
+        for r in anchored:
+            a = r["anchor"]
+            cmp_ = a.get("compare", {})
+
+            def both(k):
+                c = cmp_.get(k)
+                return "-" if not c else f"{pct(c['kdmap'])} / {pct(c['anchor'])}"
+
+            def num(v, f="{:.2f}"):
+                return "-" if v is None else f.format(v)
+
+            print(f"| {r['scene']} | {a.get('mode')} ({a.get('iterations')}) | "
+                  f"{num(a.get('seconds_per_iteration'))} | "
+                  f"{num(a.get('compile_seconds'), '{:.1f}')} | "
+                  f"{num(a.get('anchor_seconds'), '{:.0f}')} | "
+                  f"{num(a.get('kdmap_wall_seconds'), '{:.1f}')} | "
+                  f"{num(a.get('speedup'), 'x{:.1f}')} | {both('albedo.albedo_mean_rel_error')} | "
+                  f"{both('albedo.albedo_rel_l1')} | {both('original.rel_l1_error')} | "
+                  f"{both('relit.rel_l1_error')} |")
     for r in records:
         acc = r.get("accuracy")
         if not acc:

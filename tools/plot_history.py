@@ -4,9 +4,10 @@
     .venv/bin/python tools/plot_history.py [bench-history/history.jsonl] [--out DIR]
 
 Writes into DIR (default: `plots/` beside the history file) per scene `<scene>.png`: albedo
-error, re-render error, Mitsuba held-out error, reconstruction time by stage, photons per second
-and peak memory over runs; and `summary.png`: albedo error and total time of every scene. Full
-runs are drawn with solid lines and circles, `--quick` runs with dotted lines and crosses.
+error, re-render error, Mitsuba held-out error (images, and the held-out albedo judge's rel. L1),
+reconstruction time by stage, photons per second and peak memory over runs; and `summary.png`:
+albedo error and total time of every scene. Full runs are drawn with solid lines and circles,
+`--quick` runs with dotted lines and crosses.
 """
 
 import argparse
@@ -73,7 +74,8 @@ def plot(history, out_dir):
                 ("original light", lambda r: _pct(_get(r, "mitsuba", "original", "rel_l1_error"))),
                 ("relit", lambda r: _pct(_get(r, "mitsuba", "relit", "rel_l1_error"))),
                 ("original, 8x8 blocks", lambda r: _pct(_get(r, "mitsuba", "original", "block8_rel_lum_error"))),
-                ("relit, 8x8 blocks", lambda r: _pct(_get(r, "mitsuba", "relit", "block8_rel_lum_error")))]),
+                ("relit, 8x8 blocks", lambda r: _pct(_get(r, "mitsuba", "relit", "block8_rel_lum_error"))),
+                ("albedo (AOV, seen pixels)", lambda r: _pct(_get(r, "mitsuba", "albedo", "albedo_rel_l1")))]),
             (ax[1, 0], "time per stage (s)", [
                 (k, (lambda k: lambda r: _get(r, "timings", k))(k))
                 for k in ("total", "photons", "direct", "projection", "update", "output")]),

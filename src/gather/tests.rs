@@ -101,11 +101,11 @@ impl Fixture {
             charts: &self.charts,
             radiance: &radiance,
             seed: 5,
-            iteration: 1,
             rays,
         };
-        let (values, stats) = gather_pass(&ctx, &points);
-        assert_eq!(stats.points as usize, points.points.len());
+        let cache = trace_points(&ctx, &points);
+        assert_eq!(cache.stats.points as usize, points.points.len());
+        let values = cache.evaluate(&radiance, &self.charts);
         (points, values)
     }
 
@@ -279,12 +279,12 @@ fn radiance_lookup_ignores_other_charts() {
     let mut rad = Radiance::from_state(&fx.p.layout, &fx.state, &fx.geom).unwrap();
     // poison every texel of chart 0
     let tc = &fx.charts.slots[0].texel_chart;
-    for (v, &c) in rad.slots[0].2.iter_mut().zip(tc) {
+    for (v, &c) in rad.slots[0].texels.iter_mut().zip(tc) {
         if c == 0 {
             *v = Vec3::splat(1e6);
         }
     }
-    let (w, h) = (rad.slots[0].0, rad.slots[0].1);
+    let (w, h) = (rad.slots[0].width, rad.slots[0].height);
     let mut checked = 0;
     for y in 0..h {
         for x in 0..w {
@@ -294,7 +294,11 @@ fn radiance_lookup_ignores_other_charts() {
             }
             for (dx, dy) in [(0.0, 0.0), (0.9, 0.1), (0.5, 0.99)] {
                 let uv = Vec2::new(x as f32 + dx, y as f32 + dy);
-                assert_eq!(rad.lookup(&fx.charts, 0, uv, c), Vec3::ONE, "({x}, {y})");
+                assert_eq!(
+                    rad.lookup(&fx.charts, 0, uv, c),
+                    (Vec3::ONE, true),
+                    "({x}, {y})"
+                );
                 checked += 1;
             }
         }
@@ -329,4 +333,54 @@ fn gather_is_bit_identical_across_thread_counts() {
     };
     let (a, b) = (run(1), run(2));
     assert_eq!(a, b);
+}
+
+/// Rays cast once and their unobserved hits re-read with new estimates give what casting the
+/// rays again with those estimates gives (the cache is exact, not an approximation).
+#[test]
+fn cached_hits_reevaluate_like_a_fresh_trace() {
+    let mut m = mesh::sphere();
+    mesh::flip_normals(&mut m);
+    let mut inner = mesh::sphere();
+    inner.transform(
+        &(Mat4::from_translation(Vec3::new(0.2, 0.1, 0.0)) * Mat4::from_scale(Vec3::splat(0.3))),
+    );
+    let mut fx = Fixture::new(
+        vec![shape("room", m, None), shape("ball", inner, None)],
+        12.0,
+    );
+    fx.observe("room", Vec3::new(0.3, 0.2, 0.1));
+    fx.set("ball", |s| {
+        s.k_d = [0.4; 3];
+        s.e_d = [1.0, 2.0, 3.0];
+    });
+    let points = GatherPoints::new(&fx.p, &fx.geom, &fx.charts, 0.2).unwrap();
+    let trace = |fx: &Fixture| {
+        let radiance = Radiance::from_state(&fx.p.layout, &fx.state, &fx.geom).unwrap();
+        let ctx = GatherContext {
+            accel: &fx.p.accel,
+            hits: &fx.hits,
+            charts: &fx.charts,
+            radiance: &radiance,
+            seed: 5,
+            rays: 36,
+        };
+        (trace_points(&ctx, &points), radiance)
+    };
+    let (cache, _) = trace(&fx);
+    assert!(cache.stats.cached_hits > 0 && cache.stats.cached_hits < cache.stats.rays);
+    // the ball's estimate changes; the room (observed) does not
+    fx.set("ball", |s| {
+        s.k_d = [0.8, 0.5, 0.2];
+        s.e_i = [0.5; 3];
+    });
+    let (fresh, radiance) = trace(&fx);
+    let a = cache.evaluate(&radiance, &fx.charts);
+    let b = fresh.evaluate(&radiance, &fx.charts);
+    for (a, b) in a.iter().zip(&b) {
+        assert!(
+            (*a - *b).abs().max_element() <= 1e-5 * b.max_element().max(1e-3),
+            "{a} vs {b}"
+        );
+    }
 }

@@ -13,19 +13,40 @@ use kdmap::accuracy::ShapeAccuracy;
 use kdmap::atlas::layout::{TexelGeom, TexelState};
 use kdmap::atlas::tiles::TileStore;
 use kdmap::atlas::{prepare, state_dir};
-use kdmap::config::Config;
+use kdmap::config::{Config, Method};
 use kdmap::pipeline::{reconstruct, run_projection};
 use kdmap::progress::Mode;
 use kdmap::scene::truth::{Reflectance, Truth};
 use std::path::Path;
 
-fn run(scene: &str, photons: u64, iterations: u32) -> (Config, Vec<ShapeAccuracy>) {
+/// How a test runs the solver.
+#[derive(Clone, Copy)]
+enum Solver {
+    /// The gather, at the default settings.
+    Gather,
+    /// Photon tracing: photons per iteration, iterations.
+    Photons(u64, u32),
+}
+
+fn run(scene: &str, solver: Solver) -> (Config, Vec<ShapeAccuracy>) {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("tests/fixtures")
         .join(scene);
     let mut cfg = Config::for_scene(root.join("input.xml"));
-    cfg.photons = std::env::var("KDMAP_PHOTONS").map_or(photons, |v| v.parse().unwrap());
-    cfg.iterations = std::env::var("KDMAP_ITERATIONS").map_or(iterations, |v| v.parse().unwrap());
+    if let Solver::Photons(photons, iterations) = solver {
+        cfg.method = Method::Photons;
+        cfg.photons = photons;
+        cfg.iterations = iterations;
+    }
+    if let Ok(v) = std::env::var("KDMAP_PHOTONS") {
+        cfg.photons = v.parse().unwrap();
+    }
+    if let Ok(v) = std::env::var("KDMAP_ITERATIONS") {
+        cfg.iterations = v.parse().unwrap();
+    }
+    if let Ok(v) = std::env::var("KDMAP_GATHER_RAYS") {
+        cfg.gather_rays = v.parse().unwrap();
+    }
     if let Ok(v) = std::env::var("KDMAP_DENSITY") {
         cfg.atlas.texels_per_unit = v.parse().unwrap();
     }
@@ -132,8 +153,8 @@ fn mean_rgb_error(a: &ShapeAccuracy) -> f64 {
         .fold(0.0, f64::max)
 }
 
-fn check_cbox(photons: u64, iterations: u32, max_scene_error: f64, max_wall_rgb: f64) {
-    let (_, acc) = run("cbox", photons, iterations);
+fn check_cbox(solver: Solver, max_scene_error: f64, max_wall_rgb: f64) {
+    let (_, acc) = run("cbox", solver);
     let e = scene_error(&acc);
     eprintln!(
         "cbox: mean relative albedo error {:.2}% over observed texels",
@@ -174,11 +195,11 @@ struct TexBounds {
 
 /// A scene with textured shapes (and `<scene>/albedo/` images for its floor) against
 /// [`TexBounds`].
-fn check_textured(scene: &str, photons: u64, iterations: u32, b: TexBounds) {
+fn check_textured(scene: &str, solver: Solver, b: TexBounds) {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("tests/fixtures")
         .join(scene);
-    let (cfg, acc) = run(scene, photons, iterations);
+    let (cfg, acc) = run(scene, solver);
     let fl = floor(&root, &cfg);
     let truth = Truth::load(&root.join("truth.xml")).unwrap();
     eprintln!(
@@ -247,61 +268,69 @@ fn check_textured(scene: &str, photons: u64, iterations: u32, b: TexBounds) {
     );
 }
 
-/// CI-sized: 1e6 photons per iteration (a tenth of full size), 4 iterations. Measured here:
-/// 4.7% mean error, walls' mean RGB within 1.9%; photon noise dominates at this size.
+/// The default method (the gather) at its default settings, which are also CI-sized (a few
+/// seconds). Measured: 1.78% mean error, walls' mean RGB within 0.6%.
 #[test]
 fn cbox_albedo_is_recovered() {
-    check_cbox(1_000_000, 4, 0.06, 0.025);
+    check_cbox(Solver::Gather, 0.025, 0.012);
 }
 
-/// CI-sized (photon noise dominates at 1e6: measured 3-10% on uniform shapes, 5.7% over
-/// them together; textured ones 1-5.5 points above their floor).
+/// The paper's photon tracing, CI-sized: 1e6 photons per iteration (a tenth of full size), 4
+/// iterations. Measured: 4.7% mean error, walls' mean RGB within 1.9%; photon noise
+/// dominates at this size.
+#[test]
+fn cbox_albedo_by_photons_is_recovered() {
+    check_cbox(Solver::Photons(1_000_000, 4), 0.06, 0.025);
+}
+
+/// The default method at its default settings: uniform shapes within 3.5% together and 6%
+/// each, textured shapes within 2 points of their resolution floor, mean colours within 3%.
 #[test]
 fn cbox_tex_albedo_is_recovered() {
     let b = TexBounds {
-        uniform: 0.08,
-        uniform_each: 0.12,
-        margin: 0.07,
-        bias: 0.08,
+        uniform: 0.035,
+        uniform_each: 0.06,
+        margin: 0.02,
+        bias: 0.03,
     };
-    check_textured("cbox-tex", 1_000_000, 4, b);
+    check_textured("cbox-tex", Solver::Gather, b);
 }
 
-/// The full-size target: 1e7 photons, 6 iterations, at most 3% mean error and the
-/// uniform walls' mean RGB within 1%. About a minute each on 2 cores:
+/// Photon tracing at the paper's full size: 1e7 photons, 6 iterations, at most 3% mean error
+/// and the uniform walls' mean RGB within 1%. About a minute on 2 cores:
 /// `cargo test --release --test it accuracy:: -- --ignored --nocapture`.
 #[test]
-#[ignore = "full size, ~1 min per scene; run for the README figures"]
-fn full_size_cbox() {
-    check_cbox(10_000_000, 6, 0.03, 0.01);
+#[ignore = "full size, ~1 min; run for the README figures"]
+fn full_size_cbox_by_photons() {
+    check_cbox(Solver::Photons(10_000_000, 6), 0.03, 0.01);
 }
 
-/// Full size: the uniform shapes within 3% together (5% each), textured shapes within 2.5
-/// points of their resolution floor (measured: 2.46% together, 1.3-4.2% each; textured
-/// shapes 0-2 points above the floor), mean colours within 3% (measured 1.7% at most).
+/// Photon tracing at full size on cbox-tex: the uniform shapes within 3% together (5% each),
+/// textured shapes within 2.5 points of their resolution floor (measured: 2.46% together,
+/// 1.3-4.2% each; textured shapes 0-2 points above the floor), mean colours within 3%.
 #[test]
-#[ignore = "full size, ~1 min per scene; run for the README figures"]
-fn full_size_cbox_tex() {
+#[ignore = "full size, ~1 min; run for the README figures"]
+fn full_size_cbox_tex_by_photons() {
     let b = TexBounds {
         uniform: 0.03,
         uniform_each: 0.05,
         margin: 0.025,
         bias: 0.03,
     };
-    check_textured("cbox-tex", 10_000_000, 6, b);
+    check_textured("cbox-tex", Solver::Photons(10_000_000, 6), b);
 }
 
 /// `lights` (open scene, point/spot/directional lights, textured ground and crate, half of
-/// the surface never seen): the same checks as cbox-tex against its own resolution floor
-/// (`tests/fixtures/lights/albedo/`).
+/// the surface never seen), default method: the same checks as cbox-tex against its own
+/// resolution floor (`tests/fixtures/lights/albedo/`), with looser bounds on the uniform
+/// shapes (the ball is curved and half of it is lit by one light only).
 #[test]
-#[ignore = "full size, ~30 s; run for the README figures"]
-fn full_size_lights() {
+fn lights_albedo_is_recovered() {
     let b = TexBounds {
-        uniform: 1.0,
-        uniform_each: 1.0,
-        margin: 1.0,
-        bias: 1.0,
+        uniform: 0.05,
+        uniform_each: 0.06,
+        margin: 0.02,
+        bias: 0.05,
     };
-    check_textured("lights", 10_000_000, 6, b);
+    check_textured("lights", Solver::Gather, b);
 }

@@ -15,13 +15,15 @@ fn scene() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/cbox/input.xml")
 }
 
-/// A small run config: coarse atlas, few area samples, small batches and a checkpoint after
-/// every group of batches, so a photon pass has many checkpoints.
+/// A small run config of the photon method (the one with mid-pass checkpoints): coarse
+/// atlas, few area samples, small batches and a checkpoint after every group of batches, so a
+/// photon pass has many checkpoints.
 fn write_config(dir: &Path) -> PathBuf {
     let p = dir.join("run.toml");
     let text = format!(
         "scene = {:?}\n[atlas]\ntexels_per_unit = 24.0\n[direct]\narea_samples = 4\n\
-         [photons]\nbatch_size = 1024\n[run]\ncheckpoint_every_batches = 1\n",
+         [photons]\nbatch_size = 1024\n[solver]\nmethod = \"photons\"\n\
+         [run]\ncheckpoint_every_batches = 1\n",
         scene().to_str().unwrap()
     );
     std::fs::write(&p, text).unwrap();
@@ -316,7 +318,9 @@ fn runs_killed_inside_a_checkpoint_write_resume_bit_for_bit() {
 fn secant_update_resumes_bit_for_bit() {
     let tmp = tempfile::tempdir().unwrap();
     let cfg = write_fast_config(tmp.path());
-    let text = std::fs::read_to_string(&cfg).unwrap() + "[solver]\nupdate = \"secant\"\n";
+    let text = std::fs::read_to_string(&cfg)
+        .unwrap()
+        .replace("[solver]", "[solver]\nupdate = \"secant\"");
     std::fs::write(&cfg, text).unwrap();
     let full = tmp.path().join("full");
     let o = run(&fast_args(&cfg, &full));
@@ -338,6 +342,52 @@ fn secant_update_resumes_bit_for_bit() {
     kill_paused(&a, &out, "pause-in-checkpoint:7");
     assert_eq!(manifest(&out).map(|m| m.seq), Some(6));
     let mut resume = a.clone();
+    resume.push("--resume");
+    let o = run(&resume);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_same_outputs(&full, &out);
+}
+
+/// The gather (the default method): a run killed after its first iteration's checkpoint casts
+/// the same rays again on resume and ends bit-identical to an uninterrupted run.
+#[test]
+fn gather_run_resumes_bit_for_bit() {
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg = tmp.path().join("run.toml");
+    let text = format!(
+        "scene = {:?}\n[atlas]\ntexels_per_unit = 24.0\n[projection]\nrefine_passes = 0\n\
+         [direct]\narea_samples = 4\n[gather]\nrays = 64\n",
+        scene().to_str().unwrap()
+    );
+    std::fs::write(&cfg, text).unwrap();
+    let a = |out: &Path| -> Vec<String> {
+        [
+            "reconstruct",
+            cfg.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--iterations",
+            "3",
+        ]
+        .map(String::from)
+        .to_vec()
+    };
+    let full = tmp.path().join("full");
+    let o = run(&a(&full).iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let out = tmp.path().join("killed");
+    let args = a(&out);
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    // checkpoint 2 is iteration 1's end: pause inside checkpoint 3 (iteration 2's end)
+    kill_paused(&args, &out, "pause-in-checkpoint:3");
+    assert!(matches!(
+        manifest(&out).map(|m| m.payload.stage),
+        Some(RunStage::Iterations {
+            iterations_done: 1,
+            ..
+        })
+    ));
+    let mut resume = args.clone();
     resume.push("--resume");
     let o = run(&resume);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
