@@ -310,8 +310,10 @@ impl<'a> Run<'a> {
             observed_texels: ps.observed_texels,
         };
         let t = Instant::now();
-        let mean_e = direct::run(p, cfg, &self.geom, &mut state, mode)?;
+        let direct = direct::run(p, cfg, &self.charts, &self.geom, &mut state, mode)?;
         report.timings.direct = t.elapsed().as_secs_f64();
+        report.counts.dense_direct_texels = direct.dense;
+        let mean_e = direct.mean;
         let share = cfg.initial_indirect_share;
         map_tiles(&mut state, &self.geom, self.window, |_, g, s| {
             init_indirect_tile(s, g, share, mean_e)
@@ -660,6 +662,7 @@ impl<'a> Run<'a> {
             covered_texels: proj.covered_texels,
             observed_texels: proj.observed_texels,
             filled_texels: filled,
+            dense_direct_texels: r.report.counts.dense_direct_texels,
         };
         r.report.timings.total = r.elapsed();
         write_outputs(p, &self.geom, &r.state, &mut r.report, self.out)?;

@@ -75,6 +75,10 @@ pub struct Counts {
     pub observed_texels: u64,
     /// Covered texels no view saw (K_d filled from neighbours).
     pub filled_texels: u64,
+    /// Covered texels whose direct light was estimated densely (a shadow edge or penumbra
+    /// crosses them or a neighbour).
+    #[serde(default)]
+    pub dense_direct_texels: u64,
 }
 
 /// One row of the paper's comparison table: one shape seen from one view, over the pixels

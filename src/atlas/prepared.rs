@@ -12,7 +12,7 @@ use crate::error::{Error, Result};
 use crate::fsio::Fnv;
 use crate::progress::{note, Mode};
 use crate::scene::{mitsuba, Mesh, Scene, Sides};
-use glam::Vec2;
+use glam::{Vec2, Vec3};
 use std::path::{Path, PathBuf};
 
 /// The scene with its acceleration structure, atlases and tile layout: everything fixed.
@@ -34,6 +34,29 @@ pub struct ShapeRef<'a> {
     pub sides: Sides,
     /// Per-triangle corner UVs in texel units.
     pub corner_uv: &'a [[Vec2; 3]],
+}
+
+impl ShapeRef<'_> {
+    /// World-space edge vectors of one texel on triangle `tri`: `(dP/dx, dP/dy)`, the sides
+    /// of the texel's square on the triangle's plane.
+    pub fn texel_edges(&self, tri: usize) -> (Vec3, Vec3) {
+        texel_jacobian(self.mesh, tri, &self.corner_uv[tri])
+    }
+}
+
+/// World-space edge vectors of one texel on triangle `tri` of `mesh`, whose corners sit at
+/// texel coordinates `uv`: `(dP/dx, dP/dy)`; zero for a triangle without texture area.
+pub fn texel_jacobian(mesh: &Mesh, tri: usize, uv: &[Vec2; 3]) -> (Vec3, Vec3) {
+    let [p0, p1, p2] = mesh.triangle(tri);
+    let (e1, e2) = (p1 - p0, p2 - p0);
+    let (d1, d2) = (uv[1] - uv[0], uv[2] - uv[0]);
+    let det = d1.x * d2.y - d1.y * d2.x;
+    if det == 0.0 || !det.is_finite() {
+        return (Vec3::ZERO, Vec3::ZERO);
+    }
+    let dpdx = (e1 * d2.y - e2 * d1.y) / det;
+    let dpdy = (e2 * d1.x - e1 * d2.x) / det;
+    (dpdx, dpdy)
 }
 
 /// Where a run keeps its tile stores (and its checkpoints): `<out>/checkpoint`.
@@ -226,5 +249,33 @@ impl Prepared {
             hash_file(photo)?;
         }
         Ok(h.finish())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn jacobian_maps_texel_steps_to_world_steps() {
+        let mesh = Mesh {
+            positions: vec![
+                Vec3::ZERO,
+                Vec3::new(2.0, 0.0, 0.0),
+                Vec3::new(0.0, 0.0, 3.0),
+            ],
+            normals: None,
+            uvs: None,
+            triangles: vec![[0, 1, 2]],
+        };
+        // 10 texels along x cover 2 units; 30 texels along y cover 3 units
+        let uv = [
+            Vec2::new(5.0, 5.0),
+            Vec2::new(15.0, 5.0),
+            Vec2::new(5.0, 35.0),
+        ];
+        let (dx, dy) = texel_jacobian(&mesh, 0, &uv);
+        assert!((dx - Vec3::new(0.2, 0.0, 0.0)).length() < 1e-6, "{dx}");
+        assert!((dy - Vec3::new(0.0, 0.0, 0.1)).length() < 1e-6, "{dy}");
     }
 }

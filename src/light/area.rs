@@ -13,7 +13,7 @@
 //! Mitsuba's per-point rule up to the analytic part's flat-triangle approximation. For flat
 //! emitters the two rules agree exactly.
 
-use super::DirectParams;
+use super::{DirectParams, Footprint, Reach};
 use crate::accel::Accel;
 use crate::rng::Rng;
 use crate::scene::Mesh;
@@ -22,20 +22,22 @@ use glam::{DVec3, Vec3};
 /// Mixed into the seed so these streams never coincide with the photon tracer's.
 const STREAM_TAG: u64 = 0xa11c_e5ad_0d1e_c700;
 
-/// Irradiance at `p` per unit radiance of the emitter `mesh` (multiply by `L` per channel).
-/// `stream = (seed, emitter index, receiver index)` keys the shadow samples.
+/// Mean irradiance over footprint `fp` per unit radiance of the emitter `mesh` (multiply by
+/// `L` per channel), and whether some triangle was partly visible (a penumbra). `stream =
+/// (seed, emitter index, receiver index)` keys the shadow samples; `dense` skips the first
+/// pass (see [`super::texel_irradiance`]).
 pub(crate) fn irradiance_factor(
     mesh: &Mesh,
     accel: &Accel,
-    p: Vec3,
-    n: Vec3,
-    ng: Vec3,
+    fp: &Footprint,
     params: &DirectParams,
     stream: (u64, u64, u64),
-) -> f64 {
-    let nd = n.as_dvec3();
-    let pd = p.as_dvec3();
-    let mut total = 0.0;
+    dense: bool,
+) -> (f64, Reach) {
+    let nd = fp.n.as_dvec3();
+    let pd = fp.p.as_dvec3();
+    let (mut total, mut lit, mut dark, mut partial) = (0.0, false, false, false);
+    let area = mesh.area();
     for t in 0..mesh.triangles.len() {
         let Some(front) = front_normal(mesh, t) else {
             continue;
@@ -54,43 +56,66 @@ pub(crate) fn irradiance_factor(
         if unoccluded <= 0.0 || !unoccluded.is_finite() {
             continue;
         }
-        let vis = if params.area_samples == 0 {
-            1.0
-        } else {
-            let mut rng = Rng::new(stream.0 ^ STREAM_TAG, stream.1, t as u64, stream.2);
-            let tri = Target {
-                mesh,
-                t,
-                front,
-                accel,
-            };
-            let (w, v) = tri.stratified(p, n, ng, params.area_samples, &mut rng);
-            if w > 0.0 {
-                let vis = v / w;
-                if vis > 0.0 && vis < 1.0 && params.penumbra_samples > params.area_samples {
-                    // A penumbra: estimate again, with many more strata.
-                    let (w2, v2) = tri.stratified(p, n, ng, params.penumbra_samples, &mut rng);
-                    if w2 > 0.0 {
-                        v2 / w2
-                    } else {
-                        vis
-                    }
-                } else {
-                    vis
-                }
-            } else {
-                // No sample landed where the clipped polygon lies (a sliver above the
-                // horizon): one shadow ray to its centroid decides.
-                let cen = poly[..m].iter().sum::<DVec3>() / m as f64;
-                let y = (pd + cen).as_vec3();
-                if super::visible_to(accel, p, ng, y) {
-                    1.0
-                } else {
-                    0.0
-                }
-            }
+        if params.area_samples == 0 {
+            total += unoccluded;
+            lit = true;
+            continue;
+        }
+        let mut rng = Rng::new(stream.0 ^ STREAM_TAG, stream.1, t as u64, stream.2);
+        let tri = Target {
+            mesh,
+            t,
+            front,
+            accel,
         };
+        // The penumbra budget is the emitter's, shared by its triangles by area.
+        let share = (mesh.triangle_area(t) as f64 / area).clamp(0.0, 1.0);
+        let dense_n =
+            ((params.penumbra_samples as f64 * share).ceil() as u32).max(params.area_samples);
+        let (vis, part) = tri.visibility(
+            fp,
+            (params.area_samples, dense_n),
+            &mut rng,
+            dense,
+            &poly[..m],
+        );
+        partial |= part;
+        lit |= vis >= 1.0;
+        dark |= vis <= 0.0;
         total += unoccluded * vis;
+    }
+    let reach = if partial || (lit && dark) {
+        Reach::Partial
+    } else if lit {
+        Reach::Lit
+    } else {
+        Reach::Dark
+    };
+    (total, reach)
+}
+
+/// The unoccluded irradiance at `p` (normal `n`) per unit radiance of the emitter `mesh`:
+/// Lambert's formula over its triangles, clipped to the hemisphere; no rays.
+pub(crate) fn unoccluded_factor(mesh: &Mesh, p: Vec3, n: Vec3) -> f64 {
+    let (nd, pd) = (n.as_dvec3(), p.as_dvec3());
+    let mut total = 0.0;
+    for t in 0..mesh.triangles.len() {
+        let Some(front) = front_normal(mesh, t) else {
+            continue;
+        };
+        let [a, b, c] = mesh.triangle(t);
+        let v = [a.as_dvec3() - pd, b.as_dvec3() - pd, c.as_dvec3() - pd];
+        if v[0].dot(front) >= 0.0 {
+            continue;
+        }
+        let (poly, m) = clip_to_hemisphere(v, nd);
+        if m < 3 {
+            continue;
+        }
+        let u = projected_solid_angle(&poly[..m], nd);
+        if u > 0.0 && u.is_finite() {
+            total += u;
+        }
     }
     total
 }
@@ -162,6 +187,48 @@ pub(crate) fn projected_solid_angle(poly: &[DVec3], n: DVec3) -> f64 {
     0.5 * s.abs()
 }
 
+/// Points of a texel, one per stratum of a `k x k` grid in a random order, for pairing with
+/// the strata of an emitter triangle (a point footprint gives its point).
+struct TexelStrata {
+    fp: Footprint,
+    k: u32,
+    order: Vec<u32>,
+    next: usize,
+}
+
+impl TexelStrata {
+    fn new(fp: &Footprint, k: u32, rng: &mut Rng) -> TexelStrata {
+        let mut order: Vec<u32> = if fp.dx == Vec3::ZERO && fp.dy == Vec3::ZERO {
+            Vec::new()
+        } else {
+            (0..k * k).collect()
+        };
+        // Fisher-Yates with the footprint's own stream.
+        for i in (1..order.len()).rev() {
+            let j = (rng.u64() % (i as u64 + 1)) as usize;
+            order.swap(i, j);
+        }
+        TexelStrata {
+            fp: *fp,
+            k,
+            order,
+            next: 0,
+        }
+    }
+
+    fn next(&mut self, rng: &mut Rng) -> Vec3 {
+        if self.order.is_empty() {
+            return self.fp.p;
+        }
+        let s = self.order[self.next % self.order.len()];
+        self.next += 1;
+        let k = self.k as f32;
+        let a = ((s % self.k) as f32 + rng.f32()) / k;
+        let b = ((s / self.k) as f32 + rng.f32()) / k;
+        self.fp.at(a, b)
+    }
+}
+
 /// One emitter triangle as a shadow-ray target.
 struct Target<'a> {
     mesh: &'a Mesh,
@@ -172,19 +239,59 @@ struct Target<'a> {
 }
 
 impl Target<'_> {
-    /// Stratified visibility of the triangle from receiver `p`: `samples` rounded up to `k^2`
-    /// equal sub-triangles with one uniform point each, weighted by the unoccluded integrand
-    /// `cos_r cos_e / d^2`. Returns `(sum of weights, sum of weights of visible samples)`.
-    fn stratified(&self, p: Vec3, n: Vec3, ng: Vec3, samples: u32, rng: &mut Rng) -> (f64, f64) {
+    /// The visible fraction of the triangle from `fp` (weighted by the unoccluded integrand)
+    /// and whether it is partial: `first_n` samples first (unless `dense`), `dense_n` where
+    /// they disagree. `poly` is the triangle clipped to the receiver's hemisphere (relative to
+    /// its center): when no sample lands on it, one ray to its centroid decides.
+    fn visibility(
+        &self,
+        fp: &Footprint,
+        (first_n, dense_n): (u32, u32),
+        rng: &mut Rng,
+        dense: bool,
+        poly: &[DVec3],
+    ) -> (f64, bool) {
+        let first = if dense { dense_n } else { first_n };
+        let (w, v) = self.stratified(fp, first, rng);
+        if w <= 0.0 {
+            // No sample landed where the clipped polygon lies (a sliver above the horizon):
+            // one shadow ray to its centroid decides.
+            let cen = poly.iter().sum::<DVec3>() / poly.len() as f64;
+            let y = (fp.p.as_dvec3() + cen).as_vec3();
+            return (
+                super::visible_to(self.accel, fp.p, fp.ng, y) as u8 as f64,
+                false,
+            );
+        }
+        let vis = v / w;
+        let partial = vis > 0.0 && vis < 1.0;
+        if !partial || dense || dense_n <= first_n {
+            return (vis, partial);
+        }
+        // A penumbra: estimate again, with many more strata.
+        let (w2, v2) = self.stratified(fp, dense_n, rng);
+        (if w2 > 0.0 { v2 / w2 } else { vis }, true)
+    }
+
+    /// Stratified visibility of the triangle from footprint `fp`: `samples` rounded up to
+    /// `k^2` equal sub-triangles with one uniform point each, each paired with a point of
+    /// the texel from its own stratum of a `k x k` grid (in a random order), weighted by the
+    /// unoccluded integrand `cos_r cos_e / d^2`. Returns `(sum of weights, sum of weights of
+    /// visible samples)`.
+    fn stratified(&self, fp: &Footprint, samples: u32, rng: &mut Rng) -> (f64, f64) {
         let (mesh, t, front) = (self.mesh, self.t, self.front);
         let [a, b, c] = mesh.triangle(t);
         let (e1, e2) = (b - a, c - a);
-        let k = (samples as f64).sqrt().ceil().max(1.0) as u32;
+        let k = super::strata(samples);
         let inv_k = 1.0 / k as f32;
         let (mut wsum, mut vsum) = (0.0f64, 0.0f64);
         let smooth = mesh.normals.is_some();
-        let (pd, nd) = (p.as_dvec3(), n.as_dvec3());
+        let (n, ng) = (fp.n, fp.ng);
+        let nd = n.as_dvec3();
+        let mut texel = TexelStrata::new(fp, k, rng);
         let mut sample = |g0: (f32, f32), g1: (f32, f32), g2: (f32, f32)| {
+            let p = texel.next(rng);
+            let pd = p.as_dvec3();
             // Uniform point in the sub-triangle (g0, g1, g2), grid coordinates along (e1, e2).
             let su = rng.f32().sqrt();
             let u2 = rng.f32();

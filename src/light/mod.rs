@@ -21,6 +21,7 @@ mod tests;
 pub use sampler::{EmittedPhoton, EmitterSampler};
 
 use crate::accel::{offset_origin, Accel};
+use crate::rng::Rng;
 use crate::scene::{Emitter, Scene};
 use glam::Vec3;
 use std::f32::consts::PI;
@@ -102,48 +103,97 @@ pub fn spot_solid_angle(cutoff: f32, beam_width: f32) -> f32 {
 
 /// Settings of the direct-light estimate. A plain `Copy` struct with named presets.
 ///
-/// Area-light shadows are estimated per emitter triangle in two passes: `area_samples` shadow
-/// rays first; only if they disagree (some visible, some not: a penumbra) a second estimate
-/// with `penumbra_samples` rays replaces the first. Fully lit or fully shadowed points cost
-/// `area_samples` rays and are exact (the unoccluded irradiance is analytic). Relative noise
-/// in a penumbra falls roughly as `samples^(-3/4)`; measured at a half-shadowed point under a
-/// two-triangle light (std over keys): 16 -> 6.1%, 64 -> 2.5%, 256 -> 0.67%, 1024 -> 0.25%.
+/// Direct light is the mean irradiance over a texel's square on the surface ([`Footprint`]),
+/// as the photos' radiance is the mean over it, so a texel cut by a shadow edge gets the
+/// shadowed share right. Each emitter is estimated in two steps: a first pass of a few shadow
+/// rays; only where they disagree (a shadow edge or a penumbra crosses the texel) a second,
+/// dense estimate replaces it. Texels lit or shadowed throughout cost the first pass and are
+/// exact (the unoccluded irradiance is analytic). Area lights pair stratified points of the
+/// texel with stratified points of each emitter triangle; point, spot and directional lights
+/// use stratified points of the texel. Relative noise in a penumbra falls roughly as
+/// `samples^(-3/4)`; measured at a half-shadowed point under a two-triangle light (std over
+/// keys): 16 -> 6.1%, 64 -> 2.5%, 256 -> 0.67%, 1024 -> 0.25%.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct DirectParams {
     /// First-pass shadow rays per area-emitter triangle, rounded up to a square `k^2`
     /// (stratified over `k^2` equal sub-triangles). 0 = no shadow test for area lights (the
     /// unoccluded analytic irradiance).
     pub area_samples: u32,
-    /// Shadow rays per emitter triangle where the first pass finds a penumbra (also rounded
-    /// up to a square). At most `area_samples` means no second pass.
+    /// Shadow rays per area emitter where the first pass finds a penumbra, shared by its
+    /// triangles by area (each at least `area_samples`, rounded up to a square). At most
+    /// `area_samples` means no second pass.
     pub penumbra_samples: u32,
+    /// Points of the texel a point, spot or directional light is tested from where its first
+    /// pass (3 x 3 points) finds a shadow edge (rounded up to a square).
+    pub edge_samples: u32,
 }
 
 impl DirectParams {
-    /// Previews: 16 rays per emitter triangle, 256 in penumbrae (~0.7% noise there).
+    /// Previews: 9 rays per emitter triangle, 256 in penumbrae (~0.7% noise there).
     pub fn fast() -> Self {
         DirectParams {
-            area_samples: 16,
+            area_samples: 9,
             penumbra_samples: 256,
+            edge_samples: 16,
         }
     }
-    /// Wide penumbrae or thin occluders: 256 rays per emitter triangle, 4096 in penumbrae.
+    /// Wide penumbrae or thin occluders: 64 rays per emitter triangle, 4096 in penumbrae.
     pub fn high_quality() -> Self {
         DirectParams {
-            area_samples: 256,
+            area_samples: 64,
             penumbra_samples: 4096,
+            edge_samples: 256,
         }
     }
 }
 
 impl Default for DirectParams {
-    /// 64 rays (8 x 8 strata) per emitter triangle; 1024 (32 x 32) in penumbrae, for a
-    /// penumbra noise of about 0.25% (the target is < 0.3%).
+    /// 16 rays (4 x 4 strata) per emitter triangle, 2048 per emitter in penumbrae for a
+    /// penumbra noise of about 0.25% (the target is < 0.3%); 8 x 8 texel points across a
+    /// hard shadow edge.
     fn default() -> Self {
         DirectParams {
-            area_samples: 64,
-            penumbra_samples: 1024,
+            area_samples: 16,
+            penumbra_samples: 2048,
+            edge_samples: 64,
         }
+    }
+}
+
+/// A texel's square on the surface: its center, the world-space edge vectors of the square
+/// (`dP/dx`, `dP/dy` of the atlas map, on the center triangle's plane) and its normals. A
+/// point is a footprint with zero edges.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Footprint {
+    pub p: Vec3,
+    pub dx: Vec3,
+    pub dy: Vec3,
+    /// Unit shading normal of the receiving side (light from behind it counts 0).
+    pub n: Vec3,
+    /// Geometric normal (for offsetting ray origins; either orientation).
+    pub ng: Vec3,
+}
+
+impl Footprint {
+    /// A surface point.
+    pub fn point(p: Vec3, n: Vec3, ng: Vec3) -> Footprint {
+        Footprint {
+            p,
+            dx: Vec3::ZERO,
+            dy: Vec3::ZERO,
+            n,
+            ng,
+        }
+    }
+
+    fn is_point(&self) -> bool {
+        self.dx == Vec3::ZERO && self.dy == Vec3::ZERO
+    }
+
+    /// The point at `(a, b)` of the unit square of the texel (`(0.5, 0.5)` is the center).
+    #[inline]
+    fn at(&self, a: f32, b: f32) -> Vec3 {
+        self.p + self.dx * (a - 0.5) + self.dy * (b - 0.5)
     }
 }
 
@@ -162,9 +212,15 @@ pub fn direct_irradiance(
     params: &DirectParams,
     key: (u64, u64),
 ) -> Vec3 {
-    (0..scene.emitters.len())
-        .map(|k| emitter_irradiance(scene, accel, k, p, n, ng, params, key))
-        .sum()
+    texel_irradiance(
+        scene,
+        accel,
+        &Footprint::point(p, n, ng),
+        params,
+        key,
+        false,
+    )
+    .0
 }
 
 /// [`direct_irradiance`] split by emitter: element `k` is emitter `k`'s contribution (the
@@ -178,35 +234,94 @@ pub fn direct_irradiance_per_emitter(
     params: &DirectParams,
     key: (u64, u64),
 ) -> Vec<Vec3> {
+    let fp = Footprint::point(p, n, ng);
     (0..scene.emitters.len())
-        .map(|k| emitter_irradiance(scene, accel, k, p, n, ng, params, key))
+        .map(|k| emitter_irradiance(scene, accel, k, &fp, params, key, false).0)
         .collect()
 }
 
-/// Direct irradiance at `p` from emitter `k` alone (see [`direct_irradiance`]). An index out of
-/// range gives zero.
+/// How an emitter's light reaches a texel, as its first pass found.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Reach {
+    /// No light: the texel faces away, is outside the beam, or is wholly shadowed.
+    Dark,
+    /// Unoccluded over the whole texel: the irradiance is the analytic unoccluded one.
+    Lit,
+    /// A shadow edge or a penumbra crosses the texel: estimated densely.
+    Partial,
+}
+
+/// The mean direct irradiance over texel footprint `fp` from every emitter (see
+/// [`DirectParams`]), and whether some light was partly visible from it (a shadow edge or a
+/// penumbra crosses it). With `dense`, every emitter skips its first pass and is estimated
+/// densely.
+pub fn texel_irradiance(
+    scene: &Scene,
+    accel: &Accel,
+    fp: &Footprint,
+    params: &DirectParams,
+    key: (u64, u64),
+    dense: bool,
+) -> (Vec3, bool) {
+    (0..scene.emitters.len()).fold((Vec3::ZERO, false), |(e, edge), k| {
+        let (ek, reach) = emitter_irradiance(scene, accel, k, fp, params, key, dense);
+        (e + ek, edge || reach == Reach::Partial)
+    })
+}
+
+/// The mean direct irradiance over `fp` from emitter `k` alone, and how it reaches the texel
+/// (see [`texel_irradiance`]). An index out of range gives zero.
 #[allow(clippy::too_many_arguments)]
 pub fn emitter_irradiance(
     scene: &Scene,
     accel: &Accel,
     k: usize,
-    p: Vec3,
-    n: Vec3,
-    ng: Vec3,
+    fp: &Footprint,
     params: &DirectParams,
     key: (u64, u64),
-) -> Vec3 {
+    dense: bool,
+) -> (Vec3, Reach) {
     let Some(e) = scene.emitters.get(k) else {
-        return Vec3::ZERO;
+        return (Vec3::ZERO, Reach::Dark);
     };
+    if let Emitter::Area { shape, radiance } = *e {
+        let Some(s) = scene.shapes.get(shape) else {
+            return (Vec3::ZERO, Reach::Dark);
+        };
+        let stream = (key.0, k as u64, key.1);
+        let (f, reach) = area::irradiance_factor(&s.mesh, accel, fp, params, stream, dense);
+        return (radiance * f as f32, reach);
+    }
+    let mut rng = Rng::new(key.0 ^ HARD_TAG, k as u64, key.1, 0);
+    hard_irradiance(accel, fp, params, &mut rng, dense, &|q| {
+        hard_light(e, fp.n, q)
+    })
+}
+
+/// The unoccluded irradiance of emitter `k` at `fp`'s center (what a [`Reach::Lit`] texel
+/// receives): analytic, no rays.
+pub fn emitter_unoccluded(scene: &Scene, k: usize, fp: &Footprint) -> Vec3 {
+    match scene.emitters.get(k) {
+        None => Vec3::ZERO,
+        Some(Emitter::Area { shape, radiance }) => match scene.shapes.get(*shape) {
+            Some(s) => *radiance * area::unoccluded_factor(&s.mesh, fp.p, fp.n) as f32,
+            None => Vec3::ZERO,
+        },
+        Some(e) => hard_light(e, fp.n, fp.p).map_or(Vec3::ZERO, |(e, _)| e),
+    }
+}
+
+/// A point, spot or directional light at point `q` (receiving normal `n`): its unoccluded
+/// irradiance and where it comes from, or `None` where `q` faces away or is outside the beam.
+fn hard_light(e: &Emitter, n: Vec3, q: Vec3) -> Option<(Vec3, Toward)> {
     match *e {
         Emitter::Point {
             position,
             intensity,
-        } => match towards(p, n, position) {
-            Some((_, d2, cos)) if visible_to(accel, p, ng, position) => intensity * (cos / d2),
-            _ => Vec3::ZERO,
-        },
+        } => {
+            let (_, d2, cos) = towards(q, n, position)?;
+            Some((intensity * (cos / d2), Toward::Point(position)))
+        }
         Emitter::Spot {
             position,
             axis,
@@ -215,17 +330,11 @@ pub fn emitter_irradiance(
             beam_width,
             ..
         } => {
-            let Some((dir, d2, cos)) = towards(p, n, position) else {
-                return Vec3::ZERO;
-            };
-            // Angle between the axis and the direction from the light to p.
+            let (dir, d2, cos) = towards(q, n, position)?;
+            // Angle between the axis and the direction from the light to q.
             let theta = axis.normalize_or_zero().dot(-dir).clamp(-1.0, 1.0).acos();
             let f = spot_falloff(theta, cutoff, beam_width);
-            if f > 0.0 && visible_to(accel, p, ng, position) {
-                intensity * (f * cos / d2)
-            } else {
-                Vec3::ZERO
-            }
+            (f > 0.0).then(|| (intensity * (f * cos / d2), Toward::Point(position)))
         }
         Emitter::Directional {
             direction,
@@ -233,25 +342,87 @@ pub fn emitter_irradiance(
         } => {
             let dir = -direction.normalize_or_zero();
             let cos = n.dot(dir);
-            if cos.is_nan() || cos <= 0.0 {
-                return Vec3::ZERO;
-            }
-            let o = offset_origin(p, ng, dir);
-            if accel.occluded(o, dir, f32::INFINITY) {
-                Vec3::ZERO
-            } else {
-                irradiance * cos
+            (cos > 0.0).then(|| (irradiance * cos, Toward::Direction(dir)))
+        }
+        Emitter::Area { .. } => None,
+    }
+}
+
+/// Mixed into the seed of the texel points of point, spot and directional lights.
+const HARD_TAG: u64 = 0x5ad0_ed9e_0000_0001;
+
+/// Where the light of a point, spot or directional emitter comes from.
+#[derive(Clone, Copy)]
+enum Toward {
+    Point(Vec3),
+    /// A unit direction towards the light.
+    Direction(Vec3),
+}
+
+/// The mean over `fp` of a point, spot or directional light (`light(q)`: see
+/// [`hard_light`]). 3 x 3 stratified points first: all lit gives the unoccluded irradiance at
+/// the center, none lit 0; where some see the light and some do not (a shadow edge),
+/// `edge_samples` points.
+fn hard_irradiance(
+    accel: &Accel,
+    fp: &Footprint,
+    params: &DirectParams,
+    rng: &mut Rng,
+    dense: bool,
+    light: &dyn Fn(Vec3) -> Option<(Vec3, Toward)>,
+) -> (Vec3, Reach) {
+    let seen = |q: Vec3| -> (Vec3, bool) {
+        match light(q) {
+            None => (Vec3::ZERO, false),
+            Some((e, Toward::Point(target))) => (e, visible_to(accel, q, fp.ng, target)),
+            Some((e, Toward::Direction(dir))) => {
+                let o = offset_origin(q, fp.ng, dir);
+                (e, !accel.occluded(o, dir, f32::INFINITY))
             }
         }
-        Emitter::Area { shape, radiance } => match scene.shapes.get(shape) {
-            Some(s) => {
-                let stream = (key.0, k as u64, key.1);
-                let f = area::irradiance_factor(&s.mesh, accel, p, n, ng, params, stream);
-                radiance * f as f32
-            }
-            None => Vec3::ZERO,
-        },
+    };
+    if fp.is_point() {
+        return match seen(fp.p) {
+            (e, true) => (e, Reach::Lit),
+            _ => (Vec3::ZERO, Reach::Dark),
+        };
     }
+    let mean = |k: u32, rng: &mut Rng| -> (Vec3, u32, u32) {
+        let (mut sum, mut lit, mut facing) = (Vec3::ZERO, 0, 0);
+        for j in 0..k {
+            for i in 0..k {
+                let a = (i as f32 + rng.f32()) / k as f32;
+                let b = (j as f32 + rng.f32()) / k as f32;
+                let (e, v) = seen(fp.at(a, b));
+                facing += (e != Vec3::ZERO) as u32;
+                if v {
+                    sum += e;
+                    lit += 1;
+                }
+            }
+        }
+        (sum / (k * k) as f32, lit, facing)
+    };
+    if !dense {
+        let (_, lit, facing) = mean(FIRST_HARD, rng);
+        if lit == 0 {
+            return (Vec3::ZERO, Reach::Dark);
+        }
+        if lit == facing && facing == FIRST_HARD * FIRST_HARD {
+            return (light(fp.p).map_or(Vec3::ZERO, |(e, _)| e), Reach::Lit);
+        }
+    }
+    (mean(strata(params.edge_samples), rng).0, Reach::Partial)
+}
+
+/// Texel points per side of the first pass of point, spot and directional lights: 3 x 3
+/// finds an edge crossing a texel unless it cuts off under a ninth of it (and then the
+/// neighbours' dense estimates usually have; see `crate::direct`).
+const FIRST_HARD: u32 = 3;
+
+/// Strata per side for `samples` samples.
+pub(crate) fn strata(samples: u32) -> u32 {
+    ((samples.max(1) as f64).sqrt().ceil() as u32).max(1)
 }
 
 /// Unit direction from `p` to `q`, squared distance and receiver cosine, if `q` is in front of

@@ -470,12 +470,13 @@ fn area_light_noise_is_confined_to_penumbrae() {
     let single = |n: u32| DirectParams {
         area_samples: n,
         penumbra_samples: 0,
+        ..DirectParams::default()
     };
     for (pr, bound) in [
         (single(16), 0.15),
         (single(64), 0.06),
         (DirectParams::fast(), 0.02),
-        (DirectParams::default(), 0.005),
+        (DirectParams::default(), 0.003),
     ] {
         let pen = rel_std(&run(Vec3::ZERO, pr));
         eprintln!(
@@ -502,9 +503,10 @@ fn per_emitter_contributions_sum_to_total() {
     let total = direct_irradiance(&sc, &acc, p, Z, Z, &pr, (5, 6));
     assert_eq!(parts.len(), 2);
     assert!(rel(parts.iter().sum(), total) < 1e-6);
+    let fp = Footprint::point(p, Z, Z);
     assert_eq!(
-        emitter_irradiance(&sc, &acc, 9, p, Z, Z, &pr, (5, 6)),
-        Vec3::ZERO
+        emitter_irradiance(&sc, &acc, 9, &fp, &pr, (5, 6), false),
+        (Vec3::ZERO, Reach::Dark)
     );
 }
 
@@ -538,4 +540,139 @@ fn random_area_lights_match_brute_force() {
         lit += (got > 0.0) as u32;
     }
     assert!(lit >= 10 && cut >= 5, "lit {lit}, cut {cut}");
+}
+
+/// A 1 x 1 texel on the floor, a directional light straight above and an occluder whose edge
+/// crosses the texel at x = -0.2: the texel's mean irradiance is the lit share (0.7) of the
+/// unoccluded one, flagged as an edge; a texel clear of the edge is exact and not flagged.
+#[test]
+fn texel_split_by_a_hard_shadow_gets_the_area_weighted_irradiance() {
+    let e0 = Vec3::new(2.0, 3.0, 4.0);
+    let blocker = shape(
+        quad(
+            Vec3::new(-5.0, -5.0, 1.0),
+            Vec3::new(4.8, 0.0, 0.0),
+            Vec3::new(0.0, 10.0, 0.0),
+        ),
+        None,
+    );
+    let sc = scene(
+        vec![floor(), blocker],
+        vec![Emitter::Directional {
+            direction: -Z,
+            irradiance: e0,
+        }],
+    );
+    let acc = Accel::build(&sc);
+    let fp = Footprint {
+        p: Vec3::ZERO,
+        dx: Vec3::X,
+        dy: Vec3::Y,
+        n: Z,
+        ng: Z,
+    };
+    let pr = DirectParams::default();
+    let (mut sum, mut found) = (Vec3::ZERO, 0);
+    for k in 0..100 {
+        found += texel_irradiance(&sc, &acc, &fp, &pr, (1, k), false).1 as u32;
+        // the dense estimate (what an edge texel and its neighbours get)
+        let (e, edge) = texel_irradiance(&sc, &acc, &fp, &pr, (1, k), true);
+        assert!(edge);
+        // 8 x 8 points: the column the edge crosses is a few Bernoulli draws
+        assert!(rel(e, e0 * 0.7) < 0.1, "{e} vs {}", e0 * 0.7);
+        sum += e;
+    }
+    assert!(
+        found >= 95,
+        "the first pass found the edge in {found} of 100"
+    );
+    let mean = sum / 100.0;
+    assert!(
+        rel(mean, e0 * 0.7) < 0.005,
+        "mean over keys {mean} vs {}",
+        e0 * 0.7
+    );
+    // clear of the edge: exact, no dense estimate
+    let lit = Footprint {
+        p: Vec3::new(2.0, 0.0, 0.0),
+        ..fp
+    };
+    assert_eq!(
+        texel_irradiance(&sc, &acc, &lit, &pr, (1, 0), false),
+        (e0, false)
+    );
+    let dark = Footprint {
+        p: Vec3::new(-2.0, 0.0, 0.0),
+        ..fp
+    };
+    assert_eq!(
+        texel_irradiance(&sc, &acc, &dark, &pr, (1, 0), false),
+        (Vec3::ZERO, false)
+    );
+}
+
+/// The same for a point light high above (nearly parallel rays) and an area light's
+/// penumbra: the mean over keys of a texel's estimate is the brute-force mean over the
+/// texel's square.
+#[test]
+fn texel_irradiance_is_the_mean_over_the_square() {
+    let sc = penumbra_scene();
+    let acc = Accel::build(&sc);
+    let mesh = &sc.shapes[1].mesh;
+    let fp = Footprint {
+        p: Vec3::ZERO,
+        dx: Vec3::X * 0.2,
+        dy: Vec3::Y * 0.2,
+        n: Z,
+        ng: Z,
+    };
+    // brute force over a 6 x 6 grid of the square
+    let mut bf = 0.0;
+    for j in 0..6 {
+        for i in 0..6 {
+            let q = fp.at((i as f32 + 0.5) / 6.0, (j as f32 + 0.5) / 6.0);
+            bf += brute_force(mesh, Some(&acc), q, Z, 60_000).0 / 36.0;
+        }
+    }
+    let pr = DirectParams::default();
+    let mean: f64 = (0..64)
+        .map(|k| texel_irradiance(&sc, &acc, &fp, &pr, (9, k), false).0.x as f64 / 5.0)
+        .sum::<f64>()
+        / 64.0;
+    eprintln!("penumbra texel: mean over keys {mean:.6}, brute force {bf:.6}");
+    assert!((mean - bf).abs() <= 0.01 * bf, "{mean} vs {bf}");
+}
+
+/// A lit texel's first pass is the analytic unoccluded irradiance at its center, which is
+/// what `emitter_unoccluded` gives a texel that takes its lattice neighbours' verdict.
+#[test]
+fn lit_texels_get_the_unoccluded_irradiance_without_rays() {
+    let mut sc = penumbra_scene();
+    sc.emitters.push(Emitter::Point {
+        position: Vec3::new(3.0, 1.0, 1.5),
+        intensity: Vec3::ONE,
+    });
+    let acc = Accel::build(&sc);
+    let fp = Footprint {
+        p: Vec3::new(1.5, 0.3, 0.0),
+        dx: Vec3::X * 0.05,
+        dy: Vec3::Y * 0.05,
+        n: Z,
+        ng: Z,
+    };
+    let pr = DirectParams::default();
+    for k in 0..2 {
+        let (e, reach) = emitter_irradiance(&sc, &acc, k, &fp, &pr, (2, 3), false);
+        assert_eq!(reach, Reach::Lit, "light {k}");
+        assert!(rel(e, emitter_unoccluded(&sc, k, &fp)) < 1e-6, "light {k}");
+    }
+    // in the blocker's shadow for the area light: partial or dark, never lit
+    let shade = Footprint {
+        p: Vec3::new(-1.0, 0.0, 0.0),
+        ..fp
+    };
+    assert_ne!(
+        emitter_irradiance(&sc, &acc, 0, &shade, &pr, (2, 3), false).1,
+        Reach::Lit
+    );
 }

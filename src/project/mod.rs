@@ -44,8 +44,8 @@ use crate::config::Config;
 use crate::error::Result;
 use crate::image::read_sensor_image;
 use crate::progress::{note, Mode, Stage};
-use crate::scene::{Mesh, Sides};
-use glam::{Vec2, Vec3};
+use crate::scene::Sides;
+use glam::Vec3;
 use std::time::{Duration, Instant};
 
 /// The largest sub-sample grid per texel and view (k x k).
@@ -122,21 +122,6 @@ pub fn run(
     Ok(stats)
 }
 
-/// World-space edge vectors of one texel on triangle `tri` of `mesh`, whose corners sit at
-/// texel coordinates `uv`: `(dP/dx, dP/dy)`.
-pub fn texel_jacobian(mesh: &Mesh, tri: usize, uv: &[Vec2; 3]) -> (Vec3, Vec3) {
-    let [p0, p1, p2] = mesh.triangle(tri);
-    let (e1, e2) = (p1 - p0, p2 - p0);
-    let (d1, d2) = (uv[1] - uv[0], uv[2] - uv[0]);
-    let det = d1.x * d2.y - d1.y * d2.x;
-    if det == 0.0 || !det.is_finite() {
-        return (Vec3::ZERO, Vec3::ZERO);
-    }
-    let dpdx = (e1 * d2.y - e2 * d1.y) / det;
-    let dpdy = (e2 * d1.x - e1 * d2.x) / det;
-    (dpdx, dpdy)
-}
-
 /// Observe one texel in one view: `(mean radiance, weight)`, or `None` if the view does not
 /// see it usefully.
 pub fn observe_texel(
@@ -167,7 +152,7 @@ pub fn observe_texel(
         return None;
     }
     let ratio = g.area / a_pix;
-    let (dx, dy) = texel_jacobian(shape.mesh, g.tri as usize, &shape.corner_uv[g.tri as usize]);
+    let (dx, dy) = shape.texel_edges(g.tri as usize);
     // Sub-samples per side: about one per pixel the texel covers. (Per-axis counts from the
     // projected texel edges were measured too: no change, so the area rule stays.)
     let k = ((ratio.sqrt() * SUBSAMPLES_PER_PIXEL).ceil() as u32).clamp(1, MAX_SUBSAMPLES);
@@ -274,29 +259,6 @@ pub fn apply_refinement(state: &mut [TexelState], delta: &[Vec3]) {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn jacobian_maps_texel_steps_to_world_steps() {
-        let mesh = Mesh {
-            positions: vec![
-                Vec3::ZERO,
-                Vec3::new(2.0, 0.0, 0.0),
-                Vec3::new(0.0, 0.0, 3.0),
-            ],
-            normals: None,
-            uvs: None,
-            triangles: vec![[0, 1, 2]],
-        };
-        // 10 texels along x cover 2 units; 30 texels along y cover 3 units
-        let uv = [
-            Vec2::new(5.0, 5.0),
-            Vec2::new(15.0, 5.0),
-            Vec2::new(5.0, 35.0),
-        ];
-        let (dx, dy) = texel_jacobian(&mesh, 0, &uv);
-        assert!((dx - Vec3::new(0.2, 0.0, 0.0)).length() < 1e-6, "{dx}");
-        assert!((dy - Vec3::new(0.0, 0.0, 0.1)).length() < 1e-6, "{dy}");
-    }
 
     #[test]
     fn refinement_adds_the_weighted_mean_residual_and_clamps_at_zero() {
