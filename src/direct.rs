@@ -160,7 +160,7 @@ impl<'a> TileCtx<'a> {
             let verdict = self.lattice_verdict(off, &first, lights);
             let row = &mut first[off * lights..(off + 1) * lights];
             match verdict {
-                Some(v) => self.from_verdict(off, &v, row),
+                Some(v) => self.take_verdict(off, &v, row),
                 None => {
                     self.first_pass(off, row);
                     sums.first_pass += 1;
@@ -252,7 +252,7 @@ impl<'a> TileCtx<'a> {
     }
 
     /// First-pass values from lattice verdicts: the analytic unoccluded irradiance where lit.
-    fn from_verdict(&self, off: usize, verdict: &[Reach], row: &mut [Option<(Vec3, Reach)>]) {
+    fn take_verdict(&self, off: usize, verdict: &[Reach], row: &mut [Option<(Vec3, Reach)>]) {
         for (k, (r, v)) in row.iter_mut().zip(verdict).enumerate() {
             let e = match v {
                 Reach::Lit => emitter_unoccluded(&self.p.scene, k, &self.fps[off]),
