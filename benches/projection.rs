@@ -1,13 +1,15 @@
 //! Projection throughput (texel-views per second): how fast the photos of the Cornell box
-//! fixture are projected onto its atlas (pixel classification, visibility rays, supersampled
-//! bilinear lookups), with 1 and 2 threads, without (`weighted_mean`) and with the default
-//! refinement passes (`refined`, each pass re-renders every view and back-projects the
-//! residual). Atlas and geometry tiles are built outside the timed loop; each iteration
+//! fixture are projected onto its atlas (pixel classification rays, supersampled bilinear
+//! lookups), with 1 and 2 threads, without (`weighted_mean`) and with the default refinement
+//! passes (`refined`, each pass re-renders every view from its cached rays and back-projects
+//! the residual). Atlas and geometry tiles are built outside the timed loop; each iteration
 //! projects all three photos into a fresh state store.
 //!
 //! Run with `cargo bench --bench projection`.
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
+use kdmap::atlas::charts::Charts;
+use kdmap::atlas::hits::HitTable;
 use kdmap::atlas::layout::TexelState;
 use kdmap::atlas::{build_geometry, prepare};
 use kdmap::config::Config;
@@ -23,11 +25,13 @@ fn bench(c: &mut Criterion) {
     let p = prepare(&cfg, Mode::Quiet).expect("prepare");
     let geom =
         build_geometry(&p, &dir.path().join("geometry.tiles"), Mode::Quiet).expect("geometry");
+    let charts = Charts::new(&p.scene, &p.layout, &p.atlases).expect("charts");
+    let hits = HitTable::new(&p, &charts);
     let covered: u64 = {
         let mut st = p
             .create_store(dir.path().join("probe.tiles"), TexelState::default())
             .expect("store");
-        kdmap::project::run(&p, &cfg, &geom, &mut st, Mode::Quiet)
+        kdmap::project::run(&p, &cfg, &hits, &geom, &mut st, Mode::Quiet)
             .expect("project")
             .covered_texels
     };
@@ -53,7 +57,7 @@ fn bench(c: &mut Criterion) {
                             let mut st = p
                                 .create_store(dir.path().join("state.tiles"), TexelState::default())
                                 .expect("store");
-                            kdmap::project::run(&p, &cfg, &geom, &mut st, Mode::Quiet)
+                            kdmap::project::run(&p, &cfg, &hits, &geom, &mut st, Mode::Quiet)
                                 .expect("project")
                         })
                     })

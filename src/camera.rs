@@ -145,6 +145,31 @@ impl Camera {
         Some(Vec2::new(sx * self.width as f32, sy * self.height as f32))
     }
 
+    /// Whether any point of the axis-aligned box `lo..hi` may be in view (conservative: `false`
+    /// only if the whole box is behind the camera or outside one side of the frustum).
+    pub fn may_see(&self, lo: Vec3, hi: Vec3) -> bool {
+        let corners: Vec<Vec3> = (0..8)
+            .map(|i| {
+                let c = Vec3::new(
+                    if i & 1 == 0 { lo.x } else { hi.x },
+                    if i & 2 == 0 { lo.y } else { hi.y },
+                    if i & 4 == 0 { lo.z } else { hi.z },
+                );
+                self.to_camera.transform_point3(c)
+            })
+            .collect();
+        let (tx, ty) = (self.tan_x, self.tan_y);
+        // inside: z > 0, |x| <= tx z, |y| <= ty z
+        let outside: [&dyn Fn(Vec3) -> bool; 5] = [
+            &|q| q.z <= 0.0,
+            &|q| q.x > tx * q.z,
+            &|q| q.x < -tx * q.z,
+            &|q| q.y > ty * q.z,
+            &|q| q.y < -ty * q.z,
+        ];
+        !outside.iter().any(|out| corners.iter().all(|&q| out(q)))
+    }
+
     /// Whether continuous pixel coordinates fall on the film.
     #[inline]
     pub fn on_film(&self, pix: Vec2) -> bool {

@@ -29,7 +29,7 @@ use glam::Vec3;
 pub const LATTICE: u32 = 2;
 
 /// Statistics of the stage.
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
+#[derive(Debug, Clone, Default, PartialEq)]
 pub struct DirectStats {
     /// Area-weighted mean `E_d` over covered texels (the solver's initial `E_i` where a texel
     /// has no direct light).
@@ -39,6 +39,8 @@ pub struct DirectStats {
     pub first_pass: u64,
     /// Texels estimated densely for some light (edges, penumbrae, their neighbours).
     pub dense: u64,
+    /// Per emitter, the texels estimated densely for it.
+    pub dense_per_emitter: Vec<u64>,
 }
 
 /// `E_d` of every covered texel into `state`.
@@ -70,19 +72,24 @@ pub fn run(
         stats.texels += s.texels;
         stats.first_pass += s.first_pass;
         stats.dense += s.dense;
+        stats.dense_per_emitter.resize(s.dense_k.len(), 0);
+        for (a, b) in stats.dense_per_emitter.iter_mut().zip(&s.dense_k) {
+            *a += b;
+        }
     }
     stats.mean = if a > 0.0 { e / a as f32 } else { Vec3::ZERO };
     Ok(stats)
 }
 
 /// One tile's sums.
-#[derive(Debug, Clone, Copy, Default)]
+#[derive(Debug, Clone, Default)]
 struct TileSums {
     sum: Vec3,
     area: f64,
     texels: u64,
     first_pass: u64,
     dense: u64,
+    dense_k: Vec<u64>,
 }
 
 /// One tile being lit: its geometry, footprints, charts and random keys.
@@ -151,7 +158,10 @@ impl<'a> TileCtx<'a> {
         let n = self.g.len();
         // per texel and light: the first pass's irradiance and verdict (None: not run)
         let mut first: Vec<Option<(Vec3, Reach)>> = vec![None; n * lights];
-        let mut sums = TileSums::default();
+        let mut sums = TileSums {
+            dense_k: vec![0; lights],
+            ..Default::default()
+        };
         for off in (0..n).filter(|&o| self.on_lattice(o) && self.g[o].covered()) {
             self.first_pass(off, &mut first[off * lights..(off + 1) * lights]);
             sums.first_pass += 1;
@@ -174,6 +184,7 @@ impl<'a> TileCtx<'a> {
                 let (ek, reach) = first[off * lights + k].expect("every covered texel is lit");
                 e += if reach == Reach::Partial || self.near_hard_edge(off, k, &first, lights) {
                     dense = true;
+                    sums.dense_k[k] += 1;
                     self.estimate(off, k, true).0
                 } else {
                     ek

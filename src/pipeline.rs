@@ -140,7 +140,9 @@ pub fn run_projection(cfg: &Config, out: &Path, mode: Mode) -> Result<(Prepared,
     fsio::create_dir(&dir)?;
     let geom = build_geometry(&p, &dir.join("geometry.tiles"), mode)?;
     let mut state = p.create_store(dir.join("state.tiles"), TexelState::default())?;
-    let stats = project::run(&p, cfg, &geom, &mut state, mode)?;
+    let charts = Charts::new(&p.scene, &p.layout, &p.atlases)?;
+    let hits = HitTable::new(&p, &charts);
+    let stats = project::run(&p, cfg, &hits, &geom, &mut state, mode)?;
     debug_check(&geom, &state)?;
     let maps = out.join("maps");
     for slot in 0..p.layout.slots.len() {
@@ -300,7 +302,7 @@ impl<'a> Run<'a> {
         report.timings.atlas = self.atlas_s;
         let mut state = p.create_store(&self.state_path, TexelState::default())?;
         let t = Instant::now();
-        let ps = project::run(p, cfg, &self.geom, &mut state, mode)?;
+        let ps = project::run(p, cfg, self.hits(), &self.geom, &mut state, mode)?;
         report.timings.projection = t.elapsed().as_secs_f64();
         debug_check(&self.geom, &state)?;
         let proj = ProjCounts {
@@ -313,6 +315,8 @@ impl<'a> Run<'a> {
         let direct = direct::run(p, cfg, &self.charts, &self.geom, &mut state, mode)?;
         report.timings.direct = t.elapsed().as_secs_f64();
         report.counts.dense_direct_texels = direct.dense;
+        report.counts.direct_first_pass_texels = direct.first_pass;
+        report.counts.dense_direct_texels_per_emitter = direct.dense_per_emitter.clone();
         let mean_e = direct.mean;
         let share = cfg.initial_indirect_share;
         map_tiles(&mut state, &self.geom, self.window, |_, g, s| {
@@ -663,9 +667,22 @@ impl<'a> Run<'a> {
             observed_texels: proj.observed_texels,
             filled_texels: filled,
             dense_direct_texels: r.report.counts.dense_direct_texels,
+            direct_first_pass_texels: r.report.counts.direct_first_pass_texels,
+            dense_direct_texels_per_emitter: r
+                .report
+                .counts
+                .dense_direct_texels_per_emitter
+                .clone(),
         };
         r.report.timings.total = r.elapsed();
-        write_outputs(p, &self.geom, &r.state, &mut r.report, self.out)?;
+        write_outputs(
+            p,
+            self.hits(),
+            &self.geom,
+            &r.state,
+            &mut r.report,
+            self.out,
+        )?;
         r.checkpoint(&self.state_path, RunStage::Finished)?;
         note(
             self.mode,

@@ -53,6 +53,16 @@ enum Seen {
     Nothing,
 }
 
+/// A pixel known to lie on one plane of one shape, within one chart of its atlas: the texel
+/// coordinates where its four corners land (top-left, top-right, bottom-left, bottom-right),
+/// so it renders with no rays (texture coordinates vary affinely across a pixel on a plane
+/// to well within a texel).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FlatPixel {
+    pub shape: u32,
+    pub uv: [Vec2; 4],
+}
+
 /// Render one view: each pixel from `k x k` stratified sub-pixel rays reading the texture of
 /// the shape they hit (`textures[shape]`, bilinear), combined as `film` says. The one renderer
 /// of texture-space maps: the re-rendered views of the outputs and the projection's
@@ -64,12 +74,62 @@ pub fn render_view(
     k: u32,
     film: Film,
 ) -> Vec<Option<Vec3>> {
+    render_view_with(accel, camera, textures, k, film, &|_, _| Plan::Trace)
+}
+
+/// How [`render_view_with`] renders one pixel.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Plan {
+    /// Sub-pixel rays.
+    Trace,
+    /// No rays: the pixel lies wholly on one chart of a textured shape (texture coordinates
+    /// interpolated from its corners).
+    Flat(FlatPixel),
+    /// Not at all (`None`): the caller has no use for it.
+    Skip,
+}
+
+/// [`render_view`] where `plan(x, y)` says how to render each pixel: flat pixels read the
+/// texture at the same `k x k` sub-pixel positions with their texture coordinates
+/// interpolated from the pixel's corners instead of traced.
+pub fn render_view_with(
+    accel: &Accel,
+    camera: &Camera,
+    textures: &[Option<Texture>],
+    k: u32,
+    film: Film,
+    plan: &(dyn Fn(u32, u32) -> Plan + Sync),
+) -> Vec<Option<Vec3>> {
     let (w, h) = (camera.width(), camera.height());
     let k = k.max(1);
     (0..h)
         .into_par_iter()
-        .flat_map_iter(|y| (0..w).map(move |x| pixel(accel, camera, textures, k, film, x, y)))
+        .flat_map_iter(|y| {
+            (0..w).map(move |x| match plan(x, y) {
+                Plan::Skip => None,
+                Plan::Flat(f) => flat_pixel(textures, k, &f)
+                    .or_else(|| pixel(accel, camera, textures, k, film, x, y)),
+                Plan::Trace => pixel(accel, camera, textures, k, film, x, y),
+            })
+        })
         .collect()
+}
+
+/// The mean of the texture over `k x k` sub-pixel positions of a flat pixel (`None` if its
+/// shape has no texture).
+fn flat_pixel(textures: &[Option<Texture>], k: u32, f: &FlatPixel) -> Option<Vec3> {
+    let tex = textures.get(f.shape as usize)?.as_ref()?;
+    let [a, b, c, d] = f.uv;
+    let mut sum = Vec3::ZERO;
+    for j in 0..k {
+        let ty = (j as f32 + 0.5) / k as f32;
+        let (l, r) = (a.lerp(c, ty), b.lerp(d, ty));
+        for i in 0..k {
+            let tx = (i as f32 + 0.5) / k as f32;
+            sum += bilinear(tex.texels, tex.width, tex.height, l.lerp(r, tx));
+        }
+    }
+    Some(sum / (k * k) as f32)
 }
 
 /// One pixel of [`render_view`].

@@ -79,6 +79,13 @@ pub struct Counts {
     /// crosses them or a neighbour).
     #[serde(default)]
     pub dense_direct_texels: u64,
+    /// Covered texels that ran the direct light's first pass (the rest took the verdict of
+    /// their lattice neighbours).
+    #[serde(default)]
+    pub direct_first_pass_texels: u64,
+    /// Per emitter, the texels whose light from it was estimated densely.
+    #[serde(default)]
+    pub dense_direct_texels_per_emitter: Vec<u64>,
 }
 
 /// One row of the paper's comparison table: one shape seen from one view, over the pixels

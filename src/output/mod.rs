@@ -30,6 +30,7 @@ pub mod scene_xml;
 
 pub use maps::write_map;
 
+use crate::atlas::hits::HitTable;
 use crate::atlas::layout::{TexelGeom, TexelState};
 use crate::atlas::tiles::TileStore;
 use crate::atlas::Prepared;
@@ -48,6 +49,7 @@ use std::time::Instant;
 /// The caller sets the other report fields (including `timings.total`) before calling.
 pub fn write_outputs(
     p: &Prepared,
+    hits: &HitTable,
     geom: &TileStore<TexelGeom>,
     state: &TileStore<TexelState>,
     report: &mut Report,
@@ -89,6 +91,7 @@ pub fn write_outputs(
     for (si, path) in &p.views {
         table.extend(renders::write_view(
             p,
+            hits,
             &textures,
             (*si, path),
             &renders,

@@ -19,6 +19,7 @@
 
 use super::font::{draw_text, text_height, text_width};
 use super::plot::{draw_legend, legend_height, ErrorScale};
+use crate::atlas::hits::HitTable;
 use crate::atlas::Prepared;
 use crate::camera::Camera;
 use crate::fsio;
@@ -26,7 +27,7 @@ use crate::image::{
     auto_exposure, read_sensor_image, write_exr_rgb, write_pixmap_png, write_png_srgb, Image,
 };
 use crate::project::{PixelInfo, View};
-use crate::render::{render_view, Film, Texture};
+use crate::render::{render_view_with, Film, Plan, Texture};
 use crate::report::ViewShapeRow;
 use crate::scene::{luminance, Scene};
 use crate::{Error, Result};
@@ -38,19 +39,22 @@ use tiny_skia::{Color, Pixmap};
 pub const SUPERSAMPLE: u32 = 4;
 
 /// Re-render one view (see the module doc): `textures[shape]` is the radiance texture of each
-/// reconstructed shape; `photo` supplies the pixels that lie wholly on emitters.
+/// reconstructed shape; `view.image` (the photo) supplies the pixels that lie wholly on
+/// emitters. Pixels lying flat on one chart reuse the view's corner rays; the others are
+/// traced.
 pub fn render_recovered(
     p: &Prepared,
-    camera: &Camera,
+    hits: &HitTable,
+    view: &View,
     textures: &[Option<Texture>],
-    photo: &Image,
     k: u32,
 ) -> Vec<Vec3> {
     let film = Film::Box {
         scene: &p.scene,
-        photo,
+        photo: view.image,
     };
-    render_view(&p.accel, camera, textures, k, film)
+    let plan = |x, y| view.flat(hits, x, y).map_or(Plan::Trace, Plan::Flat);
+    render_view_with(&p.accel, &view.camera, textures, k, film, &plan)
         .into_iter()
         .map(|v| v.unwrap_or(Vec3::ZERO))
         .collect()
@@ -178,6 +182,7 @@ fn write_masks_json(dir: &Path, scene: &Scene) -> Result<()> {
 /// `dir`, and return its table rows.
 pub fn write_view(
     p: &Prepared,
+    hits: &HitTable,
     textures: &[Option<Texture>],
     (si, photo_path): (usize, &Path),
     dir: &Path,
@@ -188,7 +193,7 @@ pub fn write_view(
     let photo = read_sensor_image(photo_path, sensor)?;
     let camera = Camera::from_sensor(sensor);
     let view = View::new(&p.scene, &p.accel, camera.clone(), &photo);
-    let render = render_recovered(p, &camera, textures, &photo, SUPERSAMPLE);
+    let render = render_recovered(p, hits, &view, textures, SUPERSAMPLE);
     let (w, h) = (sensor.width, sensor.height);
     let exposure = auto_exposure(&photo.pixels, &photo.valid);
     write_exr_rgb(dir.join(format!("{}.exr", sensor.id)), w, h, &render, false)?;

@@ -2,14 +2,17 @@
 //! sees, a weighted mean of the photo's radiance, `L_orig = sum w_i L_i / sum w_i`, then a few
 //! refinement passes that make the map agree with every photo at once.
 //!
-//! Per view we first classify the photo's pixels with primary rays (see [`classify_pixels`]):
-//! a pixel is *clean* when a grid of rays over it all land on one plane of one shape (so it
-//! straddles no silhouette, depth edge or crease), no emitter lies within a pixel of it, and its
-//! value is valid. A texel is then observed through k x k sub-samples of its footprint (k grows
-//! with texel size / pixel footprint, so a texel much larger than a pixel gets an area average,
-//! not a point sample). Each sub-sample must be front-facing, unoccluded (a ray from the camera
-//! reaches it first) and land on clean pixels of the same surface; it reads the photo
-//! bilinearly, or the nearest pixel at the edge of a clean region. The weight
+//! Per view we first classify the photo's pixels with primary rays, one through every pixel
+//! corner and one through every center (see [`View`]): a pixel is *clean* when its corners all
+//! land on the plane of the shape hit at its center (so it straddles no silhouette, depth
+//! edge or crease), no emitter lies within a pixel of it, and its value is valid. A texel is
+//! then observed through k x k sub-samples of its footprint (k grows with texel size / pixel
+//! footprint, so a texel much larger than a pixel gets an area average, not a point sample).
+//! Each sub-sample must be front-facing and land on clean pixels that see its plane (a clean
+//! pixel sees nothing else, so the sub-sample is unoccluded: the projection casts no rays of
+//! its own); it reads the photo bilinearly, or the nearest pixel at the edge of a clean
+//! region. Tiles whose texels a view cannot see (outside its frustum) are skipped, so a view
+//! costs its pixels and the texels in front of it. The weight
 //! `w = (accepted fraction) * A_texel / A_pixel` counts how many pixels' worth of measurement
 //! the texel received, so it accounts for distance, viewing angle and pixel footprint together.
 //!
@@ -32,21 +35,21 @@
 mod refine;
 mod view;
 
-pub use refine::{refine, shrink_residual, REFINE_SUPERSAMPLE};
-pub use view::{classify_pixels, PixelInfo, View, CLASSIFY_SUBDIV};
+pub use refine::{shrink_residual, Refine, REFINE_SUPERSAMPLE};
+pub use view::{classify_pixels, PixelInfo, View};
 
-use crate::accel::Accel;
+use crate::atlas::hits::HitTable;
 use crate::atlas::layout::{flags, TexelGeom, TexelState};
 use crate::atlas::tiles::{map_tiles, TileStore};
 use crate::atlas::{Prepared, ShapeRef};
 use crate::camera::Camera;
 use crate::config::Config;
 use crate::error::Result;
-use crate::image::read_sensor_image;
+use crate::image::{read_sensor_image, Image};
 use crate::progress::{note, Mode, Stage};
 use crate::scene::Sides;
 use glam::Vec3;
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 /// The largest sub-sample grid per texel and view (k x k).
 pub const MAX_SUBSAMPLES: u32 = 8;
@@ -69,10 +72,13 @@ pub struct ProjectionStats {
 }
 
 /// The stage: project every photo onto the atlas into `state` (L_orig, weight, OBSERVED),
-/// streaming the photos one at a time, then refine (`cfg.refine_passes`).
+/// then refine (`cfg.refine_passes`). Each view's rays are cast once; the photos and their
+/// classification stay in memory through the refinement passes, which cast no rays where a
+/// pixel lies flat on one chart.
 pub fn run(
     p: &Prepared,
     cfg: &Config,
+    hits: &HitTable,
     geom: &TileStore<TexelGeom>,
     state: &mut TileStore<TexelState>,
     mode: Mode,
@@ -83,10 +89,56 @@ pub fn run(
     };
     let window = p.window::<TexelState>(cfg);
     let stage = Stage::new(mode, "projection", p.views.len() as u64, "views");
-    let mut time = Duration::ZERO;
+    let t0 = Instant::now();
+    let photos = read_photos(p, mode)?;
+    stats.masked_pixels = photos.iter().map(|ph| ph.masked).sum();
+    let bounds = tile_bounds(geom)?;
+    let mut views = Vec::with_capacity(photos.len());
+    for ((si, _), photo) in p.views.iter().zip(&photos) {
+        let view = View::new(
+            &p.scene,
+            &p.accel,
+            Camera::from_sensor(&p.scene.sensors[*si]),
+            photo,
+        );
+        map_tiles(state, geom, window, |t, g, st| {
+            if !bounds[t].is_some_and(|(lo, hi)| view.camera.may_see(lo, hi)) {
+                return;
+            }
+            let slot = p.layout.slot_of_tile(t as u32);
+            project_tile(&view, &p.shape_ref(slot), g, st);
+        })?;
+        views.push(view);
+        stage.inc(1);
+    }
+    state.for_each_tile_mut(window, |_, st| finish_tile(st))?;
+    let ctx = refine::Refine {
+        p,
+        hits,
+        geom,
+        views: &views,
+        bounds: &bounds,
+        window,
+    };
+    ctx.run(state, cfg.refine_passes, mode)?;
+    stage.finish();
+    let counts = map_tiles(state, geom, window, |_, g, st| {
+        let c = g.iter().filter(|g| g.covered()).count() as u64;
+        let o = st.iter().filter(|s| s.flags & flags::OBSERVED != 0).count() as u64;
+        (c, o)
+    })?;
+    let (c, o) = counts.iter().fold((0, 0), |(a, b), (c, o)| (a + c, b + o));
+    stats.covered_texels = c;
+    stats.observed_texels = o;
+    stats.seconds = t0.elapsed().as_secs_f64();
+    Ok(stats)
+}
+
+/// Every view's photo, its size checked against its sensor; masked pixels noted.
+fn read_photos(p: &Prepared, mode: Mode) -> Result<Vec<Image>> {
+    let mut photos = Vec::with_capacity(p.views.len());
     for (si, path) in &p.views {
-        let sensor = &p.scene.sensors[*si];
-        let image = read_sensor_image(path, sensor)?;
+        let image = read_sensor_image(path, &p.scene.sensors[*si])?;
         if image.masked > 0 {
             note(
                 mode,
@@ -97,39 +149,34 @@ pub fn run(
                 ),
             );
         }
-        stats.masked_pixels += image.masked;
-        let t0 = Instant::now();
-        let view = View::new(&p.scene, &p.accel, Camera::from_sensor(sensor), &image);
-        map_tiles(state, geom, window, |t, g, st| {
-            let slot = p.layout.slot_of_tile(t as u32);
-            project_tile(&view, &p.accel, &p.shape_ref(slot), g, st);
-        })?;
-        time += t0.elapsed();
-        stage.inc(1);
+        photos.push(image);
     }
-    state.for_each_tile_mut(window, |_, st| finish_tile(st))?;
-    refine(p, geom, state, window, cfg.refine_passes, mode)?;
-    stage.finish();
-    let counts = map_tiles(state, geom, window, |_, g, st| {
-        let c = g.iter().filter(|g| g.covered()).count() as u64;
-        let o = st.iter().filter(|s| s.flags & flags::OBSERVED != 0).count() as u64;
-        (c, o)
-    })?;
-    let (c, o) = counts.iter().fold((0, 0), |(a, b), (c, o)| (a + c, b + o));
-    stats.covered_texels = c;
-    stats.observed_texels = o;
-    stats.seconds = time.as_secs_f64();
-    Ok(stats)
+    Ok(photos)
+}
+
+/// Per tile, the bounding box of its covered texels' squares (`None` if it has none): what a
+/// view must see for the tile to be worth projecting.
+pub fn tile_bounds(geom: &TileStore<TexelGeom>) -> Result<Vec<Option<(Vec3, Vec3)>>> {
+    (0..geom.tile_count())
+        .map(|t| {
+            let g = geom.read_tile(t)?;
+            Ok(g.iter().filter(|g| g.covered()).fold(None, |b, g| {
+                // a texel's square reaches at most about its diagonal from its center
+                let r = Vec3::splat(2.0 * g.area.sqrt());
+                let (lo, hi) = (g.p() - r, g.p() + r);
+                Some(match b {
+                    None => (lo, hi),
+                    Some((a, b)) => (lo.min(a), hi.max(b)),
+                })
+            }))
+        })
+        .collect()
 }
 
 /// Observe one texel in one view: `(mean radiance, weight)`, or `None` if the view does not
-/// see it usefully.
-pub fn observe_texel(
-    view: &View,
-    accel: &Accel,
-    shape: &ShapeRef,
-    g: &TexelGeom,
-) -> Option<(Vec3, f32)> {
+/// see it usefully. Its `k x k` sub-samples (k grows with the texel's footprint in pixels) are
+/// read where they land on clean pixels that see their plane (so unoccluded: no rays).
+pub fn observe_texel(view: &View, shape: &ShapeRef, g: &TexelGeom) -> Option<(Vec3, f32)> {
     let cam = view.camera.position();
     let p = g.p();
     let n = g.n();
@@ -163,21 +210,10 @@ pub fn observe_texel(
             let ox = (i as f32 + 0.5) / k as f32 - 0.5;
             let oy = (j as f32 + 0.5) / k as f32 - 0.5;
             let q = if k == 1 { p } else { p + dx * ox + dy * oy };
-            let v = q - cam;
-            let d = v.length();
-            if d <= 0.0 {
-                continue;
-            }
-            let dir = v / d;
-            // Unoccluded: the first surface along the camera ray is this shape, at q.
-            match accel.intersect(cam, dir, d * (1.0 + 1e-3) + 1e-4) {
-                Some(h) if h.shape == shape.index && (h.t - d).abs() <= 1e-3 * d + 1e-4 => {}
-                _ => continue,
-            }
             let Some(pix) = view.camera.project(q) else {
                 continue;
             };
-            if let Some(l) = view.sample(pix, shape.index, ng) {
+            if let Some(l) = view.sample(pix, q, shape.index, ng) {
                 sum += l;
                 accepted += 1;
             }
@@ -191,18 +227,12 @@ pub fn observe_texel(
 }
 
 /// Accumulate one view into one tile: `state.l_orig += w L`, `state.weight += w`.
-pub fn project_tile(
-    view: &View,
-    accel: &Accel,
-    shape: &ShapeRef,
-    geom: &[TexelGeom],
-    state: &mut [TexelState],
-) {
+pub fn project_tile(view: &View, shape: &ShapeRef, geom: &[TexelGeom], state: &mut [TexelState]) {
     for (g, s) in geom.iter().zip(state.iter_mut()) {
         if !g.covered() {
             continue;
         }
-        if let Some((l, w)) = observe_texel(view, accel, shape, g) {
+        if let Some((l, w)) = observe_texel(view, shape, g) {
             for c in 0..3 {
                 s.l_orig[c] += w * l[c];
             }
@@ -227,18 +257,12 @@ pub fn finish_tile(state: &mut [TexelState]) {
 
 /// Back-project one view's residual into one tile: `delta += w r` over the texels the view
 /// observes (`view` reads the residual image; the weights are those of [`project_tile`]).
-pub fn backproject_tile(
-    view: &View,
-    accel: &Accel,
-    shape: &ShapeRef,
-    geom: &[TexelGeom],
-    delta: &mut [Vec3],
-) {
+pub fn backproject_tile(view: &View, shape: &ShapeRef, geom: &[TexelGeom], delta: &mut [Vec3]) {
     for (g, d) in geom.iter().zip(delta.iter_mut()) {
         if !g.covered() {
             continue;
         }
-        if let Some((r, w)) = observe_texel(view, accel, shape, g) {
+        if let Some((r, w)) = observe_texel(view, shape, g) {
             *d += w * r;
         }
     }

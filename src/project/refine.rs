@@ -4,16 +4,16 @@
 
 use super::view::{PixelInfo, View};
 use super::{apply_refinement, backproject_tile, RESIDUAL_SHRINK};
+use crate::atlas::hits::HitTable;
 use crate::atlas::layout::{TexelGeom, TexelState};
 use crate::atlas::texels::dilate;
 use crate::atlas::texture::gather;
 use crate::atlas::tiles::TileStore;
 use crate::atlas::Prepared;
-use crate::camera::Camera;
 use crate::error::{Error, Result};
-use crate::image::{read_sensor_image, Image};
+use crate::image::Image;
 use crate::progress::{Mode, Stage};
-use crate::render::{render_view, Film, Texture};
+use crate::render::{render_view_with, Film, Plan, Texture};
 use glam::Vec3;
 use rayon::prelude::*;
 use std::sync::Mutex;
@@ -80,32 +80,51 @@ fn current_maps(
     Ok(maps)
 }
 
-/// Iterative back-projection after [`finish_tile`]: `passes` times, re-render every view from
-/// the current maps, back-project the residuals `photo - render` (clean pixels only) and add
-/// their weighted mean to `l_orig` (see the module notes). Reads each photo once per pass;
-/// holds the maps and one residual per texel in memory while it runs.
-pub fn refine(
-    p: &Prepared,
-    geom: &TileStore<TexelGeom>,
-    state: &mut TileStore<TexelState>,
-    window: usize,
-    passes: u32,
-    mode: Mode,
-) -> Result<()> {
-    if passes == 0 {
-        return Ok(());
+/// Iterative back-projection after the weighted mean, over views prepared once.
+pub struct Refine<'a> {
+    pub p: &'a Prepared,
+    pub hits: &'a HitTable,
+    pub geom: &'a TileStore<TexelGeom>,
+    /// Every view, its photo and pixel classification.
+    pub views: &'a [View<'a>],
+    /// Per tile, the bounds of its texels (see [`super::tile_bounds`]).
+    pub bounds: &'a [Option<(Vec3, Vec3)>],
+    pub window: usize,
+}
+
+impl Refine<'_> {
+    /// `passes` times: re-render every view from the current maps, back-project the
+    /// residuals `photo - render` (clean pixels only) and add their weighted mean to `l_orig`
+    /// (see the module notes). Holds the maps and one residual per texel in memory while it
+    /// runs; casts rays only for clean pixels that straddle a chart seam.
+    pub fn run(&self, state: &mut TileStore<TexelState>, passes: u32, mode: Mode) -> Result<()> {
+        if passes == 0 {
+            return Ok(());
+        }
+        let total = passes as u64 * self.views.len() as u64;
+        let stage = Stage::new(mode, "refinement", total, "views");
+        for _ in 0..passes {
+            let maps = current_maps(self.p, self.geom, state)?;
+            let textures = self.textures(&maps);
+            let mut delta: Vec<Vec<Vec3>> = vec![Vec::new(); self.p.layout.tile_count as usize];
+            for view in self.views {
+                self.backproject(view, &textures, &mut delta)?;
+                stage.inc(1);
+            }
+            state.for_each_tile_mut(self.window, |t, st| {
+                if !delta[t].is_empty() {
+                    apply_refinement(st, &delta[t]);
+                }
+            })?;
+        }
+        stage.finish();
+        Ok(())
     }
-    let stage = Stage::new(
-        mode,
-        "refinement",
-        passes as u64 * p.views.len() as u64,
-        "views",
-    );
-    let tile_texels = p.layout.tile_texels();
-    for _ in 0..passes {
-        let maps = current_maps(p, geom, state)?;
-        let textures: Vec<Option<Texture>> = maps
-            .iter()
+
+    /// The maps as textures by shape.
+    fn textures<'m>(&'m self, maps: &'m [Option<Vec<Vec3>>]) -> Vec<Option<Texture<'m>>> {
+        let p = self.p;
+        maps.iter()
             .enumerate()
             .map(|(i, m)| {
                 let m = m.as_ref()?;
@@ -118,70 +137,69 @@ pub fn refine(
                     corner_uv: &p.atlases[i].as_ref()?.corner_uv,
                 })
             })
+            .collect()
+    }
+
+    /// One view's residual, back-projected into `delta` (per tile, allocated on first use).
+    fn backproject(
+        &self,
+        view: &View,
+        textures: &[Option<Texture>],
+        delta: &mut [Vec<Vec3>],
+    ) -> Result<()> {
+        let (p, photo) = (self.p, view.image);
+        let w = photo.width;
+        let plan = |x: u32, y: u32| {
+            if !view.pixels[(y * w + x) as usize].clean {
+                return Plan::Skip;
+            }
+            view.flat(self.hits, x, y).map_or(Plan::Trace, Plan::Flat)
+        };
+        let k = REFINE_SUPERSAMPLE;
+        let render = render_view_with(&p.accel, &view.camera, textures, k, Film::HitsOnly, &plan);
+        let mut residual: Vec<Vec3> = photo
+            .pixels
+            .iter()
+            .zip(&render)
+            .zip(&view.pixels)
+            .map(|((ph, r), px)| match r {
+                Some(r) if px.clean => *ph - *r,
+                _ => Vec3::ZERO,
+            })
             .collect();
-        let mut delta: Vec<Vec<Vec3>> = vec![Vec::new(); p.layout.tile_count as usize];
-        for (si, path) in &p.views {
-            let sensor = &p.scene.sensors[*si];
-            let photo = read_sensor_image(path, sensor)?;
-            let camera = Camera::from_sensor(sensor);
-            let view = View::new(&p.scene, &p.accel, camera, &photo);
-            let render = render_view(
-                &p.accel,
-                &view.camera,
-                &textures,
-                REFINE_SUPERSAMPLE,
-                Film::HitsOnly,
-            );
-            let mut residual: Vec<Vec3> = photo
-                .pixels
-                .iter()
-                .zip(&render)
-                .zip(&view.pixels)
-                .map(|((ph, r), px)| match r {
-                    Some(r) if px.clean => *ph - *r,
-                    _ => Vec3::ZERO,
-                })
-                .collect();
-            shrink_residual(&mut residual, &photo.pixels, &view.pixels);
-            let residual = Image {
-                width: photo.width,
-                height: photo.height,
-                pixels: residual,
-                valid: photo.valid.clone(),
-                masked: photo.masked,
-            };
-            let rview = view.with_image(&residual);
-            let err: Mutex<Option<Error>> = Mutex::new(None);
-            delta.par_iter_mut().enumerate().for_each(|(t, d)| {
-                let g = match geom.read_tile(t) {
-                    Ok(g) => g,
-                    Err(e) => {
-                        *err.lock().unwrap_or_else(|e| e.into_inner()) = Some(e);
-                        return;
-                    }
-                };
-                if !g.iter().any(|g| g.covered()) {
+        shrink_residual(&mut residual, &photo.pixels, &view.pixels);
+        let residual = Image {
+            width: photo.width,
+            height: photo.height,
+            pixels: residual,
+            valid: photo.valid.clone(),
+            masked: photo.masked,
+        };
+        let rview = view.with_image(&residual);
+        let tile_texels = p.layout.tile_texels();
+        let err: Mutex<Option<Error>> = Mutex::new(None);
+        delta.par_iter_mut().enumerate().for_each(|(t, d)| {
+            if !self.bounds[t].is_some_and(|(lo, hi)| view.camera.may_see(lo, hi)) {
+                return;
+            }
+            let g = match self.geom.read_tile(t) {
+                Ok(g) => g,
+                Err(e) => {
+                    *err.lock().unwrap_or_else(|e| e.into_inner()) = Some(e);
                     return;
                 }
-                if d.is_empty() {
-                    *d = vec![Vec3::ZERO; tile_texels];
-                }
-                let slot = p.layout.slot_of_tile(t as u32);
-                backproject_tile(&rview, &p.accel, &p.shape_ref(slot), &g, d);
-            });
-            if let Some(e) = err.into_inner().unwrap_or_else(|e| e.into_inner()) {
-                return Err(e);
+            };
+            if d.is_empty() {
+                *d = vec![Vec3::ZERO; tile_texels];
             }
-            stage.inc(1);
+            let slot = p.layout.slot_of_tile(t as u32);
+            backproject_tile(&rview, &p.shape_ref(slot), &g, d);
+        });
+        match err.into_inner().unwrap_or_else(|e| e.into_inner()) {
+            Some(e) => Err(e),
+            None => Ok(()),
         }
-        state.for_each_tile_mut(window, |t, st| {
-            if !delta[t].is_empty() {
-                apply_refinement(st, &delta[t]);
-            }
-        })?;
     }
-    stage.finish();
-    Ok(())
 }
 
 #[cfg(test)]
@@ -193,6 +211,7 @@ mod tests {
         let clean = PixelInfo {
             shape: 0,
             normal: Vec3::Y,
+            plane: 0.0,
             clean: true,
         };
         let n = 101;

@@ -100,7 +100,9 @@ fn run() -> &'static Run {
         let out = std::env::var_os("KDMAP_OUTPUT_DIR")
             .map(PathBuf::from)
             .unwrap_or_else(|| dir.path().join("out"));
-        write_outputs(&p, &geom, &state, &mut report, &out).unwrap();
+        let charts = kdmap::atlas::charts::Charts::new(&p.scene, &p.layout, &p.atlases).unwrap();
+        let hits = kdmap::atlas::hits::HitTable::new(&p, &charts);
+        write_outputs(&p, &hits, &geom, &state, &mut report, &out).unwrap();
         Run {
             _dir: dir,
             out,

@@ -7,6 +7,8 @@
 //! - `KDMAP_REFINE_PASSES=<n>` overrides `project::REFINE_PASSES` (0 = the plain weighted mean).
 
 use glam::{Vec2, Vec3};
+use kdmap::atlas::charts::Charts;
+use kdmap::atlas::hits::HitTable;
 use kdmap::atlas::layout::{TexelGeom, TexelState};
 use kdmap::atlas::texture::gather;
 use kdmap::atlas::tiles::TileStore;
@@ -17,7 +19,7 @@ use kdmap::config::REFINE_PASSES;
 use kdmap::image::{read_exr, read_sensor_image, write_exr_rgb, write_png_srgb, Image};
 use kdmap::output::write_map;
 use kdmap::progress::Mode;
-use kdmap::project::{refine, View};
+use kdmap::project::View;
 use kdmap::render::{bilinear, render_view, Film, Texture};
 use kdmap::scene::luminance;
 use std::path::{Path, PathBuf};
@@ -49,26 +51,27 @@ fn refine_passes() -> u32 {
         .unwrap_or(REFINE_PASSES)
 }
 
-/// The projection stage: the weighted mean (`project::run`), then `passes` of
-/// `project::refine`, with the luminance maps written to `<out>/maps` and read back as a user
-/// would. Returns the prepared scene and the maps by shape. (Spelled out, with the config's
-/// own `refine_passes` at 0, so the number of passes is the test's to choose.)
+/// The projection stage (`project::run`: the weighted mean, then `passes` refinement passes),
+/// with the luminance maps written to `<out>/maps` and read back as a user would. Returns the
+/// prepared scene and the maps by shape.
 fn project(cfg: &Config, out: &Path, passes: u32) -> (Prepared, Vec<Option<Image>>) {
-    let p = prepare(cfg, Mode::Quiet).unwrap();
+    let mut cfg = cfg.clone();
+    cfg.refine_passes = passes;
+    let p = prepare(&cfg, Mode::Quiet).unwrap();
     let dir = state_dir(out);
     std::fs::create_dir_all(&dir).unwrap();
     let geom = build_geometry(&p, &dir.join("geometry.tiles"), Mode::Quiet).unwrap();
     let mut state = p
         .create_store(dir.join("state.tiles"), TexelState::default())
         .unwrap();
-    let stats = kdmap::project::run(&p, cfg, &geom, &mut state, Mode::Quiet).unwrap();
+    let charts = Charts::new(&p.scene, &p.layout, &p.atlases).unwrap();
+    let hits = HitTable::new(&p, &charts);
+    let stats = kdmap::project::run(&p, &cfg, &hits, &geom, &mut state, Mode::Quiet).unwrap();
     assert!(stats.views >= 1);
     assert!(
         stats.observed_texels > stats.covered_texels / 2,
         "{stats:?}"
     );
-    let window = p.window::<TexelState>(cfg);
-    refine(&p, &geom, &mut state, window, passes, Mode::Quiet).unwrap();
     let maps_dir = out.join("maps");
     let mut maps: Vec<Option<Image>> = (0..p.scene.shapes.len()).map(|_| None).collect();
     for (slot, st) in p.layout.slots.iter().enumerate() {
