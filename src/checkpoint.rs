@@ -210,6 +210,8 @@ pub struct Writer {
     pub bytes_written: u64,
     /// Seconds spent writing checkpoints so far.
     pub seconds: f64,
+    /// When the last checkpoint was written (or the writer made).
+    last: std::time::Instant,
 }
 
 impl Writer {
@@ -221,7 +223,13 @@ impl Writer {
             seq,
             bytes_written: 0,
             seconds: 0.0,
+            last: std::time::Instant::now(),
         }
+    }
+
+    /// Seconds since the last checkpoint this writer wrote (or since it was made).
+    pub fn since_last(&self) -> f64 {
+        self.last.elapsed().as_secs_f64()
     }
 
     /// Removes every checkpoint file of an earlier run (a fresh start).
@@ -308,6 +316,7 @@ impl Writer {
             }
         }
         self.seconds += t0.elapsed().as_secs_f64();
+        self.last = std::time::Instant::now();
         Ok(())
     }
 }

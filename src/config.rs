@@ -91,6 +91,7 @@ pub struct RawRun {
     pub seed: Option<u64>,
     pub threads: Option<usize>,
     pub checkpoint_every_batches: Option<u32>,
+    pub checkpoint_every_seconds: Option<f64>,
     pub memory_budget_mib: Option<u64>,
 }
 
@@ -225,7 +226,8 @@ pub struct Config {
     pub atlas: AtlasConfig,
     /// Iterative back-projection passes after the weighted-mean projection (0 = off).
     pub refine_passes: u32,
-    /// Stratified samples per emitter triangle for area-light visibility.
+    /// First-pass interior shadow rays per area-emitter triangle (the perimeter is searched
+    /// too; see `light::DirectParams`).
     pub area_samples: u32,
     /// How `E_i` is estimated.
     pub method: Method,
@@ -256,8 +258,13 @@ pub struct Config {
     pub seed: u64,
     /// Worker threads; 0 = all cores. Never changes results.
     pub threads: usize,
-    /// Mid-pass checkpoint every N photon batches.
+    /// Mid-pass checkpoint at most every N photon batches.
     pub checkpoint_every_batches: u32,
+    /// Seconds of work between checkpoints: one is taken after the direct light and when the
+    /// run finishes, and in between (after an iteration, or inside a photon pass) only once
+    /// this much time has passed since the last. 0 = at every opportunity.
+    #[serde(default)]
+    pub checkpoint_every_seconds: f64,
     /// Budget for memory-mapped working sets, MiB.
     pub memory_budget_mib: u64,
 }
@@ -276,7 +283,7 @@ impl Config {
                 max_texture_size: 8192,
             },
             refine_passes: REFINE_PASSES,
-            area_samples: 64,
+            area_samples: 16,
             method: Method::Gather,
             gather_rays: 1024,
             gather_spacing: 0.0,
@@ -293,6 +300,7 @@ impl Config {
             seed: 1,
             threads: 0,
             checkpoint_every_batches: 32,
+            checkpoint_every_seconds: 60.0,
             memory_budget_mib: 1024,
         }
     }
@@ -316,7 +324,7 @@ impl Config {
                 self.photons = 2_000_000;
                 self.iterations = 2;
                 self.refine_passes = 1;
-                self.area_samples = 16;
+                self.area_samples = 9;
             }
             Preset::Paper => {
                 self.method = Method::Photons;
@@ -453,6 +461,7 @@ impl Config {
         set(&mut c.seed, r.seed);
         set(&mut c.threads, r.threads);
         set(&mut c.checkpoint_every_batches, r.checkpoint_every_batches);
+        set(&mut c.checkpoint_every_seconds, r.checkpoint_every_seconds);
         set(&mut c.memory_budget_mib, r.memory_budget_mib);
         Ok(c)
     }
@@ -536,6 +545,12 @@ impl Config {
         }
         if self.checkpoint_every_batches == 0 {
             return Err("run.checkpoint_every_batches = 0: must be at least 1".into());
+        }
+        if !(self.checkpoint_every_seconds.is_finite() && self.checkpoint_every_seconds >= 0.0) {
+            return Err(format!(
+                "run.checkpoint_every_seconds = {}: must be a number of seconds >= 0",
+                self.checkpoint_every_seconds
+            ));
         }
         if self.memory_budget_mib < 16 {
             return Err(format!(

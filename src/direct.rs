@@ -182,7 +182,15 @@ impl<'a> TileCtx<'a> {
             let mut dense = false;
             for k in 0..lights {
                 let (ek, reach) = first[off * lights + k].expect("every covered texel is lit");
-                e += if reach == Reach::Partial || self.near_hard_edge(off, k, &first, lights) {
+                // an area light's first pass already integrated its penumbra
+                let area = matches!(self.p.scene.emitters[k], Emitter::Area { .. });
+                let redo = (reach == Reach::Partial && !area)
+                    || self.near_hard_edge(off, k, &first, lights);
+                if reach == Reach::Partial && area {
+                    dense = true;
+                    sums.dense_k[k] += 1;
+                }
+                e += if redo {
                     dense = true;
                     sums.dense_k[k] += 1;
                     self.estimate(off, k, true).0

@@ -220,6 +220,16 @@ impl Running {
         self.prior_s + self.clock.elapsed().as_secs_f64()
     }
 
+    /// Checkpoint at `stage` if it is due: always after the direct light and when finished,
+    /// else once `every` seconds have passed since the last one.
+    fn checkpoint_if_due(&mut self, state_path: &Path, stage: RunStage, every: f64) -> Result<()> {
+        let forced = matches!(stage, RunStage::Direct | RunStage::Finished);
+        if forced || self.writer.since_last() >= every {
+            self.checkpoint(state_path, stage)?;
+        }
+        Ok(())
+    }
+
     /// Checkpoint: the state (unless finished) and where the run stands.
     fn checkpoint(&mut self, state_path: &Path, stage: RunStage) -> Result<()> {
         let progress = Progress {
@@ -484,7 +494,7 @@ impl<'a> Run<'a> {
             stopped: done || n + 1 == cfg.iterations,
         };
         r.stage = stage;
-        r.checkpoint(&self.state_path, stage)?;
+        r.checkpoint_if_due(&self.state_path, stage, cfg.checkpoint_every_seconds)?;
         Ok(done)
     }
 
@@ -624,7 +634,8 @@ impl<'a> Run<'a> {
             let photons = ctx.photons_in(done);
             stage.inc(photons - last);
             last = photons;
-            if done < batches && done - last_ck >= every {
+            let due = writer.since_last() >= cfg.checkpoint_every_seconds;
+            if done < batches && done - last_ck >= every && due {
                 let progress = Progress {
                     stage: RunStage::Pass {
                         iteration: n,

@@ -13,6 +13,7 @@ use crate::fsio::Fnv;
 use crate::progress::{note, Mode};
 use crate::scene::{mitsuba, Mesh, Scene, Sides};
 use glam::{Vec2, Vec3};
+use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 
 /// The scene with its acceleration structure, atlases and tile layout: everything fixed.
@@ -128,26 +129,39 @@ impl Prepared {
         settings: &AtlasSettings,
         tile_size: u32,
     ) -> Result<Prepared> {
-        let accel = Accel::build(&scene);
-        let mut atlases = Vec::with_capacity(scene.shapes.len());
-        let mut textures = Vec::new();
-        for (i, s) in scene.shapes.iter().enumerate() {
-            if !s.is_reconstructed() {
-                atlases.push(None);
-                continue;
-            }
-            let a = build_atlas(&s.mesh, settings).map_err(|e| match e {
-                Error::Config { msg, .. } => {
-                    Error::config_in(&scene.path, format!("shape '{}': {msg}", s.id))
-                }
-                Error::Input { msg, .. } => {
-                    Error::input(&scene.path, format!("shape '{}': {msg}", s.id))
-                }
-                other => other,
-            })?;
-            textures.push((i, a.width, a.height));
-            atlases.push(Some(a));
-        }
+        // The BVH and the shapes' atlases are independent: built side by side, each atlas a
+        // pure function of its mesh (so the order of the work never changes a result).
+        let (accel, atlases) = rayon::join(
+            || Accel::build(&scene),
+            || {
+                scene
+                    .shapes
+                    .par_iter()
+                    .map(|s| match s.is_reconstructed() {
+                        true => build_atlas(&s.mesh, settings)
+                            .map(Some)
+                            .map_err(|e| match e {
+                                Error::Config { msg, .. } => Error::config_in(
+                                    &scene.path,
+                                    format!("shape '{}': {msg}", s.id),
+                                ),
+                                Error::Input { msg, .. } => {
+                                    Error::input(&scene.path, format!("shape '{}': {msg}", s.id))
+                                }
+                                other => other,
+                            }),
+                        false => Ok(None),
+                    })
+                    .collect::<Vec<Result<Option<ShapeAtlas>>>>()
+            },
+        );
+        // the first failing shape in scene order, whatever finished first
+        let atlases = atlases.into_iter().collect::<Result<Vec<_>>>()?;
+        let textures: Vec<(usize, u32, u32)> = atlases
+            .iter()
+            .enumerate()
+            .filter_map(|(i, a)| a.as_ref().map(|a| (i, a.width, a.height)))
+            .collect();
         let layout = Layout::new(tile_size, &textures);
         Ok(Prepared {
             scene,
@@ -223,7 +237,7 @@ impl Prepared {
     }
 
     /// Hash of everything that changes a run's result: the settings without `threads`,
-    /// `checkpoint_every_batches` and `memory_budget_mib` (which never change results), the
+    /// the checkpoint intervals and `memory_budget_mib` (which never change results), the
     /// scene file, every file it names (meshes, textures) and the photos. A checkpoint made
     /// with other inputs must not be resumed.
     pub fn fingerprint(&self, cfg: &Config) -> Result<u64> {
@@ -231,6 +245,7 @@ impl Prepared {
         let mut c = cfg.clone();
         c.threads = 0;
         c.checkpoint_every_batches = 1;
+        c.checkpoint_every_seconds = 0.0;
         c.memory_budget_mib = 0;
         let json = serde_json::to_vec(&c).map_err(|e| Error::internal(format!("settings: {e}")))?;
         h.update(&json);

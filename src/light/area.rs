@@ -379,10 +379,12 @@ struct Target<'a> {
 
 impl Target<'_> {
     /// The visible fraction of the triangle from `fp` (weighted by the unoccluded integrand)
-    /// and whether it is partial. Unless `dense`, a first pass from the texel's center looks
-    /// for a shadow boundary around the triangle's perimeter and at `checks` interior points:
-    /// none found, the triangle is wholly lit or wholly dark. Otherwise (a penumbra) the
-    /// exact visible part from 2 x 2 points of the texel ([`Target::edge_fitted`]).
+    /// and whether it is partial, from the texel's center: a soft shadow varies little across
+    /// a texel (and linearly, where the center is the mean). The shadow boundary is looked for
+    /// around the triangle's perimeter and at `checks` interior points: none found, the
+    /// triangle is wholly lit or wholly dark; one straight boundary (or two lines of a band or
+    /// corner), its lit part integrated exactly; else [`Target::fit`] splits the triangle.
+    /// `dense` uses the split search at once.
     fn visibility(
         &self,
         fp: &Footprint,
@@ -390,46 +392,39 @@ impl Target<'_> {
         rng: &mut Rng,
         dense: bool,
     ) -> (f64, bool) {
+        let r = Receiver {
+            q: fp.p,
+            n: fp.n,
+            ng: fp.ng,
+        };
+        let tri = self.mesh.triangle(self.t);
         if !dense {
-            let r = Receiver {
-                q: fp.p,
-                n: fp.n,
-                ng: fp.ng,
-            };
-            let tri = self.mesh.triangle(self.t);
             let seen = |y: Vec3| self.sees(r.q, r.ng, y);
             match self.fit_line(&r, tri, &seen, rng, checks) {
                 Some(Fit::Lit) => return (1.0, false),
                 Some(Fit::Dark) => return (0.0, false),
-                _ => {}
+                Some(fit) => {
+                    let nd = r.n.as_dvec3();
+                    let rel = tri.map(|v| v.as_dvec3() - r.q.as_dvec3());
+                    let whole = clip_polygon(&rel, nd);
+                    let total = projected_solid_angle(&whole, nd);
+                    if total > 0.0 {
+                        return (
+                            (fit.lit_part(&whole, nd, total) / total).clamp(0.0, 1.0),
+                            true,
+                        );
+                    }
+                }
+                None => {}
             }
         }
-        (self.edge_fitted(fp, dense_n, rng), true)
-    }
-
-    /// The visible fraction of the triangle (weighted by the unoccluded integrand) averaged
-    /// over two points of the texel (one in each of two diagonal quarters), each from
-    /// [`Target::fit`]. Soft shadows vary little across a texel; two points keep the texel's
-    /// mean where a contact shadow sharpens the penumbra to a line.
-    fn edge_fitted(&self, fp: &Footprint, dense_n: u32, rng: &mut Rng) -> f64 {
-        let mut sum = 0.0;
-        for k in 0..2 {
-            let a = (k as f32 + rng.f32()) / 2.0;
-            let b = (k as f32 + rng.f32()) / 2.0;
-            let q = fp.at(a, b);
-            let r = Receiver {
-                q,
-                n: fp.n,
-                ng: fp.ng,
-            };
-            let (lit, total) = self.fit(&r, self.mesh.triangle(self.t), 0, dense_n / 2, rng);
-            sum += if total > 0.0 {
-                (lit / total).clamp(0.0, 1.0)
-            } else {
-                0.0
-            };
-        }
-        sum / 2.0
+        let (lit, total) = self.fit(&r, tri, 0, dense_n, rng);
+        let v = if total > 0.0 {
+            (lit / total).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        (v, true)
     }
 
     /// The part of (sub-)triangle `tri` of the emitter that lights `r`, exactly where the

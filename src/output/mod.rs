@@ -104,6 +104,7 @@ pub fn write_outputs(
     write_pixmap_png(&out.join("report_convergence.png"), &plot)?;
 
     report.timings.output = t0.elapsed().as_secs_f64();
+    report.timings.total += report.timings.output;
     let json_path = out.join("report.json");
     let json = serde_json::to_string_pretty(report)
         .map_err(|e| Error::internal(format!("cannot serialize the report: {e}")))?;

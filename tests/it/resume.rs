@@ -23,7 +23,7 @@ fn write_config(dir: &Path) -> PathBuf {
     let text = format!(
         "scene = {:?}\n[atlas]\ntexels_per_unit = 24.0\n[direct]\narea_samples = 4\n\
          [photons]\nbatch_size = 1024\n[solver]\nmethod = \"photons\"\n\
-         [run]\ncheckpoint_every_batches = 1\n",
+         [run]\ncheckpoint_every_batches = 1\ncheckpoint_every_seconds = 0\n",
         scene().to_str().unwrap()
     );
     std::fs::write(&p, text).unwrap();
@@ -356,7 +356,7 @@ fn gather_run_resumes_bit_for_bit() {
     let cfg = tmp.path().join("run.toml");
     let text = format!(
         "scene = {:?}\n[atlas]\ntexels_per_unit = 24.0\n[projection]\nrefine_passes = 0\n\
-         [direct]\narea_samples = 4\n[gather]\nrays = 64\n",
+         [direct]\narea_samples = 4\n[gather]\nrays = 64\n[run]\ncheckpoint_every_seconds = 0\n",
         scene().to_str().unwrap()
     );
     std::fs::write(&cfg, text).unwrap();
