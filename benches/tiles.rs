@@ -14,6 +14,7 @@
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use glam::Vec3;
 use kdmap::atlas::charts::Charts;
+use kdmap::atlas::hits::HitTable;
 use kdmap::atlas::layout::TexelState;
 use kdmap::atlas::prepare;
 use kdmap::config::Config;
@@ -35,9 +36,10 @@ fn bench(c: &mut Criterion) {
     let p = prepare(&cfg, Mode::Quiet).expect("prepare");
     let charts = Charts::new(&p.scene, &p.layout, &p.atlases).expect("charts");
     let sampler = EmitterSampler::new(&p.scene);
-    let albedo = AlbedoTextures::uniform(&p.layout, Vec3::splat(0.5));
+    let albedo = AlbedoTextures::uniform(&p.layout, &charts, Vec3::splat(0.5));
     let all_tiles = p.window::<TexelState>(&cfg);
-    let ctx = PassContext::new(&p, &cfg, (&sampler, &charts, &albedo), 0);
+    let hits = HitTable::new(&p, &charts);
+    let ctx = PassContext::new(&p, &cfg, (&sampler, &charts, &hits, &albedo), 0);
     let outs: Vec<(Vec<Deposit>, PathCounts)> = (0..ctx.batch_count())
         .into_par_iter()
         .map(|b| trace_batch(&ctx, b))

@@ -511,7 +511,7 @@ impl<'a> Run<'a> {
         let padding = cfg.atlas.padding + 2;
         let albedo = AlbedoTextures::gather(&p.layout, charts, &r.state, &self.geom, padding)?;
         pass.update_seconds += t.elapsed().as_secs_f64();
-        let ctx = PassContext::new(p, cfg, (sampler, charts, &albedo), n as u64);
+        let ctx = PassContext::new(p, cfg, (sampler, charts, self.hits(), &albedo), n as u64);
         let traced = self.photon_pass(r, &ctx, n, pass)?;
         finish_pass(&self.geom, &mut r.state, window)?;
         if cfg.smoothing_radius > 0 {

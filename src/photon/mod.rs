@@ -46,6 +46,7 @@ pub use trace::{trace_photon, PathCounts};
 
 use crate::accel::Accel;
 use crate::atlas::charts::Charts;
+use crate::atlas::hits::HitTable;
 use crate::atlas::layout::{Layout, TexelGeom, TexelState};
 use crate::atlas::texels::{dilate, NONE};
 use crate::atlas::texture;
@@ -60,14 +61,25 @@ use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 use std::time::Instant;
 
-/// One slot's albedo texture: `width x height` linear RGB, row-major, row 0 = top, in the
-/// slot's atlas texel coordinates. Gutter texels should hold dilated values (hits in the
-/// uncovered border texels of a chart read them).
+/// What a photon hit reads from the texel under it, in one 16-byte record so that a hit costs
+/// one cache miss, not two (the texel's chart decides the deposit, its `K_d` the bounce).
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[repr(C, align(16))]
+pub struct PathTexel {
+    /// Linear RGB `K_d`.
+    pub kd: Vec3,
+    /// The chart under the texel's center (`NONE` in the gutter).
+    pub chart: u32,
+}
+
+/// One slot's albedo texture: `width x height` texels, row-major, row 0 = top, in the
+/// slot's atlas texel coordinates. Gutter texels should hold dilated `K_d` values (hits in
+/// the uncovered border texels of a chart read them).
 #[derive(Debug, Clone, PartialEq)]
 pub struct AlbedoTexture {
     pub width: u32,
     pub height: u32,
-    pub texels: Vec<Vec3>,
+    pub texels: Vec<PathTexel>,
 }
 
 /// The current `K_d` of every reconstructed shape, in memory, one texture per layout slot.
@@ -112,15 +124,15 @@ impl AlbedoTextures {
     }
 
     /// The same albedo everywhere (tests, benchmarks, a first pass).
-    pub fn uniform(layout: &Layout, kd: Vec3) -> Self {
+    pub fn uniform(layout: &Layout, charts: &Charts, kd: Vec3) -> Self {
         AlbedoTextures {
-            slots: layout
-                .slots
-                .iter()
-                .map(|s| AlbedoTexture {
+            slots: (layout.slots.iter().zip(&charts.slots))
+                .map(|(s, c)| AlbedoTexture {
                     width: s.width,
                     height: s.height,
-                    texels: vec![kd; s.width as usize * s.height as usize],
+                    texels: (c.texel_chart.iter())
+                        .map(|&chart| PathTexel { kd, chart })
+                        .collect(),
                 })
                 .collect(),
         }
@@ -150,10 +162,13 @@ impl AlbedoTextures {
                 }
             }
             dilate(&mut vals, &covered, st.width, st.height, dilate_passes)?;
+            let texels = (vals.iter().zip(&charts.slots[slot].texel_chart))
+                .map(|(&kd, &chart)| PathTexel { kd, chart })
+                .collect();
             out.push(AlbedoTexture {
                 width: st.width,
                 height: st.height,
-                texels: vals,
+                texels,
             });
         }
         AlbedoTextures::new(layout, out)
@@ -163,10 +178,19 @@ impl AlbedoTextures {
     /// clamped to the texture.
     #[inline]
     pub fn lookup(&self, slot: usize, uv: Vec2) -> Vec3 {
+        self.texel(slot, uv).0.kd
+    }
+
+    /// The texel of `slot` containing `uv` (clamped to the texture) and whether `uv` was
+    /// inside the texture.
+    #[inline]
+    pub fn texel(&self, slot: usize, uv: Vec2) -> (&PathTexel, bool) {
         let t = &self.slots[slot];
-        let x = (uv.x.floor() as i64).clamp(0, t.width as i64 - 1) as usize;
-        let y = (uv.y.floor() as i64).clamp(0, t.height as i64 - 1) as usize;
-        t.texels[y * t.width as usize + x]
+        let (fx, fy) = (uv.x.floor(), uv.y.floor());
+        let inside = fx >= 0.0 && fy >= 0.0 && fx < t.width as f32 && fy < t.height as f32;
+        let x = (fx as i64).clamp(0, t.width as i64 - 1) as usize;
+        let y = (fy as i64).clamp(0, t.height as i64 - 1) as usize;
+        (&t.texels[y * t.width as usize + x], inside)
     }
 }
 
@@ -180,6 +204,8 @@ pub struct PassContext<'a> {
     /// Per scene shape, its atlas (`corner_uv` maps hits to texels).
     pub atlases: &'a [Option<ShapeAtlas>],
     pub charts: &'a Charts,
+    /// Per BVH primitive, what a hit on it means (slot, chart, normals, atlas coordinates).
+    pub hits: &'a HitTable,
     pub albedo: &'a AlbedoTextures,
     pub seed: u64,
     /// Solver iteration: part of every photon's random key.
@@ -204,7 +230,12 @@ impl<'a> PassContext<'a> {
     pub fn new(
         p: &'a Prepared,
         cfg: &Config,
-        (sampler, charts, albedo): (&'a EmitterSampler, &'a Charts, &'a AlbedoTextures),
+        (sampler, charts, hits, albedo): (
+            &'a EmitterSampler,
+            &'a Charts,
+            &'a HitTable,
+            &'a AlbedoTextures,
+        ),
         iteration: u64,
     ) -> PassContext<'a> {
         PassContext {
@@ -214,6 +245,7 @@ impl<'a> PassContext<'a> {
             layout: &p.layout,
             atlases: &p.atlases,
             charts,
+            hits,
             albedo,
             seed: cfg.seed,
             iteration,

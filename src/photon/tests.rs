@@ -35,6 +35,7 @@ struct Fixture {
     p: Prepared,
     geom: TileStore<TexelGeom>,
     charts: Charts,
+    hits: HitTable,
     sampler: EmitterSampler,
 }
 
@@ -56,11 +57,13 @@ impl Fixture {
         let geom = build_geometry(&p, &dir.path().join("geom.tiles"), Mode::Quiet).unwrap();
         let charts = Charts::new(&p.scene, &p.layout, &p.atlases).unwrap();
         let sampler = EmitterSampler::new(&p.scene);
+        let hits = HitTable::new(&p, &charts);
         Fixture {
             dir,
             p,
             geom,
             charts,
+            hits,
             sampler,
         }
     }
@@ -73,6 +76,7 @@ impl Fixture {
             layout: &self.p.layout,
             atlases: &self.p.atlases,
             charts: &self.charts,
+            hits: &self.hits,
             albedo,
             seed: 7,
             iteration: 3,
@@ -166,7 +170,7 @@ fn furnace_sphere_matches_the_closed_form() {
 
     // Grey rho = 0.5: every photon keeps its flux, so texel counts are (nearly) Poisson.
     let rho = 0.5;
-    let albedo = AlbedoTextures::uniform(&fx.p.layout, Vec3::splat(rho));
+    let albedo = AlbedoTextures::uniform(&fx.p.layout, &fx.charts, Vec3::splat(rho));
     let ctx = fx.ctx(&albedo, n, 8192);
     let (s, stats) = fx.pass(&ctx, "grey.tiles");
     let texels = fx.texels(&s);
@@ -268,7 +272,7 @@ fn check_smoothing(fx: &Fixture, s: TileStore<TexelState>, want: f64) {
 fn check_colored_and_one_bounce(fx: &Fixture, ed: DVec3, n: u64) {
     // Colored albedo: per channel E_i = E_d rho_c / (1 - rho_c) (Russian roulette on max K_d).
     let rho = Vec3::new(0.5, 0.25, 0.8);
-    let albedo = AlbedoTextures::uniform(&fx.p.layout, rho);
+    let albedo = AlbedoTextures::uniform(&fx.p.layout, &fx.charts, rho);
     let (s, stats) = fx.pass(&fx.ctx(&albedo, n, 8192), "color.tiles");
     let want = ed * (rho.as_dvec3() / (1.0 - rho.as_dvec3()));
     let got = area_mean(&fx.texels(&s)).as_dvec3();
@@ -277,7 +281,7 @@ fn check_colored_and_one_bounce(fx: &Fixture, ed: DVec3, n: u64) {
     assert!(rel.max_element() < 0.01, "{got} vs {want}");
 
     // One bounce only: E_i = E_d rho.
-    let albedo = AlbedoTextures::uniform(&fx.p.layout, Vec3::splat(0.5));
+    let albedo = AlbedoTextures::uniform(&fx.p.layout, &fx.charts, Vec3::splat(0.5));
     let mut ctx = fx.ctx(&albedo, 200_000, 8192);
     ctx.max_depth = 1;
     let (s, _) = fx.pass(&ctx, "depth1.tiles");
@@ -294,13 +298,13 @@ fn check_colored_and_one_bounce(fx: &Fixture, ed: DVec3, n: u64) {
 #[test]
 fn black_surfaces_absorb_everything() {
     let fx = furnace(Vec3::ONE, 8.0);
-    let albedo = AlbedoTextures::uniform(&fx.p.layout, Vec3::ZERO);
+    let albedo = AlbedoTextures::uniform(&fx.p.layout, &fx.charts, Vec3::ZERO);
     let (s, stats) = fx.pass(&fx.ctx(&albedo, 20_000, 4096), "black.tiles");
     assert_eq!((stats.deposits, stats.dropped), (0, 0));
     assert_eq!(stats.rays, 20_000);
     assert!(fx.texels(&s).iter().all(|(_, e)| *e == Vec3::ZERO));
     // max_depth = 0: no bounce, so nothing either, even with a white surface.
-    let albedo = AlbedoTextures::uniform(&fx.p.layout, Vec3::ONE);
+    let albedo = AlbedoTextures::uniform(&fx.p.layout, &fx.charts, Vec3::ONE);
     let mut ctx = fx.ctx(&albedo, 20_000, 4096);
     ctx.max_depth = 0;
     let (_, stats) = fx.pass(&ctx, "depth0.tiles");
@@ -323,9 +327,9 @@ fn open_floor_and_backside_receiver_get_nothing() {
     let light = || vec![point(Vec3::Z, Vec3::splat(3.0))];
     let run_with = |shapes: Vec<Shape>, name: &str, kd: &[f32]| {
         let fx = Fixture::new(shapes, light(), 8.0);
-        let mut albedo = AlbedoTextures::uniform(&fx.p.layout, Vec3::ZERO);
+        let mut albedo = AlbedoTextures::uniform(&fx.p.layout, &fx.charts, Vec3::ZERO);
         for (t, k) in albedo.slots.iter_mut().zip(kd) {
-            t.texels.iter_mut().for_each(|v| *v = Vec3::splat(*k));
+            t.texels.iter_mut().for_each(|v| v.kd = Vec3::splat(*k));
         }
         let (s, stats) = fx.pass(&fx.ctx(&albedo, 50_000, 4096), name);
         let per_slot: Vec<Vec3> = (0..fx.p.layout.slots.len())
@@ -411,7 +415,10 @@ fn albedo_lookup_is_the_texel_under_the_point_and_gather_dilates() {
     }
     assert!(covered > 100 && filled > 10, "{covered} {filled}");
     // Clamped outside the texture; wrong sizes refused.
-    assert_eq!(alb.lookup(0, Vec2::new(-3.0, -1.0)), alb.slots[0].texels[0]);
+    assert_eq!(
+        alb.lookup(0, Vec2::new(-3.0, -1.0)),
+        alb.slots[0].texels[0].kd
+    );
     let mut bad = alb.slots.clone();
     bad[0].texels.pop();
     assert!(AlbedoTextures::new(&fx.p.layout, bad).is_err());
@@ -422,7 +429,7 @@ fn albedo_lookup_is_the_texel_under_the_point_and_gather_dilates() {
 #[test]
 fn passes_are_bit_identical_across_threads_groups_and_resume() {
     let fx = furnace(Vec3::new(1.0, 0.5, 2.0), 8.0);
-    let albedo = AlbedoTextures::uniform(&fx.p.layout, Vec3::new(0.6, 0.3, 0.7));
+    let albedo = AlbedoTextures::uniform(&fx.p.layout, &fx.charts, Vec3::new(0.6, 0.3, 0.7));
     let base = fx.ctx(&albedo, 20_500, 1000); // 21 batches, the last one of 500
     let bits = |s: &TileStore<TexelState>| -> Vec<u32> {
         (0..s.tile_count())
@@ -547,7 +554,7 @@ fn smoothing_tradeoff_on_a_gradient() {
         vec![point(Vec3::new(0.5, 0.0, 0.5), Vec3::ONE)],
         8.0,
     );
-    let albedo = AlbedoTextures::uniform(&fx.p.layout, Vec3::splat(0.7));
+    let albedo = AlbedoTextures::uniform(&fx.p.layout, &fx.charts, Vec3::splat(0.7));
     let (n, k) = (100_000u64, 40u64);
     let (reference, _) = fx.pass(&fx.ctx(&albedo, k * n, 16384), "ref.tiles");
     let (s, _) = fx.pass(&fx.ctx(&albedo, n, 16384), "n.tiles");

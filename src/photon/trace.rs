@@ -6,7 +6,6 @@ use super::{Deposit, PassContext};
 use crate::accel::offset_origin;
 use crate::atlas::texels::NONE;
 use crate::rng::Rng;
-use crate::scene::Sides;
 use glam::Vec3;
 use std::f32::consts::TAU;
 use std::ops::AddAssign;
@@ -59,48 +58,31 @@ pub fn trace_photon(
     let mut bounces = 0u32;
     loop {
         counts.rays += 1;
-        let Some(hit) = ctx.accel.intersect(o, d, f32::INFINITY) else {
+        let Some((hit, prim)) = ctx.hits.trace(ctx.accel, o, d, f32::INFINITY) else {
             break;
         };
-        let si = hit.shape as usize;
-        let Some(slot) = ctx.charts.slot_of_shape(si) else {
+        // emitters and shapes not reconstructed absorb
+        if prim.slot == NONE {
             break;
-        };
-        let shape = &ctx.scene.shapes[si];
-        let (t, b1, b2) = (hit.tri as usize, hit.b1, hit.b2);
-        let ng = shape.mesh.face_normal_raw(t).normalize_or_zero();
-        let ns = shape.mesh.shading_normal(t, b1, b2);
+        }
+        let slot = prim.slot as usize;
+        let (ng, ns) = (prim.ng, hit.ns);
         let (cg, cs) = (d.dot(ng), d.dot(ns));
         // Same side by both normals (also rejects zeros and NaN).
         if positive(cg * cs).is_none() {
             break;
         }
-        if shape.sides == Sides::Front && cs >= 0.0 {
+        if prim.one_sided && cs >= 0.0 {
             break;
         }
-        let Some(atlas) = ctx.atlases[si].as_ref() else {
-            break;
-        };
-        let [u0, u1, u2] = atlas.corner_uv[t];
-        let b0 = 1.0 - b1 - b2;
-        let uv = u0 * b0 + u1 * b1 + u2 * b2;
+        let (texel, inside) = ctx.albedo.texel(slot, hit.uv);
         if bounces > 0 {
-            let charts = &ctx.charts.slots[slot];
-            let (fx, fy) = (uv.x.floor(), uv.y.floor());
-            let tc = charts.tri_chart.get(t).copied().unwrap_or(NONE);
-            let inside = fx >= 0.0
-                && fy >= 0.0
-                && fx < charts.width as f32
-                && fy < charts.height as f32
-                && tc != NONE;
-            let (x, y) = (fx as u32, fy as u32);
-            if inside && charts.texel_chart[y as usize * charts.width as usize + x as usize] == tc {
-                let (tile, offset) = ctx.layout.locate(slot, x, y);
-                out.push(Deposit {
-                    tile,
-                    offset,
-                    flux: flux.to_array(),
-                });
+            // Binned only where the texel's center is on the hit's chart (module doc of
+            // `photon`, "Unbiased bins").
+            if inside && prim.chart != NONE && texel.chart == prim.chart {
+                let (tile, offset) = ctx.layout.locate(slot, hit.uv.x as u32, hit.uv.y as u32);
+                let flux = flux.to_array();
+                out.push(Deposit { tile, offset, flux });
             } else {
                 counts.dropped += 1;
             }
@@ -108,7 +90,7 @@ pub fn trace_photon(
         if bounces >= ctx.max_depth {
             break;
         }
-        let kd = ctx.albedo.lookup(slot, uv);
+        let kd = texel.kd;
         let Some(kmax) = positive(kd.max_element()) else {
             break;
         };
@@ -123,9 +105,7 @@ pub fn trace_photon(
         if positive(-dir.dot(ng) * cg).is_none() {
             break;
         }
-        let [p0, p1, p2] = shape.mesh.triangle(t);
-        let p = p0 * b0 + p1 * b1 + p2 * b2;
-        o = offset_origin(p, ng, dir);
+        o = offset_origin(hit.p, ng, dir);
         d = dir;
         bounces += 1;
     }
