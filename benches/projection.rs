@@ -20,7 +20,7 @@ use std::time::Duration;
 fn bench(c: &mut Criterion) {
     let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/cbox/input.xml");
     let mut cfg = Config::for_scene(scene);
-    cfg.atlas.texels_per_unit = 128.0;
+    cfg.atlas.texels_per_unit = kdmap::config::Density::PerUnit(128.0);
     let dir = tempfile::tempdir().expect("temp dir");
     let p = prepare(&cfg, Mode::Quiet).expect("prepare");
     let geom =

@@ -38,7 +38,8 @@ pub struct RawConfig {
 #[derive(Debug, Clone, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RawAtlas {
-    pub texels_per_unit: Option<f32>,
+    pub texels_per_unit: Option<RawDensity>,
+    pub max_texels: Option<u64>,
     pub padding: Option<u32>,
     pub use_mesh_uvs: Option<bool>,
     pub tile_size: Option<u32>,
@@ -164,8 +165,12 @@ pub enum UpdateRule {
 /// Settings of the UV atlas.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct AtlasConfig {
-    /// Texel density: texels per scene unit of length.
-    pub texels_per_unit: f32,
+    /// Texel density: from the photos (`"auto"`, the default) or texels per scene unit.
+    pub texels_per_unit: Density,
+    /// With `Density::Auto`, at most this many surface texels in all (0 = as many as the photos
+    /// have pixels, at most `atlas::density::DEFAULT_MAX_TEXELS`).
+    #[serde(default)]
+    pub max_texels: u64,
     /// Gutter between charts, in texels.
     pub padding: u32,
     /// Keep the meshes' own UVs instead of unwrapping.
@@ -174,6 +179,34 @@ pub struct AtlasConfig {
     pub tile_size: u32,
     /// Largest texture edge in texels; a shape needing more is refused.
     pub max_texture_size: u32,
+}
+
+/// How dense the texels are.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub enum Density {
+    /// Per shape, the density of the finest pixel footprint the photos give it (capped by
+    /// `max_texture_size` and `max_texels`; see `atlas::density`).
+    Auto,
+    /// The same number of texels per scene unit of length on every shape.
+    PerUnit(f32),
+}
+
+impl Density {
+    /// The fixed density, if any.
+    pub fn per_unit(self) -> Option<f32> {
+        match self {
+            Density::Auto => None,
+            Density::PerUnit(d) => Some(d),
+        }
+    }
+}
+
+/// `texels_per_unit` as written in a run config: a number or `"auto"`.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(untagged)]
+pub enum RawDensity {
+    PerUnit(f32),
+    Named(String),
 }
 
 /// Most refinement passes a config may ask for (each costs about one projection).
@@ -276,7 +309,8 @@ impl Config {
             scene,
             views: BTreeMap::new(),
             atlas: AtlasConfig {
-                texels_per_unit: 64.0,
+                texels_per_unit: Density::Auto,
+                max_texels: 0,
                 padding: 2,
                 use_mesh_uvs: false,
                 tile_size: 64,
@@ -412,7 +446,22 @@ impl Config {
             .map(|(k, v)| (k, base.join(v)))
             .collect();
         let a = raw.atlas;
-        set(&mut c.atlas.texels_per_unit, a.texels_per_unit);
+        if let Some(d) = a.texels_per_unit {
+            c.atlas.texels_per_unit = match d {
+                RawDensity::PerUnit(v) => Density::PerUnit(v),
+                RawDensity::Named(n) if n == "auto" => Density::Auto,
+                RawDensity::Named(n) => {
+                    return Err(Error::config_in(
+                        path,
+                        format!(
+                            "atlas.texels_per_unit = \"{n}\": expected \"auto\" or a number \
+                             of texels per scene unit"
+                        ),
+                    ))
+                }
+            };
+        }
+        set(&mut c.atlas.max_texels, a.max_texels);
         set(&mut c.atlas.padding, a.padding);
         set(&mut c.atlas.use_mesh_uvs, a.use_mesh_uvs);
         set(&mut c.atlas.tile_size, a.tile_size);
@@ -469,11 +518,13 @@ impl Config {
     /// Check that the settings can work; the message names the offending setting.
     pub fn validate(&self) -> std::result::Result<(), String> {
         let a = &self.atlas;
-        if !(a.texels_per_unit.is_finite() && a.texels_per_unit > 0.0) {
-            return Err(format!(
-                "atlas.texels_per_unit = {}: must be a positive number of texels per scene unit",
-                a.texels_per_unit
-            ));
+        if let Density::PerUnit(d) = a.texels_per_unit {
+            if !(d.is_finite() && d > 0.0) {
+                return Err(format!(
+                    "atlas.texels_per_unit = {d}: must be \"auto\" or a positive number of \
+                     texels per scene unit"
+                ));
+            }
         }
         if a.tile_size == 0 || a.tile_size > 1024 {
             return Err(format!(
@@ -601,13 +652,33 @@ mod tests {
         let c = Config::from_toml(Path::new("/x/y/run.toml"), text).unwrap();
         assert_eq!(c.scene, PathBuf::from("/x/y/scenes/a.xml"));
         assert_eq!(c.views["cam0"], PathBuf::from("/x/y/photos/c0.exr"));
-        assert_eq!(c.atlas.texels_per_unit, 32.0);
+        assert_eq!(c.atlas.texels_per_unit, Density::PerUnit(32.0));
         assert_eq!(c.iterations, 3);
         assert_eq!(c.update, UpdateRule::FixedPoint);
         // untouched settings keep their defaults
         let d = Config::for_scene(PathBuf::new());
         assert_eq!(c.photons, d.photons);
         assert_eq!(c.alpha0, d.alpha0);
+    }
+
+    #[test]
+    fn texel_density_is_auto_by_default_a_number_or_auto_and_nothing_else() {
+        let d = Config::for_scene(PathBuf::new());
+        assert_eq!(d.atlas.texels_per_unit, Density::Auto);
+        let at = |v: &str| {
+            let text = format!("scene = \"a.xml\"\n[atlas]\ntexels_per_unit = {v}\n");
+            Config::from_toml(Path::new("run.toml"), &text)
+        };
+        assert_eq!(
+            at("48").unwrap().atlas.texels_per_unit,
+            Density::PerUnit(48.0)
+        );
+        assert_eq!(at("\"auto\"").unwrap().atlas.texels_per_unit, Density::Auto);
+        let e = at("\"fine\"").unwrap_err().to_string();
+        assert!(e.contains("\"fine\"") && e.contains("auto"), "{e}");
+        let text = "scene = \"a.xml\"\n[atlas]\nmax_texels = 5000\n";
+        let c = Config::from_toml(Path::new("run.toml"), text).unwrap();
+        assert_eq!(c.atlas.max_texels, 5000);
     }
 
     #[test]
@@ -628,7 +699,7 @@ mod tests {
         c.photons = 0;
         assert!(c.validate().unwrap_err().contains("photons"));
         let mut c = Config::for_scene("s.xml".into());
-        c.atlas.texels_per_unit = f32::NAN;
+        c.atlas.texels_per_unit = Density::PerUnit(f32::NAN);
         assert!(c.validate().unwrap_err().contains("texels_per_unit"));
         let mut c = Config::for_scene("s.xml".into());
         c.iterations = 0;

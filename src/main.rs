@@ -28,9 +28,10 @@ struct Cli {
 
 #[derive(Subcommand, Debug)]
 enum Command {
-    /// Load a Mitsuba 3 scene and summarize its shapes, emitters and sensors.
+    /// Load a Mitsuba 3 scene and summarize its shapes, emitters and sensors, the texel
+    /// density a run would choose per shape, and the disk and memory it would need.
     Inspect {
-        /// The scene file (Mitsuba 3 XML).
+        /// The scene file (Mitsuba 3 XML) or a run config (TOML).
         scene: PathBuf,
     },
     /// Recover the albedo textures: the whole method, steps 1-9, and every output.
@@ -118,7 +119,7 @@ fn emit(text: &str) -> Result<()> {
 
 fn run(command: Command) -> Result<()> {
     match command {
-        Command::Inspect { scene } => emit(&summary(&mitsuba::load(&scene)?)),
+        Command::Inspect { scene } => inspect(&scene),
         Command::Reconstruct {
             input,
             out,
@@ -306,6 +307,67 @@ fn v3p(v: Vec3) -> String {
 }
 
 /// The human-readable summary printed by `inspect`.
+fn inspect(input: &Path) -> Result<()> {
+    let cfg = Config::load(input, &Overrides::default())?;
+    let scene = mitsuba::load(&cfg.scene)?;
+    let mut text = summary(&scene);
+    text.push_str(&atlas_plan(&cfg, &scene));
+    emit(&text)
+}
+
+/// The texel density per shape a run with `cfg` would choose, and what the run would need.
+fn atlas_plan(cfg: &Config, scene: &Scene) -> String {
+    let mut s = String::new();
+    let views = match kdmap::atlas::prepared::match_views(scene, cfg, Mode::Quiet) {
+        Ok(v) => v,
+        Err(e) => {
+            let _ = writeln!(s, "atlas: not planned ({e})");
+            return s;
+        }
+    };
+    let accel = kdmap::accel::Accel::build(scene);
+    let plan = kdmap::atlas::prepared::plan_density(cfg, scene, &accel, &views);
+    let how = match cfg.atlas.texels_per_unit.per_unit() {
+        Some(d) => format!("texels_per_unit = {d}"),
+        None => format!("auto, budget {} texels", plan.budget),
+    };
+    let _ = writeln!(
+        s,
+        "atlas ({how}): about {} surface texels",
+        plan.estimated_texels
+    );
+    for (sh, d) in scene.shapes.iter().zip(&plan.shapes) {
+        let Some(d) = d else { continue };
+        let fine = d
+            .finest_footprint
+            .map_or("unseen".to_string(), |f| format!("{:.4} units/pixel", f));
+        let lim = d
+            .limited_by
+            .as_deref()
+            .map_or(String::new(), |l| format!("  limited by {l}"));
+        let _ = writeln!(
+            s,
+            "  {:<16} {:>8.1} texels/unit  finest photo {fine}{lim}",
+            sh.id, d.texels_per_unit
+        );
+    }
+    for n in &plan.notes {
+        let _ = writeln!(s, "  note: {n}");
+    }
+    let sensors: Vec<usize> = views.iter().map(|v| v.0).collect();
+    let pixels = kdmap::atlas::density::photo_pixels(scene, &sensors);
+    let n = kdmap::atlas::density::needs(scene, &plan, pixels, cfg.memory_budget_mib << 20);
+    let _ = writeln!(
+        s,
+        "a run needs about {:.0} MB of disk ({} stored texels) and {:.0} MB of memory \
+         (estimates)",
+        n.disk_bytes as f64 / 1e6,
+        n.store_texels,
+        n.memory_bytes as f64 / 1e6
+    );
+    s
+}
+
 fn summary(scene: &Scene) -> String {
     let mut s = String::new();
     // Writing into a String cannot fail.

@@ -310,6 +310,7 @@ impl<'a> Run<'a> {
         let mut report = Report::new(cfg.clone());
         report.timings.load = self.load_s;
         report.timings.atlas = self.atlas_s;
+        report.atlas = p.texel_report(&self.geom, p.window::<TexelGeom>(cfg))?;
         let mut state = p.create_store(&self.state_path, TexelState::default())?;
         let t = Instant::now();
         let ps = project::run(p, cfg, self.hits(), &self.geom, &mut state, mode)?;

@@ -115,7 +115,25 @@ pub struct Report {
     pub stopped_by: String,
     pub timings: Timings,
     pub counts: Counts,
+    /// Per reconstructed shape, its texel density and how it was chosen.
+    pub atlas: Vec<ShapeTexels>,
     pub table: Vec<ViewShapeRow>,
+}
+
+/// One reconstructed shape's texture: its density and size.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct ShapeTexels {
+    pub shape: String,
+    /// Texels per scene unit of length.
+    pub texels_per_unit: f32,
+    /// Scene units per pixel in the photo that sees the shape finest (automatic density).
+    pub finest_footprint: Option<f32>,
+    /// What held the density below the photos' (`max_texture_size`, `max_texels`, `unseen`).
+    pub limited_by: Option<String>,
+    pub width: u32,
+    pub height: u32,
+    /// Texels on the surface (not gutters).
+    pub covered_texels: u64,
 }
 
 impl Report {
@@ -127,6 +145,7 @@ impl Report {
             stopped_by: String::new(),
             timings: Timings::default(),
             counts: Counts::default(),
+            atlas: Vec::new(),
             table: Vec::new(),
         }
     }

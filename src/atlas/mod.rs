@@ -4,6 +4,7 @@
 
 pub mod charts;
 pub mod check;
+pub mod density;
 pub mod geometry;
 pub mod hits;
 pub mod layout;

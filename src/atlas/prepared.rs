@@ -3,18 +3,21 @@
 //! stage needs to address them (a shape's atlas, a store shaped like the layout, the tile
 //! window under the memory budget) and the fingerprint of the run's inputs.
 
-use super::layout::Layout;
+use super::density::{self, DensityPlan, ShapeDensity};
+use super::layout::{Layout, TexelGeom};
 use super::tiles::{window_tiles_for_budget, TileStore};
-use super::unwrap::{build_atlas, AtlasSettings, ShapeAtlas};
+use super::unwrap::{build_atlas_with_progress, AtlasSettings, ShapeAtlas};
 use crate::accel::Accel;
-use crate::config::Config;
+use crate::config::{Config, Density};
 use crate::error::{Error, Result};
 use crate::fsio::Fnv;
-use crate::progress::{note, Mode};
+use crate::progress::{note, Mode, Stage};
+use crate::report::ShapeTexels;
 use crate::scene::{mitsuba, Mesh, Scene, Sides};
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
 
 /// The scene with its acceleration structure, atlases and tile layout: everything fixed.
 pub struct Prepared {
@@ -25,6 +28,8 @@ pub struct Prepared {
     pub layout: Layout,
     /// Sensor index -> photo path, for the sensors that have a photo.
     pub views: Vec<(usize, PathBuf)>,
+    /// The texel density of every reconstructed shape and how it was chosen.
+    pub density: DensityPlan,
 }
 
 /// Everything a stage needs about one reconstructed shape's surface and atlas.
@@ -65,17 +70,50 @@ pub fn state_dir(out: &Path) -> PathBuf {
     out.join("checkpoint")
 }
 
-/// Load the scene, pick the views, unwrap every reconstructed shape and lay out the tiles.
+/// Load the scene, pick the views, choose the texel densities, unwrap every reconstructed
+/// shape and lay out the tiles.
 pub fn prepare(cfg: &Config, mode: Mode) -> Result<Prepared> {
     let scene = mitsuba::load(&cfg.scene)?;
     let views = match_views(&scene, cfg, mode)?;
     let settings = AtlasSettings {
-        texels_per_unit: cfg.atlas.texels_per_unit,
+        texels_per_unit: cfg
+            .atlas
+            .texels_per_unit
+            .per_unit()
+            .unwrap_or(density::FALLBACK),
         padding: cfg.atlas.padding,
         use_mesh_uvs: cfg.atlas.use_mesh_uvs,
         max_size: cfg.atlas.max_texture_size,
     };
-    Prepared::new(scene, views, &settings, cfg.atlas.tile_size)
+    if cfg.atlas.texels_per_unit != Density::Auto {
+        return Prepared::build(scene, views, &settings, cfg.atlas.tile_size, mode);
+    }
+    let accel = Accel::build(&scene);
+    let plan = plan_density(cfg, &scene, &accel, &views);
+    for n in &plan.notes {
+        note(mode, n);
+    }
+    let atlases = build_atlases(&scene, &settings, &plan, true, mode)?;
+    Prepared::assemble(scene, accel, views, atlases, plan, cfg.atlas.tile_size)
+}
+
+/// The texel density of every shape under `cfg` (fixed, or from the photos of `views`).
+pub fn plan_density(
+    cfg: &Config,
+    scene: &Scene,
+    accel: &Accel,
+    views: &[(usize, PathBuf)],
+) -> DensityPlan {
+    let Some(d) = cfg.atlas.texels_per_unit.per_unit() else {
+        let sensors: Vec<usize> = views.iter().map(|v| v.0).collect();
+        let fine = density::finest_footprints(scene, accel, &sensors);
+        let budget = match cfg.atlas.max_texels {
+            0 => density::photo_pixels(scene, &sensors).min(density::DEFAULT_MAX_TEXELS),
+            n => n,
+        };
+        return density::plan(scene, &fine, cfg.atlas.max_texture_size, budget);
+    };
+    DensityPlan::fixed(scene, d)
 }
 
 /// The (sensor, photo) pairs of a run: the config's `views`, or every sensor with an
@@ -121,47 +159,55 @@ pub fn match_views(scene: &Scene, cfg: &Config, mode: Mode) -> Result<Vec<(usize
 
 impl Prepared {
     /// `scene` with its acceleration structure, every reconstructed shape unwrapped by
-    /// `settings` and the textures laid out in tiles of `tile_size`; `views` are the (sensor,
-    /// photo) pairs. An atlas that cannot be made is an error naming the shape.
+    /// `settings` (one density for all) and the textures laid out in tiles of `tile_size`;
+    /// `views` are the (sensor, photo) pairs. An atlas that cannot be made is an error naming
+    /// the shape.
     pub fn new(
         scene: Scene,
         views: Vec<(usize, PathBuf)>,
         settings: &AtlasSettings,
         tile_size: u32,
     ) -> Result<Prepared> {
+        Self::build(scene, views, settings, tile_size, Mode::Quiet)
+    }
+
+    /// [`Prepared::new`] with the unwrap's progress shown in `mode`.
+    fn build(
+        scene: Scene,
+        views: Vec<(usize, PathBuf)>,
+        settings: &AtlasSettings,
+        tile_size: u32,
+        mode: Mode,
+    ) -> Result<Prepared> {
+        let plan = DensityPlan::fixed(&scene, settings.texels_per_unit);
         // The BVH and the shapes' atlases are independent: built side by side, each atlas a
         // pure function of its mesh (so the order of the work never changes a result).
         let (accel, atlases) = rayon::join(
             || Accel::build(&scene),
-            || {
-                scene
-                    .shapes
-                    .par_iter()
-                    .map(|s| match s.is_reconstructed() {
-                        true => build_atlas(&s.mesh, settings)
-                            .map(Some)
-                            .map_err(|e| match e {
-                                Error::Config { msg, .. } => Error::config_in(
-                                    &scene.path,
-                                    format!("shape '{}': {msg}", s.id),
-                                ),
-                                Error::Input { msg, .. } => {
-                                    Error::input(&scene.path, format!("shape '{}': {msg}", s.id))
-                                }
-                                other => other,
-                            }),
-                        false => Ok(None),
-                    })
-                    .collect::<Vec<Result<Option<ShapeAtlas>>>>()
-            },
+            || build_atlases(&scene, settings, &plan, false, mode),
         );
-        // the first failing shape in scene order, whatever finished first
-        let atlases = atlases.into_iter().collect::<Result<Vec<_>>>()?;
+        Self::assemble(scene, accel, views, atlases?, plan, tile_size)
+    }
+
+    fn assemble(
+        scene: Scene,
+        accel: Accel,
+        views: Vec<(usize, PathBuf)>,
+        atlases: Vec<Option<ShapeAtlas>>,
+        mut density: DensityPlan,
+        tile_size: u32,
+    ) -> Result<Prepared> {
         let textures: Vec<(usize, u32, u32)> = atlases
             .iter()
             .enumerate()
             .filter_map(|(i, a)| a.as_ref().map(|a| (i, a.width, a.height)))
             .collect();
+        // the density an atlas was actually built at (lower if it had to be refitted)
+        for (d, a) in density.shapes.iter_mut().zip(&atlases) {
+            if let (Some(d), Some(a)) = (d, a) {
+                d.texels_per_unit = a.texel_density;
+            }
+        }
         let layout = Layout::new(tile_size, &textures);
         Ok(Prepared {
             scene,
@@ -169,7 +215,42 @@ impl Prepared {
             atlases,
             layout,
             views,
+            density,
         })
+    }
+
+    /// Per reconstructed shape: its density (and how it was chosen), texture size and covered
+    /// texels, counted in `geom` (for report.json).
+    pub fn texel_report(
+        &self,
+        geom: &TileStore<TexelGeom>,
+        window_tiles: usize,
+    ) -> Result<Vec<ShapeTexels>> {
+        let covered: Vec<AtomicU64> = self
+            .layout
+            .slots
+            .iter()
+            .map(|_| AtomicU64::new(0))
+            .collect();
+        geom.for_each_tile(window_tiles, |t, g| {
+            let n = g.iter().filter(|g| g.covered()).count() as u64;
+            covered[self.layout.slot_of_tile(t as u32)].fetch_add(n, Ordering::Relaxed);
+        })?;
+        let rows = self.layout.slots.iter().zip(&covered).map(|(slot, c)| {
+            let i = slot.shape;
+            let d = self.density.shapes[i].clone();
+            let a = self.atlases[i].as_ref();
+            ShapeTexels {
+                shape: self.scene.shapes[i].id.clone(),
+                texels_per_unit: a.map_or(0.0, |a| a.texel_density),
+                finest_footprint: d.as_ref().and_then(|d| d.finest_footprint),
+                limited_by: d.and_then(|d| d.limited_by),
+                width: a.map_or(0, |a| a.width),
+                height: a.map_or(0, |a| a.height),
+                covered_texels: c.load(Ordering::Relaxed),
+            }
+        });
+        Ok(rows.collect())
     }
 
     /// The shape of layout slot `slot`.
@@ -265,6 +346,95 @@ impl Prepared {
         }
         Ok(h.finish())
     }
+}
+
+/// Every reconstructed shape's atlas at its planned density, in parallel, with progress in
+/// triangles; the first failing shape in scene order is the error. With `refit` (automatic
+/// density) an atlas that does not fit `max_size` after all is rebuilt at 0.7x its density,
+/// up to three times.
+fn build_atlases(
+    scene: &Scene,
+    settings: &AtlasSettings,
+    plan: &DensityPlan,
+    refit: bool,
+    mode: Mode,
+) -> Result<Vec<Option<ShapeAtlas>>> {
+    let total: u64 = scene
+        .shapes
+        .iter()
+        .filter(|s| s.is_reconstructed())
+        .map(|s| s.mesh.triangles.len() as u64)
+        .sum();
+    let stage = Stage::new(mode, "unwrap", total, "triangles");
+    let atlases: Vec<Result<Option<ShapeAtlas>>> = scene
+        .shapes
+        .par_iter()
+        .zip(&plan.shapes)
+        .map(|(s, d)| match (s.is_reconstructed(), d) {
+            (true, Some(d)) => shape_atlas(&s.mesh, settings, d, refit, &stage)
+                .map(Some)
+                .map_err(|e| match e {
+                    Error::Config { msg, .. } => {
+                        Error::config_in(&scene.path, format!("shape '{}': {msg}", s.id))
+                    }
+                    Error::Input { msg, .. } => {
+                        Error::input(&scene.path, format!("shape '{}': {msg}", s.id))
+                    }
+                    other => other,
+                }),
+            _ => Ok(None),
+        })
+        .collect();
+    stage.finish();
+    atlases.into_iter().collect()
+}
+
+/// Share of an unwrap's work done at the start of each of its stages.
+fn unwrap_share(stage: &str) -> (f64, f64) {
+    match stage {
+        "segmenting" => (0.0, 0.3),
+        "parameterizing" => (0.3, 0.6),
+        "packing" => (0.9, 0.08),
+        _ => (0.98, 0.02),
+    }
+}
+
+fn shape_atlas(
+    mesh: &Mesh,
+    settings: &AtlasSettings,
+    d: &ShapeDensity,
+    refit: bool,
+    stage: &Stage,
+) -> Result<ShapeAtlas> {
+    let mut s = AtlasSettings {
+        texels_per_unit: d.texels_per_unit,
+        ..*settings
+    };
+    let tris = mesh.triangles.len() as u64;
+    // triangles' worth of this shape's work reported so far (monotone; retries add none)
+    let shown = AtomicU64::new(0);
+    let report = |name: &str, done: usize, total: Option<usize>| {
+        let (base, span) = unwrap_share(name);
+        let frac = base + span * total.map_or(0.0, |t| done as f64 / t.max(1) as f64);
+        let now = (frac.min(1.0) * tris as f64) as u64;
+        let before = shown.fetch_max(now, Ordering::Relaxed);
+        if now > before {
+            stage.inc(now - before);
+        }
+        true
+    };
+    let mut tries = 0;
+    let r = loop {
+        match build_atlas_with_progress(mesh, &s, report) {
+            Err(Error::Config { .. }) if refit && tries < 3 => {
+                s.texels_per_unit *= 0.7;
+                tries += 1;
+            }
+            r => break r,
+        }
+    };
+    stage.inc(tris.saturating_sub(shown.load(Ordering::Relaxed)));
+    r
 }
 
 #[cfg(test)]

@@ -37,6 +37,9 @@ fn run(scene: &str, solver: Solver) -> (Config, Vec<ShapeAccuracy>) {
         cfg.method = Method::Photons;
         cfg.photons = photons;
         cfg.iterations = iterations;
+        // the photon counts here were sized for 64 texels per unit: a finer automatic atlas
+        // spreads them over more texels (more noise per texel)
+        cfg.atlas.texels_per_unit = kdmap::config::Density::PerUnit(64.0);
     }
     if let Ok(v) = std::env::var("KDMAP_PHOTONS") {
         cfg.photons = v.parse().unwrap();
@@ -48,7 +51,7 @@ fn run(scene: &str, solver: Solver) -> (Config, Vec<ShapeAccuracy>) {
         cfg.gather_rays = v.parse().unwrap();
     }
     if let Ok(v) = std::env::var("KDMAP_DENSITY") {
-        cfg.atlas.texels_per_unit = v.parse().unwrap();
+        cfg.atlas.texels_per_unit = kdmap::config::Density::PerUnit(v.parse().unwrap());
     }
     if let Ok(v) = std::env::var("KDMAP_REFINE_PASSES") {
         cfg.refine_passes = v.parse().unwrap();

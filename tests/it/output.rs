@@ -52,7 +52,7 @@ fn run() -> &'static Run {
     RUN.get_or_init(|| {
         let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/cbox");
         let mut cfg = Config::for_scene(root.join("input.xml"));
-        cfg.atlas.texels_per_unit = 32.0;
+        cfg.atlas.texels_per_unit = kdmap::config::Density::PerUnit(32.0);
         let dir = tempfile::tempdir().unwrap();
         let proj = dir.path().join("proj");
         let (p, _) = run_projection(&cfg, &proj, Mode::Quiet).unwrap();

@@ -36,11 +36,11 @@ fn config(root: &Path) -> Config {
         cfg.views
             .insert(v.clone(), root.join(format!("images/{v}.exr")));
     }
-    cfg.atlas.texels_per_unit = 128.0;
+    cfg.atlas.texels_per_unit = kdmap::config::Density::PerUnit(128.0);
     // `project` below runs the refinement passes itself, so `project_all` must not.
     cfg.refine_passes = 0;
     if let Ok(v) = std::env::var("KDMAP_DENSITY") {
-        cfg.atlas.texels_per_unit = v.parse().unwrap();
+        cfg.atlas.texels_per_unit = kdmap::config::Density::PerUnit(v.parse().unwrap());
     }
     cfg
 }
@@ -424,7 +424,7 @@ fn check_bin_areas(density: f32) {
     for scene in ["cbox", "cbox-tex"] {
         {
             let mut cfg = Config::for_scene(fixture(scene).join("input.xml"));
-            cfg.atlas.texels_per_unit = density;
+            cfg.atlas.texels_per_unit = kdmap::config::Density::PerUnit(density);
             let p = prepare(&cfg, Mode::Quiet).unwrap();
             let dir = tempfile::tempdir().unwrap();
             let geom = build_geometry(&p, &dir.path().join("geometry.tiles"), Mode::Quiet).unwrap();
