@@ -1,9 +1,12 @@
 //! The `kdmap` command line: parses arguments (clap), runs one subcommand, and turns any
 //! error into a single `error: ...` line on stderr with the exit code of its kind
-//! (`kdmap::error::exit`; clap's usage errors exit with 2). Results go to stdout, progress
-//! and notes to stderr; only this file and `progress` talk to the terminal.
+//! (`kdmap::error::exit`; clap's usage errors exit with 2). Results go to stdout (text, or a
+//! JSON document with `--json`), progress and notes to stderr in the form `--progress` and
+//! `--quiet` choose; only this file and `progress` talk to the terminal. A closed stdout
+//! (`kdmap inspect ... | head`) ends the output quietly with exit code 0. SIGINT / SIGTERM
+//! stop `reconstruct` and `project` at a safe point (`kdmap::interrupt`), exit code 130.
 
-use clap::{Parser, Subcommand};
+use clap::{Parser, Subcommand, ValueEnum};
 use glam::Vec3;
 use kdmap::config::{Config, Method, Overrides, Preset};
 use kdmap::pipeline::{self, RunStage, Start};
@@ -22,8 +25,36 @@ use std::process::ExitCode;
     about = "Recover diffuse albedo (Kd) textures from HDR photos of a known scene"
 )]
 struct Cli {
+    /// No progress and no notes on stderr (errors are still printed).
+    #[arg(long, global = true, conflicts_with = "progress")]
+    quiet: bool,
+    /// How progress goes to stderr: auto (bars on a terminal, plain lines otherwise),
+    /// always (bars), never, json (one JSON object per line: progress, notes, errors).
+    #[arg(long, global = true, value_enum, default_value_t = Progress::Auto)]
+    progress: Progress,
     #[command(subcommand)]
     command: Command,
+}
+
+/// The values of `--progress`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+enum Progress {
+    Auto,
+    Always,
+    Never,
+    Json,
+}
+
+impl Cli {
+    fn mode(&self) -> Mode {
+        match (self.quiet, self.progress) {
+            (true, _) => Mode::Quiet,
+            (_, Progress::Auto) => Mode::Auto,
+            (_, Progress::Always) => Mode::Always,
+            (_, Progress::Never) => Mode::Never,
+            (_, Progress::Json) => Mode::Json,
+        }
+    }
 }
 
 #[derive(Subcommand, Debug)]
@@ -32,6 +63,9 @@ enum Command {
     Inspect {
         /// The scene file (Mitsuba 3 XML).
         scene: PathBuf,
+        /// Print a JSON document instead of text.
+        #[arg(long)]
+        json: bool,
     },
     /// Recover the albedo textures: the whole method, steps 1-9, and every output.
     Reconstruct {
@@ -68,6 +102,9 @@ enum Command {
     InspectCheckpoint {
         /// The run's output directory (the one given to `reconstruct --out`).
         out: PathBuf,
+        /// Print a JSON document instead of text.
+        #[arg(long)]
+        json: bool,
     },
     /// Score a finished run against the true albedo (a Mitsuba `truth.xml`): per shape, the
     /// mean relative and relative L1 albedo error over observed texels; writes
@@ -77,6 +114,9 @@ enum Command {
         out: PathBuf,
         /// The Mitsuba scene holding the true reflectances.
         truth: PathBuf,
+        /// Print the scores as a JSON document (what accuracy.json holds) instead of text.
+        #[arg(long)]
+        json: bool,
     },
     /// Steps 1-2 of the method on their own: unwrap the atlas, project every photo onto it and
     /// write the luminance and coverage maps to `<out>/maps/` (with PNG previews).
@@ -97,13 +137,31 @@ enum Command {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    match run(cli.command) {
+    let mode = cli.mode();
+    match run(cli.command, mode) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            let _ = writeln!(std::io::stderr(), "error: {e}");
+            let line = match &e {
+                Error::Interrupted(_) => e.to_string(),
+                _ => format!("error: {e}"),
+            };
+            let line = match mode {
+                Mode::Json => {
+                    serde_json::json!({"error": line, "exit_code": e.exit_code()}).to_string()
+                }
+                _ => line,
+            };
+            let _ = writeln!(std::io::stderr(), "{line}");
             ExitCode::from(e.exit_code())
         }
     }
+}
+
+/// A JSON document for stdout, pretty-printed, with a final newline.
+fn json_text(v: &impl serde::Serialize) -> Result<String> {
+    serde_json::to_string_pretty(v)
+        .map(|t| t + "\n")
+        .map_err(|e| Error::internal(format!("JSON output: {e}")))
 }
 
 /// Write `text` to stdout. A closed pipe (`kdmap inspect ... | head`) is not an error: the
@@ -116,9 +174,15 @@ fn emit(text: &str) -> Result<()> {
     }
 }
 
-fn run(command: Command) -> Result<()> {
+fn run(command: Command, mode: Mode) -> Result<()> {
     match command {
-        Command::Inspect { scene } => emit(&summary(&mitsuba::load(&scene)?)),
+        Command::Inspect { scene, json } => {
+            let scene = mitsuba::load(&scene)?;
+            match json {
+                true => emit(&json_text(&summary_json(&scene))?),
+                false => emit(&summary(&scene)),
+            }
+        }
         Command::Reconstruct {
             input,
             out,
@@ -138,16 +202,20 @@ fn run(command: Command) -> Result<()> {
                 seed,
                 threads,
             };
-            reconstruct(&input, &out, &ov, resume)
+            kdmap::interrupt::install()?;
+            reconstruct(&input, &out, &ov, resume, mode)
         }
         Command::Project {
             input,
             out,
             preset,
             threads,
-        } => project(&input, &out, preset, threads),
-        Command::InspectCheckpoint { out } => inspect_checkpoint(&out),
-        Command::Accuracy { out, truth } => accuracy(&out, &truth),
+        } => {
+            kdmap::interrupt::install()?;
+            project(&input, &out, preset, threads, mode)
+        }
+        Command::InspectCheckpoint { out, json } => inspect_checkpoint(&out, json, mode),
+        Command::Accuracy { out, truth, json } => accuracy(&out, &truth, json),
     }
 }
 
@@ -159,10 +227,10 @@ fn pool(threads: usize) -> Result<rayon::ThreadPool> {
         .map_err(|e| Error::internal(format!("starting worker threads: {e}")))
 }
 
-fn reconstruct(input: &Path, out: &Path, ov: &Overrides, resume: bool) -> Result<()> {
+fn reconstruct(input: &Path, out: &Path, ov: &Overrides, resume: bool, mode: Mode) -> Result<()> {
     let cfg = Config::load(input, ov)?;
-    let (report, start) = pool(cfg.threads)?
-        .install(|| pipeline::reconstruct_resumable(&cfg, out, Mode::Auto, resume))?;
+    let (report, start) =
+        pool(cfg.threads)?.install(|| pipeline::reconstruct_resumable(&cfg, out, mode, resume))?;
     if start == Start::AlreadyFinished {
         return emit(&format!(
             "already finished ({} iterations, {}): nothing to do; results: {}\n",
@@ -185,8 +253,11 @@ fn reconstruct(input: &Path, out: &Path, ov: &Overrides, resume: bool) -> Result
     ))
 }
 
-fn accuracy(out: &Path, truth: &Path) -> Result<()> {
+fn accuracy(out: &Path, truth: &Path, json: bool) -> Result<()> {
     let rep = kdmap::accuracy::score_run(out, truth)?;
+    if json {
+        return emit(&json_text(&rep)?);
+    }
     let mut t = String::new();
     let _ = writeln!(
         t,
@@ -219,20 +290,55 @@ fn accuracy(out: &Path, truth: &Path) -> Result<()> {
     emit(&t)
 }
 
-fn inspect_checkpoint(out: &Path) -> Result<()> {
+fn inspect_checkpoint(out: &Path, json: bool, mode: Mode) -> Result<()> {
     let (m, notes) = pipeline::load_checkpoint(out);
     for n in &notes {
-        eprintln!("note: {n}");
+        kdmap::progress::note(mode, n);
     }
     let dir = kdmap::atlas::state_dir(out);
     let Some(m) = m else {
         return Err(Error::input(&dir, "no usable checkpoint"));
     };
     let (progress, s) = (&m.payload, &m.payload.report.settings);
+    let stage = stage_text(&m.payload);
+    if json {
+        let doc = serde_json::json!({
+            "dir": dir,
+            "checkpoint": m.seq,
+            "inputs_hash": format!("{:016x}", m.inputs_hash),
+            "stage": progress.stage,
+            "stage_text": stage,
+            "iterations_planned": s.iterations,
+            "photons_per_iteration": s.photons,
+            "iterations": progress.report.iterations,
+            "stopped_by": progress.report.stopped_by,
+            "seconds": m.seconds,
+            "notes": notes,
+        });
+        return emit(&json_text(&doc)?);
+    }
     let mut t = String::new();
     let _ = writeln!(t, "checkpoint {} in {}", m.seq, dir.display());
     let _ = writeln!(t, "inputs hash {:016x}", m.inputs_hash);
-    let stage = match progress.stage {
+    let _ = writeln!(t, "stage: {stage}");
+    for it in &progress.report.iterations {
+        let _ = writeln!(
+            t,
+            "  iteration {}: relative error rms {:.3}%, mean {:.3}%, max {:.2}%",
+            it.iteration + 1,
+            100.0 * it.rms_rel_error,
+            100.0 * it.mean_rel_error,
+            100.0 * it.max_rel_error
+        );
+    }
+    let _ = writeln!(t, "time spent: {:.1} s", m.seconds);
+    emit(&t)
+}
+
+/// Where a checkpointed run stands, in words.
+fn stage_text(progress: &pipeline::Progress) -> String {
+    let s = &progress.report.settings;
+    match progress.stage {
         RunStage::Direct => "projection and direct light done; iteration 1 not begun".to_string(),
         RunStage::Pass {
             iteration,
@@ -259,31 +365,23 @@ fn inspect_checkpoint(out: &Path) -> Result<()> {
             }
         ),
         RunStage::Finished => format!("finished ({})", progress.report.stopped_by),
-    };
-    let _ = writeln!(t, "stage: {stage}");
-    for it in &progress.report.iterations {
-        let _ = writeln!(
-            t,
-            "  iteration {}: relative error rms {:.3}%, mean {:.3}%, max {:.2}%",
-            it.iteration + 1,
-            100.0 * it.rms_rel_error,
-            100.0 * it.mean_rel_error,
-            100.0 * it.max_rel_error
-        );
     }
-    let _ = writeln!(t, "time spent: {:.1} s", m.seconds);
-    emit(&t)
 }
 
-fn project(input: &Path, out: &Path, preset: Option<Preset>, threads: Option<usize>) -> Result<()> {
+fn project(
+    input: &Path,
+    out: &Path,
+    preset: Option<Preset>,
+    threads: Option<usize>,
+    mode: Mode,
+) -> Result<()> {
     let ov = Overrides {
         preset,
         threads,
         ..Default::default()
     };
     let cfg = Config::load(input, &ov)?;
-    let (p, stats) =
-        pool(cfg.threads)?.install(|| pipeline::run_projection(&cfg, out, Mode::Auto))?;
+    let (p, stats) = pool(cfg.threads)?.install(|| pipeline::run_projection(&cfg, out, mode))?;
     emit(&format!(
         "projected {} views onto {} shapes: {} of {} surface texels observed ({:.1}%), {} pixels masked, {:.2} s\nmaps: {}\n",
         stats.views,
@@ -303,6 +401,91 @@ fn v3(v: Vec3) -> String {
 
 fn v3p(v: Vec3) -> String {
     format!("({:.4}, {:.4}, {:.4})", v.x, v.y, v.z)
+}
+
+/// An emitter's kind and parameters, for `inspect --json`.
+fn emitter_json(scene: &Scene, e: &Emitter) -> serde_json::Value {
+    use serde_json::json;
+    match e {
+        Emitter::Point {
+            position,
+            intensity,
+        } => json!({"type": "point", "position": position, "intensity": intensity}),
+        Emitter::Spot {
+            position,
+            axis,
+            intensity,
+            cutoff,
+            beam_width,
+            ..
+        } => json!({
+            "type": "spot", "position": position, "axis": axis, "intensity": intensity,
+            "cutoff_deg": cutoff.to_degrees(), "beam_width_deg": beam_width.to_degrees(),
+        }),
+        Emitter::Directional {
+            direction,
+            irradiance,
+        } => json!({"type": "directional", "direction": direction, "irradiance": irradiance}),
+        Emitter::Area { shape, radiance } => {
+            let id = scene.shapes.get(*shape).map(|s| s.id.as_str());
+            json!({"type": "area", "shape": id, "radiance": radiance})
+        }
+    }
+}
+
+/// The document printed by `inspect --json`: what [`summary`] says, as data.
+fn summary_json(scene: &Scene) -> serde_json::Value {
+    use serde_json::json;
+    let shapes: Vec<_> = scene
+        .shapes
+        .iter()
+        .map(|sh| {
+            json!({
+                "id": sh.id,
+                "type": sh.kind,
+                "triangles": sh.mesh.triangles.len(),
+                "area": sh.mesh.area(),
+                "sides": match sh.sides { Sides::Front => "front", Sides::Both => "both" },
+                "emission": sh.emission,
+            })
+        })
+        .collect();
+    let emitters: Vec<_> = scene
+        .emitters
+        .iter()
+        .map(|e| {
+            let p = kdmap::light::emitter_power(scene, e);
+            let mut v = emitter_json(scene, e);
+            v["power"] = json!(p);
+            v["power_luminance"] = json!(luminance(p));
+            v
+        })
+        .collect();
+    let images = scene.dir().join("images");
+    let sensors: Vec<_> = scene
+        .sensors
+        .iter()
+        .map(|c| {
+            let image = images.join(format!("{}.exr", c.id));
+            json!({
+                "id": c.id,
+                "width": c.width,
+                "height": c.height,
+                "fov_deg": c.fov,
+                "fov_axis": format!("{:?}", c.fov_axis).to_lowercase(),
+                "position": c.to_world.w_axis.truncate(),
+                "image": image,
+                "image_present": image.is_file(),
+            })
+        })
+        .collect();
+    json!({
+        "scene": scene.path,
+        "triangles": scene.triangle_count(),
+        "shapes": shapes,
+        "emitters": emitters,
+        "sensors": sensors,
+    })
 }
 
 /// The human-readable summary printed by `inspect`.
