@@ -77,12 +77,17 @@ pub fn state_dir(out: &Path) -> PathBuf {
 }
 
 /// Load the scene, pick the views, check every input (photos decoded and sized, some light),
-/// then unwrap every reconstructed shape and lay out the tiles.
+/// then unwrap every reconstructed shape and lay out the tiles. What the scene file alone
+/// tells (photos against films, no emitter at all) is checked before the meshes are read.
 pub fn prepare(cfg: &Config, mode: Mode) -> Result<Prepared> {
+    let outline = mitsuba::load_outline(&cfg.scene)?;
+    let views = match_views(&outline, cfg, mode)?;
+    if outline.emitters.is_empty() {
+        check_lit(&outline)?;
+    }
+    let photos = read_photos(&outline, &views, mode)?;
     let scene = mitsuba::load(&cfg.scene)?;
-    let views = match_views(&scene, cfg, mode)?;
     check_lit(&scene)?;
-    let photos = read_photos(&scene, &views, mode)?;
     let p = prepare_scene(cfg, scene, views)?;
     *p.photos.lock().unwrap_or_else(|e| e.into_inner()) = photos.into_iter().map(Some).collect();
     Ok(p)
