@@ -9,6 +9,10 @@
 //! Each stage is a plain function over tiles in its own module; this module calls them in
 //! order, decides where their state lives (`<out>/checkpoint/*.tiles`), when a checkpoint is
 //! taken and how a resumed run picks up where it stopped. Nothing below it imports it.
+//!
+//! After SIGINT / SIGTERM (`interrupt`), a run stops at its next safe point: after a batch
+//! group of a photon pass or an iteration with a checkpoint of where it stands, or in
+//! projection / direct light with nothing saved; it returns `Error::Interrupted`.
 
 use crate::atlas::charts::Charts;
 use crate::atlas::check::{check_geometry, check_state};
