@@ -11,7 +11,7 @@ use crate::atlas::layout::{flags, TexelGeom, TexelState};
 use crate::atlas::texture::gather;
 use crate::atlas::tiles::TileStore;
 use crate::atlas::unwrap::ShapeAtlas;
-use crate::atlas::{prepare, state_dir, Prepared};
+use crate::atlas::{prepare_layout, state_dir, Prepared};
 use crate::error::{Error, Result};
 use crate::fsio;
 use crate::image::{write_exr_rgb, write_png_srgb};
@@ -248,7 +248,7 @@ pub fn score_run(out: &Path, truth_xml: &Path) -> Result<AccuracyReport> {
     let report: Report = serde_json::from_str(&text)
         .map_err(|e| Error::input(&rp, format!("not a kdmap report: {e}")))?;
     let truth = Truth::load(truth_xml)?;
-    let p = prepare(&report.settings, Mode::Quiet)?;
+    let p = prepare_layout(&report.settings, Mode::Quiet)?;
     let dir = state_dir(out);
     let geom: TileStore<TexelGeom> = p.open_store(dir.join("geometry.tiles"))?;
     let state: TileStore<TexelState> = p.open_store(dir.join("state.tiles"))?;

@@ -232,6 +232,11 @@ impl Writer {
         self.last.elapsed().as_secs_f64()
     }
 
+    /// The sequence number of the last checkpoint written (0: none yet).
+    pub fn seq(&self) -> u64 {
+        self.seq
+    }
+
     /// Removes every checkpoint file of an earlier run (a fresh start).
     pub fn clear(dir: &Path) -> Result<()> {
         let Ok(rd) = std::fs::read_dir(dir) else {

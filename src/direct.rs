@@ -19,6 +19,7 @@ use crate::atlas::tiles::{map_tiles, TileStore};
 use crate::atlas::Prepared;
 use crate::config::Config;
 use crate::error::Result;
+use crate::interrupt;
 use crate::light::{emitter_irradiance, emitter_unoccluded, DirectParams, Footprint, Reach};
 use crate::progress::{Mode, Stage};
 use crate::scene::Emitter;
@@ -59,11 +60,16 @@ pub fn run(
     let window = p.window::<TexelState>(cfg);
     let stage = Stage::new(mode, "direct", state.tile_count() as u64, "tiles");
     let sums = map_tiles(state, geom, window, |t, g, st| {
+        // a stop was asked for: skip the rest, the stage's result is not used
+        if interrupt::requested() {
+            return TileSums::default();
+        }
         let ctx = TileCtx::new(p, charts, cfg.seed, &params, t, g);
         let s = ctx.run(st);
         stage.inc(1);
         s
     })?;
+    interrupt::check(interrupt::NOTHING_SAVED)?;
     stage.finish();
     let (mut e, mut a, mut stats) = (Vec3::ZERO, 0.0f64, DirectStats::default());
     for s in &sums {

@@ -40,6 +40,10 @@ pub enum Error {
     /// A broken invariant inside kdmap (a bug): never the user's input.
     #[error("internal error: {}", .0.replace('\n', " "))]
     Internal(String),
+    /// Stopped at a safe point after SIGINT or SIGTERM (`interrupt`); the message says what
+    /// was saved and how to continue.
+    #[error("interrupted: {}", .0.replace('\n', " "))]
+    Interrupted(String),
 }
 
 fn fmt_input(path: &Path, loc: &Location, msg: &str) -> String {
@@ -158,6 +162,7 @@ impl Error {
             Error::Corrupt { .. } => exit::CORRUPT,
             Error::Config { .. } => exit::CONFIG,
             Error::Internal(_) => exit::INTERNAL,
+            Error::Interrupted(_) => exit::INTERRUPTED,
         }
     }
 }
@@ -199,6 +204,7 @@ mod tests {
             (Error::config("photons = 0"), exit::CONFIG),
             (Error::config_in("run.toml", "photons = 0"), exit::CONFIG),
             (Error::internal("tile 9 of 3"), exit::INTERNAL),
+            (Error::Interrupted("at batch 3".into()), exit::INTERRUPTED),
         ];
         let mut codes: Vec<u8> = errors.iter().map(|(e, _)| e.exit_code()).collect();
         for (e, code) in &errors {
@@ -209,8 +215,8 @@ mod tests {
         codes.dedup();
         assert_eq!(
             codes.len(),
-            6,
-            "input, missing, io, corrupt, config, internal"
+            7,
+            "input, missing, io, corrupt, config, internal, interrupted"
         );
         assert_eq!(
             Error::config_in("run.toml", "photons = 0").to_string(),

@@ -19,7 +19,7 @@
 //! L2  project/  direct  gather  photon/  solve   the stages, plain functions over tiles
 //! L1  config  report  scene/  image  camera  accel  light/  render  atlas/
 //!                                    settings, the scene and its physics, tiles
-//! L0  error  rng  progress  fsio     no kdmap imports but L0
+//! L0  error  rng  progress  fsio  interrupt   no kdmap imports but L0
 //! ```
 //!
 //! Within L1 the order is as listed: `report` uses `config`; `image`, `camera`, `accel` use
@@ -28,6 +28,7 @@
 
 pub mod error;
 pub mod fsio;
+pub mod interrupt;
 pub mod progress;
 pub mod rng;
 

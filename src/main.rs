@@ -1,9 +1,12 @@
 //! The `kdmap` command line: parses arguments (clap), runs one subcommand, and turns any
 //! error into a single `error: ...` line on stderr with the exit code of its kind
-//! (`kdmap::error::exit`; clap's usage errors exit with 2). Results go to stdout, progress
-//! and notes to stderr; only this file and `progress` talk to the terminal.
+//! (`kdmap::error::exit`; clap's usage errors exit with 2). Results go to stdout (text, or a
+//! JSON document with `--json`), progress and notes to stderr in the form `--progress` and
+//! `--quiet` choose; only this file and `progress` talk to the terminal. A closed stdout
+//! (`kdmap inspect ... | head`) ends the output quietly with exit code 0. SIGINT / SIGTERM
+//! stop `reconstruct` and `project` at a safe point (`kdmap::interrupt`), exit code 130.
 
-use clap::{Parser, Subcommand};
+use clap::{Parser, Subcommand, ValueEnum};
 use glam::Vec3;
 use kdmap::config::{Config, Method, Overrides, Preset};
 use kdmap::pipeline::{self, RunStage, Start};
@@ -22,8 +25,36 @@ use std::process::ExitCode;
     about = "Recover diffuse albedo (Kd) textures from HDR photos of a known scene"
 )]
 struct Cli {
+    /// No progress and no notes on stderr (errors are still printed).
+    #[arg(long, global = true, conflicts_with = "progress")]
+    quiet: bool,
+    /// How progress goes to stderr: auto (bars on a terminal, plain lines otherwise),
+    /// always (bars), never, json (one JSON object per line: progress, notes, errors).
+    #[arg(long, global = true, value_enum, default_value_t = Progress::Auto)]
+    progress: Progress,
     #[command(subcommand)]
     command: Command,
+}
+
+/// The values of `--progress`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+enum Progress {
+    Auto,
+    Always,
+    Never,
+    Json,
+}
+
+impl Cli {
+    fn mode(&self) -> Mode {
+        match (self.quiet, self.progress) {
+            (true, _) => Mode::Quiet,
+            (_, Progress::Auto) => Mode::Auto,
+            (_, Progress::Always) => Mode::Always,
+            (_, Progress::Never) => Mode::Never,
+            (_, Progress::Json) => Mode::Json,
+        }
+    }
 }
 
 #[derive(Subcommand, Debug)]
@@ -33,6 +64,9 @@ enum Command {
     Inspect {
         /// The scene file (Mitsuba 3 XML) or a run config (TOML).
         scene: PathBuf,
+        /// Print a JSON document instead of text.
+        #[arg(long)]
+        json: bool,
     },
     /// Recover the albedo textures: the whole method, steps 1-9, and every output.
     Reconstruct {
@@ -69,6 +103,9 @@ enum Command {
     InspectCheckpoint {
         /// The run's output directory (the one given to `reconstruct --out`).
         out: PathBuf,
+        /// Print a JSON document instead of text.
+        #[arg(long)]
+        json: bool,
     },
     /// Score a finished run against the true albedo (a Mitsuba `truth.xml`): per shape, the
     /// mean relative and relative L1 albedo error over observed texels; writes
@@ -78,6 +115,9 @@ enum Command {
         out: PathBuf,
         /// The Mitsuba scene holding the true reflectances.
         truth: PathBuf,
+        /// Print the scores as a JSON document (what accuracy.json holds) instead of text.
+        #[arg(long)]
+        json: bool,
     },
     /// Steps 1-2 of the method on their own: unwrap the atlas, project every photo onto it and
     /// write the luminance and coverage maps to `<out>/maps/` (with PNG previews).
@@ -98,13 +138,31 @@ enum Command {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    match run(cli.command) {
+    let mode = cli.mode();
+    match run(cli.command, mode) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            let _ = writeln!(std::io::stderr(), "error: {e}");
+            let line = match &e {
+                Error::Interrupted(_) => e.to_string(),
+                _ => format!("error: {e}"),
+            };
+            let line = match mode {
+                Mode::Json => {
+                    serde_json::json!({"error": line, "exit_code": e.exit_code()}).to_string()
+                }
+                _ => line,
+            };
+            let _ = writeln!(std::io::stderr(), "{line}");
             ExitCode::from(e.exit_code())
         }
     }
+}
+
+/// A JSON document for stdout, pretty-printed, with a final newline.
+fn json_text(v: &impl serde::Serialize) -> Result<String> {
+    serde_json::to_string_pretty(v)
+        .map(|t| t + "\n")
+        .map_err(|e| Error::internal(format!("JSON output: {e}")))
 }
 
 /// Write `text` to stdout. A closed pipe (`kdmap inspect ... | head`) is not an error: the
@@ -117,9 +175,9 @@ fn emit(text: &str) -> Result<()> {
     }
 }
 
-fn run(command: Command) -> Result<()> {
+fn run(command: Command, mode: Mode) -> Result<()> {
     match command {
-        Command::Inspect { scene } => inspect(&scene),
+        Command::Inspect { scene, json } => inspect(&scene, json),
         Command::Reconstruct {
             input,
             out,
@@ -139,16 +197,20 @@ fn run(command: Command) -> Result<()> {
                 seed,
                 threads,
             };
-            reconstruct(&input, &out, &ov, resume)
+            kdmap::interrupt::install()?;
+            reconstruct(&input, &out, &ov, resume, mode)
         }
         Command::Project {
             input,
             out,
             preset,
             threads,
-        } => project(&input, &out, preset, threads),
-        Command::InspectCheckpoint { out } => inspect_checkpoint(&out),
-        Command::Accuracy { out, truth } => accuracy(&out, &truth),
+        } => {
+            kdmap::interrupt::install()?;
+            project(&input, &out, preset, threads, mode)
+        }
+        Command::InspectCheckpoint { out, json } => inspect_checkpoint(&out, json, mode),
+        Command::Accuracy { out, truth, json } => accuracy(&out, &truth, json),
     }
 }
 
@@ -160,10 +222,10 @@ fn pool(threads: usize) -> Result<rayon::ThreadPool> {
         .map_err(|e| Error::internal(format!("starting worker threads: {e}")))
 }
 
-fn reconstruct(input: &Path, out: &Path, ov: &Overrides, resume: bool) -> Result<()> {
+fn reconstruct(input: &Path, out: &Path, ov: &Overrides, resume: bool, mode: Mode) -> Result<()> {
     let cfg = Config::load(input, ov)?;
-    let (report, start) = pool(cfg.threads)?
-        .install(|| pipeline::reconstruct_resumable(&cfg, out, Mode::Auto, resume))?;
+    let (report, start) =
+        pool(cfg.threads)?.install(|| pipeline::reconstruct_resumable(&cfg, out, mode, resume))?;
     if start == Start::AlreadyFinished {
         return emit(&format!(
             "already finished ({} iterations, {}): nothing to do; results: {}\n",
@@ -186,8 +248,11 @@ fn reconstruct(input: &Path, out: &Path, ov: &Overrides, resume: bool) -> Result
     ))
 }
 
-fn accuracy(out: &Path, truth: &Path) -> Result<()> {
+fn accuracy(out: &Path, truth: &Path, json: bool) -> Result<()> {
     let rep = kdmap::accuracy::score_run(out, truth)?;
+    if json {
+        return emit(&json_text(&rep)?);
+    }
     let mut t = String::new();
     let _ = writeln!(
         t,
@@ -220,20 +285,55 @@ fn accuracy(out: &Path, truth: &Path) -> Result<()> {
     emit(&t)
 }
 
-fn inspect_checkpoint(out: &Path) -> Result<()> {
+fn inspect_checkpoint(out: &Path, json: bool, mode: Mode) -> Result<()> {
     let (m, notes) = pipeline::load_checkpoint(out);
     for n in &notes {
-        eprintln!("note: {n}");
+        kdmap::progress::note(mode, n);
     }
     let dir = kdmap::atlas::state_dir(out);
     let Some(m) = m else {
         return Err(Error::input(&dir, "no usable checkpoint"));
     };
     let (progress, s) = (&m.payload, &m.payload.report.settings);
+    let stage = stage_text(&m.payload);
+    if json {
+        let doc = serde_json::json!({
+            "dir": dir,
+            "checkpoint": m.seq,
+            "inputs_hash": format!("{:016x}", m.inputs_hash),
+            "stage": progress.stage,
+            "stage_text": stage,
+            "iterations_planned": s.iterations,
+            "photons_per_iteration": s.photons,
+            "iterations": progress.report.iterations,
+            "stopped_by": progress.report.stopped_by,
+            "seconds": m.seconds,
+            "notes": notes,
+        });
+        return emit(&json_text(&doc)?);
+    }
     let mut t = String::new();
     let _ = writeln!(t, "checkpoint {} in {}", m.seq, dir.display());
     let _ = writeln!(t, "inputs hash {:016x}", m.inputs_hash);
-    let stage = match progress.stage {
+    let _ = writeln!(t, "stage: {stage}");
+    for it in &progress.report.iterations {
+        let _ = writeln!(
+            t,
+            "  iteration {}: relative error rms {:.3}%, mean {:.3}%, max {:.2}%",
+            it.iteration + 1,
+            100.0 * it.rms_rel_error,
+            100.0 * it.mean_rel_error,
+            100.0 * it.max_rel_error
+        );
+    }
+    let _ = writeln!(t, "time spent: {:.1} s", m.seconds);
+    emit(&t)
+}
+
+/// Where a checkpointed run stands, in words.
+fn stage_text(progress: &pipeline::Progress) -> String {
+    let s = &progress.report.settings;
+    match progress.stage {
         RunStage::Direct => "projection and direct light done; iteration 1 not begun".to_string(),
         RunStage::Pass {
             iteration,
@@ -260,31 +360,23 @@ fn inspect_checkpoint(out: &Path) -> Result<()> {
             }
         ),
         RunStage::Finished => format!("finished ({})", progress.report.stopped_by),
-    };
-    let _ = writeln!(t, "stage: {stage}");
-    for it in &progress.report.iterations {
-        let _ = writeln!(
-            t,
-            "  iteration {}: relative error rms {:.3}%, mean {:.3}%, max {:.2}%",
-            it.iteration + 1,
-            100.0 * it.rms_rel_error,
-            100.0 * it.mean_rel_error,
-            100.0 * it.max_rel_error
-        );
     }
-    let _ = writeln!(t, "time spent: {:.1} s", m.seconds);
-    emit(&t)
 }
 
-fn project(input: &Path, out: &Path, preset: Option<Preset>, threads: Option<usize>) -> Result<()> {
+fn project(
+    input: &Path,
+    out: &Path,
+    preset: Option<Preset>,
+    threads: Option<usize>,
+    mode: Mode,
+) -> Result<()> {
     let ov = Overrides {
         preset,
         threads,
         ..Default::default()
     };
     let cfg = Config::load(input, &ov)?;
-    let (p, stats) =
-        pool(cfg.threads)?.install(|| pipeline::run_projection(&cfg, out, Mode::Auto))?;
+    let (p, stats) = pool(cfg.threads)?.install(|| pipeline::run_projection(&cfg, out, mode))?;
     emit(&format!(
         "projected {} views onto {} shapes: {} of {} surface texels observed ({:.1}%), {} pixels masked, {:.2} s\nmaps: {}\n",
         stats.views,
@@ -306,27 +398,142 @@ fn v3p(v: Vec3) -> String {
     format!("({:.4}, {:.4}, {:.4})", v.x, v.y, v.z)
 }
 
+/// An emitter's kind and parameters, for `inspect --json`.
+fn emitter_json(scene: &Scene, e: &Emitter) -> serde_json::Value {
+    use serde_json::json;
+    match e {
+        Emitter::Point {
+            position,
+            intensity,
+        } => json!({"type": "point", "position": position, "intensity": intensity}),
+        Emitter::Spot {
+            position,
+            axis,
+            intensity,
+            cutoff,
+            beam_width,
+            ..
+        } => json!({
+            "type": "spot", "position": position, "axis": axis, "intensity": intensity,
+            "cutoff_deg": cutoff.to_degrees(), "beam_width_deg": beam_width.to_degrees(),
+        }),
+        Emitter::Directional {
+            direction,
+            irradiance,
+        } => json!({"type": "directional", "direction": direction, "irradiance": irradiance}),
+        Emitter::Area { shape, radiance } => {
+            let id = scene.shapes.get(*shape).map(|s| s.id.as_str());
+            json!({"type": "area", "shape": id, "radiance": radiance})
+        }
+    }
+}
+
+/// The document printed by `inspect --json`: what [`summary`] says, as data.
+fn summary_json(scene: &Scene) -> serde_json::Value {
+    use serde_json::json;
+    let shapes: Vec<_> = scene
+        .shapes
+        .iter()
+        .map(|sh| {
+            json!({
+                "id": sh.id,
+                "type": sh.kind,
+                "triangles": sh.mesh.triangles.len(),
+                "area": sh.mesh.area(),
+                "sides": match sh.sides { Sides::Front => "front", Sides::Both => "both" },
+                "emission": sh.emission,
+            })
+        })
+        .collect();
+    let emitters: Vec<_> = scene
+        .emitters
+        .iter()
+        .map(|e| {
+            let p = kdmap::light::emitter_power(scene, e);
+            let mut v = emitter_json(scene, e);
+            v["power"] = json!(p);
+            v["power_luminance"] = json!(luminance(p));
+            v
+        })
+        .collect();
+    let images = scene.dir().join("images");
+    let sensors: Vec<_> = scene
+        .sensors
+        .iter()
+        .map(|c| {
+            let image = images.join(format!("{}.exr", c.id));
+            json!({
+                "id": c.id,
+                "width": c.width,
+                "height": c.height,
+                "fov_deg": c.fov,
+                "fov_axis": format!("{:?}", c.fov_axis).to_lowercase(),
+                "position": c.to_world.w_axis.truncate(),
+                "image": image,
+                "image_present": image.is_file(),
+            })
+        })
+        .collect();
+    json!({
+        "scene": scene.path,
+        "triangles": scene.triangle_count(),
+        "shapes": shapes,
+        "emitters": emitters,
+        "sensors": sensors,
+    })
+}
+
 /// The human-readable summary printed by `inspect`.
-fn inspect(input: &Path) -> Result<()> {
+fn inspect(input: &Path, json: bool) -> Result<()> {
     let cfg = Config::load(input, &Overrides::default())?;
     let scene = mitsuba::load(&cfg.scene)?;
+    let plan = plan_run(&cfg, &scene);
+    if json {
+        let mut doc = summary_json(&scene);
+        match &plan {
+            Ok((p, n)) => {
+                doc["atlas"] = serde_json::to_value(p).unwrap_or_default();
+                doc["needs"] = serde_json::to_value(n).unwrap_or_default();
+            }
+            Err(e) => doc["atlas"] = serde_json::json!({ "not_planned": e }),
+        }
+        return emit(&json_text(&doc)?);
+    }
     let mut text = summary(&scene);
-    text.push_str(&atlas_plan(&cfg, &scene));
+    text.push_str(&plan_text(&cfg, &scene, &plan));
     emit(&text)
 }
 
-/// The texel density per shape a run with `cfg` would choose, and what the run would need.
-fn atlas_plan(cfg: &Config, scene: &Scene) -> String {
+type RunPlan = std::result::Result<
+    (
+        kdmap::atlas::density::DensityPlan,
+        kdmap::atlas::density::Needs,
+    ),
+    String,
+>;
+
+/// The texel density per shape a run with `cfg` would choose, and what the run would need;
+/// an error text if the run could not start (no photos).
+fn plan_run(cfg: &Config, scene: &Scene) -> RunPlan {
+    let views =
+        kdmap::atlas::prepared::match_views(scene, cfg, Mode::Quiet).map_err(|e| e.to_string())?;
+    let accel = kdmap::accel::Accel::build(scene);
+    let plan = kdmap::atlas::prepared::plan_density(cfg, scene, &accel, &views);
+    let sensors: Vec<usize> = views.iter().map(|v| v.0).collect();
+    let pixels = kdmap::atlas::density::photo_pixels(scene, &sensors);
+    let needs = kdmap::atlas::density::needs(scene, &plan, pixels, cfg.memory_budget_mib << 20);
+    Ok((plan, needs))
+}
+
+fn plan_text(cfg: &Config, scene: &Scene, plan: &RunPlan) -> String {
     let mut s = String::new();
-    let views = match kdmap::atlas::prepared::match_views(scene, cfg, Mode::Quiet) {
-        Ok(v) => v,
+    let (plan, n) = match plan {
+        Ok(p) => p,
         Err(e) => {
             let _ = writeln!(s, "atlas: not planned ({e})");
             return s;
         }
     };
-    let accel = kdmap::accel::Accel::build(scene);
-    let plan = kdmap::atlas::prepared::plan_density(cfg, scene, &accel, &views);
     let how = match cfg.atlas.texels_per_unit.per_unit() {
         Some(d) => format!("texels_per_unit = {d}"),
         None => format!("auto, budget {} texels", plan.budget),
@@ -351,12 +558,9 @@ fn atlas_plan(cfg: &Config, scene: &Scene) -> String {
             sh.id, d.texels_per_unit
         );
     }
-    for n in &plan.notes {
-        let _ = writeln!(s, "  note: {n}");
+    for note in &plan.notes {
+        let _ = writeln!(s, "  note: {note}");
     }
-    let sensors: Vec<usize> = views.iter().map(|v| v.0).collect();
-    let pixels = kdmap::atlas::density::photo_pixels(scene, &sensors);
-    let n = kdmap::atlas::density::needs(scene, &plan, pixels, cfg.memory_budget_mib << 20);
     let _ = writeln!(
         s,
         "a run needs about {:.0} MB of disk ({} stored texels) and {:.0} MB of memory \

@@ -9,6 +9,10 @@
 //! Each stage is a plain function over tiles in its own module; this module calls them in
 //! order, decides where their state lives (`<out>/checkpoint/*.tiles`), when a checkpoint is
 //! taken and how a resumed run picks up where it stopped. Nothing below it imports it.
+//!
+//! After SIGINT / SIGTERM (`interrupt`), a run stops at its next safe point: after a batch
+//! group of a photon pass or an iteration with a checkpoint of where it stands, or in
+//! projection / direct light with nothing saved; it returns `Error::Interrupted`.
 
 use crate::atlas::charts::Charts;
 use crate::atlas::check::{check_geometry, check_state};
@@ -23,12 +27,13 @@ use crate::fsio;
 use crate::gather::{
     trace_points, write_accum, GatherCache, GatherContext, GatherPoints, Radiance,
 };
+use crate::interrupt;
 use crate::light::EmitterSampler;
 use crate::output::{write_map, write_outputs};
 use crate::photon::{
     begin_pass, finish_pass, photon_pass, smooth_accum, AlbedoTextures, PassContext,
 };
-use crate::progress::{note, Mode, Stage};
+use crate::progress::{self, note, Mode, Stage};
 use crate::project::ProjectionStats;
 use crate::report::{Counts, IterationStats, Report};
 use crate::solve::{init_indirect_tile, kd_step, update_step};
@@ -221,13 +226,29 @@ impl Running {
     }
 
     /// Checkpoint at `stage` if it is due: always after the direct light and when finished,
-    /// else once `every` seconds have passed since the last one.
-    fn checkpoint_if_due(&mut self, state_path: &Path, stage: RunStage, every: f64) -> Result<()> {
+    /// else once `every` seconds have passed since the last one. Returns whether it wrote one.
+    fn checkpoint_if_due(
+        &mut self,
+        state_path: &Path,
+        stage: RunStage,
+        every: f64,
+    ) -> Result<bool> {
         let forced = matches!(stage, RunStage::Direct | RunStage::Finished);
-        if forced || self.writer.since_last() >= every {
+        let due = forced || self.writer.since_last() >= every;
+        if due {
             self.checkpoint(state_path, stage)?;
         }
-        Ok(())
+        Ok(due)
+    }
+
+    /// A stop asked for by a signal, at a safe point where the run stands at `stage`: a
+    /// checkpoint of it (unless `saved`: one was just written), and the error to stop with.
+    fn interrupted(&mut self, state_path: &Path, stage: RunStage, saved: bool) -> Result<Error> {
+        if !saved {
+            self.checkpoint(state_path, stage)?;
+        }
+        let dir = state_path.parent().unwrap_or(state_path);
+        Ok(interrupted(dir, self.writer.seq()))
     }
 
     /// Checkpoint: the state (unless finished) and where the run stands.
@@ -351,6 +372,8 @@ impl<'a> Run<'a> {
 
     /// Continue from checkpoint `m`: its state snapshot restored, its report and stage.
     fn resume(&self, m: Manifest<Progress>, clock: Instant) -> Result<Running> {
+        // no projection: the photos `prepare` checked are not needed
+        self.p.release_photos();
         ck::restore(&self.dir, &m, &self.state_path)?;
         let state = self.p.open_store(&self.state_path)?;
         let mut report = m.payload.report;
@@ -476,15 +499,21 @@ impl<'a> Run<'a> {
         r.report.timings.photons += est.photon_seconds;
         r.report.timings.gather += est.gather_seconds;
         r.report.timings.update += pass.update_seconds;
-        if self.mode == Mode::Auto {
-            eprintln!(
-                "[iteration {}] relative error: rms {:.3}%, mean {:.3}%, max {:.2}%",
-                n + 1,
-                100.0 * it.rms_rel_error,
-                100.0 * it.mean_rel_error,
-                100.0 * it.max_rel_error,
-            );
-        }
+        let text = format!(
+            "[iteration {}] relative error: rms {:.3}%, mean {:.3}%, max {:.2}%",
+            n + 1,
+            100.0 * it.rms_rel_error,
+            100.0 * it.mean_rel_error,
+            100.0 * it.max_rel_error,
+        );
+        let json = serde_json::json!({
+            "stage": "iteration",
+            "iteration": n + 1,
+            "rms_rel_error": it.rms_rel_error,
+            "mean_rel_error": it.mean_rel_error,
+            "max_rel_error": it.max_rel_error,
+        });
+        progress::report(self.mode, &text, json);
         let done = it.rms_rel_error < cfg.tolerance as f64;
         r.report.iterations.push(it);
         if done {
@@ -495,7 +524,10 @@ impl<'a> Run<'a> {
             stopped: done || n + 1 == cfg.iterations,
         };
         r.stage = stage;
-        r.checkpoint_if_due(&self.state_path, stage, cfg.checkpoint_every_seconds)?;
+        let saved = r.checkpoint_if_due(&self.state_path, stage, cfg.checkpoint_every_seconds)?;
+        if interrupt::requested() {
+            return Err(r.interrupted(&self.state_path, stage, saved)?);
+        }
         Ok(done)
     }
 
@@ -636,7 +668,9 @@ impl<'a> Run<'a> {
             stage.inc(photons - last);
             last = photons;
             let due = writer.since_last() >= cfg.checkpoint_every_seconds;
-            if done < batches && done - last_ck >= every && due {
+            // a signal: stop after this group, with a checkpoint of it
+            let stop = done < batches && interrupt::requested();
+            if done < batches && (done - last_ck >= every && due || stop) {
                 let progress = Progress {
                     stage: RunStage::Pass {
                         iteration: n,
@@ -653,7 +687,10 @@ impl<'a> Run<'a> {
                 writer.write(Some(state_path), &progress, seconds)?;
                 last_ck = done;
             }
-            Ok(())
+            match stop {
+                true => Err(interrupted(&self.dir, writer.seq())),
+                false => Ok(()),
+            }
         })?;
         stage.finish();
         Ok(traced)
@@ -661,6 +698,9 @@ impl<'a> Run<'a> {
 
     /// K_d consistent with the final E_i, the counts, every output, the last checkpoint.
     fn finish(&self, mut r: Running) -> Result<Report> {
+        if interrupt::requested() {
+            return Err(r.interrupted(&self.state_path, r.stage, false)?);
+        }
         let p = &self.p;
         let charts = &self.charts;
         let (_, filled) = kd_step(&p.layout, charts, &self.geom, &mut r.state, self.window)?;
@@ -706,6 +746,14 @@ impl<'a> Run<'a> {
         );
         Ok(r.report)
     }
+}
+
+/// The error of a run stopped by a signal after checkpoint `seq` was written in `dir`.
+fn interrupted(dir: &Path, seq: u64) -> Error {
+    Error::Interrupted(format!(
+        "checkpoint {seq} written in {}; run the same command with --resume to continue",
+        dir.display()
+    ))
 }
 
 /// What an iteration's E_i estimate cost.

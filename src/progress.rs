@@ -1,16 +1,34 @@
-//! Progress on stderr for long stages: an indicatif bar with rate and ETA on a terminal,
-//! plain lines (at most one per ~10% or per 10 s) otherwise, so logs of batch jobs stay short.
+//! Progress on stderr for long stages, in the form the user chose ([`Mode`]): an indicatif
+//! bar with rate and ETA, plain lines (at most one per ~10% or per 10 s, so logs of batch
+//! jobs stay short), JSON lines for scripts, or nothing. Notes and per-iteration lines go
+//! through here too, so `--quiet` and `--progress json` hold for everything but errors.
+//! Writes to stderr never panic: a closed stderr just loses the line.
 
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
-use std::io::IsTerminal;
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle, TermLike};
+use std::io::{IsTerminal, Write};
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
-/// Whether progress is printed at all (tests and library users can turn it off).
+/// How progress and notes are printed on stderr.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Mode {
+    /// Bars on a terminal, plain lines otherwise; notes.
     Auto,
+    /// Bars even when stderr is not a terminal (drawn with ANSI escapes); notes.
+    Always,
+    /// No progress; notes.
+    Never,
+    /// One JSON object per line: progress events, notes, iteration statistics.
+    Json,
+    /// Nothing at all (errors are still printed by the command line).
     Quiet,
+}
+
+impl Mode {
+    /// Whether notes and per-iteration lines are printed.
+    pub fn notes(self) -> bool {
+        self != Mode::Quiet
+    }
 }
 
 /// One stage's progress.
@@ -19,44 +37,146 @@ pub struct Stage {
     total: u64,
     unit: &'static str,
     bar: Option<ProgressBar>,
-    plain: Option<Mutex<Plain>>,
+    lines: Option<Mutex<Lines>>,
+    json: bool,
     start: Instant,
 }
 
-struct Plain {
+/// The plain or JSON lines' state: units done, when and at what fraction the last line was.
+struct Lines {
     done: u64,
     last_print: Instant,
     last_frac: f64,
+}
+
+/// Write one line to stderr, ignoring failures (a closed stderr must not stop a run).
+pub fn line(text: &str) {
+    let mut e = std::io::stderr().lock();
+    let _ = writeln!(e, "{text}");
+}
+
+/// Stderr as a terminal for indicatif whatever it is connected to (`Mode::Always`).
+#[derive(Debug)]
+struct AnsiStderr;
+
+impl AnsiStderr {
+    fn put(&self, s: &str) -> std::io::Result<()> {
+        std::io::stderr().lock().write_all(s.as_bytes())
+    }
+}
+
+impl TermLike for AnsiStderr {
+    fn width(&self) -> u16 {
+        100
+    }
+    fn move_cursor_up(&self, n: usize) -> std::io::Result<()> {
+        if n > 0 {
+            self.put(&format!("\x1b[{n}A"))
+        } else {
+            Ok(())
+        }
+    }
+    fn move_cursor_down(&self, n: usize) -> std::io::Result<()> {
+        if n > 0 {
+            self.put(&format!("\x1b[{n}B"))
+        } else {
+            Ok(())
+        }
+    }
+    fn move_cursor_right(&self, n: usize) -> std::io::Result<()> {
+        if n > 0 {
+            self.put(&format!("\x1b[{n}C"))
+        } else {
+            Ok(())
+        }
+    }
+    fn move_cursor_left(&self, n: usize) -> std::io::Result<()> {
+        if n > 0 {
+            self.put(&format!("\x1b[{n}D"))
+        } else {
+            Ok(())
+        }
+    }
+    fn write_line(&self, s: &str) -> std::io::Result<()> {
+        self.put(&format!("{s}\n"))
+    }
+    fn write_str(&self, s: &str) -> std::io::Result<()> {
+        self.put(s)
+    }
+    fn clear_line(&self) -> std::io::Result<()> {
+        self.put("\r\x1b[2K")
+    }
+    fn flush(&self) -> std::io::Result<()> {
+        std::io::stderr().flush()
+    }
+}
+
+fn bar(name: &str, total: u64, target: ProgressDrawTarget) -> ProgressBar {
+    let b = ProgressBar::with_draw_target(Some(total), target);
+    b.set_style(
+        ProgressStyle::with_template(
+            "{prefix:>12} [{bar:30}] {human_pos}/{human_len} {per_sec} eta {eta}",
+        )
+        .unwrap_or_else(|_| ProgressStyle::default_bar())
+        .progress_chars("=> "),
+    );
+    b.set_prefix(name.to_string());
+    b
+}
+
+/// A progress event as one JSON line: `{"stage", "event", "done", "total", "unit", "rate"
+/// (units per second), "eta_s"}`.
+pub fn json_event(
+    stage: &str,
+    event: &str,
+    done: u64,
+    total: u64,
+    unit: &str,
+    secs: f64,
+) -> String {
+    let rate = done as f64 / secs.max(1e-9);
+    let eta = match rate > 0.0 {
+        true => serde_json::json!(total.saturating_sub(done) as f64 / rate),
+        false => serde_json::Value::Null,
+    };
+    serde_json::json!({
+        "stage": stage,
+        "event": event,
+        "done": done,
+        "total": total,
+        "unit": unit,
+        "rate": rate,
+        "eta_s": eta,
+    })
+    .to_string()
 }
 
 impl Stage {
     /// Start a stage of `total` units (`unit` names them, e.g. "texels", "photons").
     pub fn new(mode: Mode, name: &str, total: u64, unit: &'static str) -> Stage {
         let start = Instant::now();
-        let (bar, plain) = match mode {
-            Mode::Quiet => (None, None),
-            Mode::Auto if std::io::stderr().is_terminal() => {
-                let b = ProgressBar::with_draw_target(Some(total), ProgressDrawTarget::stderr());
-                b.set_style(
-                    ProgressStyle::with_template(
-                        "{prefix:>12} [{bar:30}] {human_pos}/{human_len} {per_sec} eta {eta}",
-                    )
-                    .unwrap_or_else(|_| ProgressStyle::default_bar())
-                    .progress_chars("=> "),
-                );
-                b.set_prefix(name.to_string());
-                (Some(b), None)
+        let lines = || {
+            Some(Mutex::new(Lines {
+                done: 0,
+                last_print: start,
+                last_frac: 0.0,
+            }))
+        };
+        let terminal = std::io::stderr().is_terminal();
+        let (bar, lines) = match mode {
+            Mode::Quiet | Mode::Never => (None, None),
+            Mode::Auto if terminal => (Some(bar(name, total, ProgressDrawTarget::stderr())), None),
+            Mode::Always => {
+                let target = ProgressDrawTarget::term_like(Box::new(AnsiStderr));
+                (Some(bar(name, total, target)), None)
             }
             Mode::Auto => {
-                eprintln!("[{name}] start: {total} {unit}");
-                (
-                    None,
-                    Some(Mutex::new(Plain {
-                        done: 0,
-                        last_print: start,
-                        last_frac: 0.0,
-                    })),
-                )
+                line(&format!("[{name}] start: {total} {unit}"));
+                (None, lines())
+            }
+            Mode::Json => {
+                line(&json_event(name, "start", 0, total, unit, 0.0));
+                (None, lines())
             }
         };
         Stage {
@@ -64,7 +184,8 @@ impl Stage {
             total,
             unit,
             bar,
-            plain,
+            lines,
+            json: mode == Mode::Json,
             start,
         }
     }
@@ -74,29 +195,35 @@ impl Stage {
         if let Some(b) = &self.bar {
             b.inc(n);
         }
-        if let Some(p) = &self.plain {
-            let mut p = p.lock().unwrap_or_else(|e| e.into_inner());
-            p.done += n;
-            let frac = p.done as f64 / self.total.max(1) as f64;
-            if frac - p.last_frac >= 0.1 || p.last_print.elapsed() >= Duration::from_secs(10) {
-                let el = self.start.elapsed().as_secs_f64();
-                let rate = p.done as f64 / el.max(1e-9);
-                let eta = (self.total.saturating_sub(p.done)) as f64 / rate.max(1e-9);
-                eprintln!(
-                    "[{}] {}/{} {} ({:.0}%), {:.3e} {}/s, eta {:.0} s",
-                    self.name,
-                    p.done,
-                    self.total,
-                    self.unit,
-                    100.0 * frac,
-                    rate,
-                    self.unit,
-                    eta
-                );
-                p.last_print = Instant::now();
-                p.last_frac = frac;
-            }
+        let Some(p) = &self.lines else { return };
+        let mut p = p.lock().unwrap_or_else(|e| e.into_inner());
+        p.done += n;
+        let frac = p.done as f64 / self.total.max(1) as f64;
+        if frac - p.last_frac < 0.1 && p.last_print.elapsed() < Duration::from_secs(10) {
+            return;
         }
+        let el = self.start.elapsed().as_secs_f64();
+        if self.json {
+            line(&json_event(
+                &self.name, "progress", p.done, self.total, self.unit, el,
+            ));
+        } else {
+            let rate = p.done as f64 / el.max(1e-9);
+            let eta = (self.total.saturating_sub(p.done)) as f64 / rate.max(1e-9);
+            line(&format!(
+                "[{}] {}/{} {} ({:.0}%), {:.3e} {}/s, eta {:.0} s",
+                self.name,
+                p.done,
+                self.total,
+                self.unit,
+                100.0 * frac,
+                rate,
+                self.unit,
+                eta
+            ));
+        }
+        p.last_print = Instant::now();
+        p.last_frac = frac;
     }
 
     /// Finish the stage; returns its wall time.
@@ -105,22 +232,77 @@ impl Stage {
         if let Some(b) = &self.bar {
             b.finish_and_clear();
         }
-        if self.bar.is_some() || self.plain.is_some() {
-            eprintln!(
+        if self.json {
+            let s = el.as_secs_f64();
+            line(&json_event(
+                &self.name, "done", self.total, self.total, self.unit, s,
+            ));
+        } else if self.bar.is_some() || self.lines.is_some() {
+            line(&format!(
                 "[{}] done: {} {} in {:.2} s",
                 self.name,
                 self.total,
                 self.unit,
                 el.as_secs_f64()
-            );
+            ));
         }
         el
     }
 }
 
-/// A one-off note on stderr (skipped sensors, masked pixels...), unless quiet.
+/// A one-off note on stderr (skipped sensors, masked pixels...), unless quiet; a
+/// `{"note": ...}` line in JSON mode.
 pub fn note(mode: Mode, msg: &str) {
-    if mode == Mode::Auto {
-        eprintln!("note: {msg}");
+    match mode {
+        Mode::Quiet => {}
+        Mode::Json => line(&serde_json::json!({ "note": msg }).to_string()),
+        _ => line(&format!("note: {msg}")),
+    }
+}
+
+/// A result line of a stage on stderr (an iteration's errors), unless quiet: `text` as it
+/// is, or `json` as one line in JSON mode.
+pub fn report(mode: Mode, text: &str, json: serde_json::Value) {
+    match mode {
+        Mode::Quiet => {}
+        Mode::Json => line(&json.to_string()),
+        _ => line(text),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn json_events_carry_the_documented_keys() {
+        let v: serde_json::Value = serde_json::from_str(&json_event(
+            "photons 1/6",
+            "progress",
+            25,
+            100,
+            "photons",
+            5.0,
+        ))
+        .unwrap();
+        assert_eq!(v["stage"], "photons 1/6");
+        assert_eq!(v["event"], "progress");
+        assert_eq!(v["done"], 25);
+        assert_eq!(v["total"], 100);
+        assert_eq!(v["unit"], "photons");
+        assert_eq!(v["rate"], 5.0);
+        assert_eq!(v["eta_s"], 15.0);
+        // nothing done yet: no rate, so no ETA
+        let v: serde_json::Value =
+            serde_json::from_str(&json_event("atlas", "start", 0, 9, "texels", 0.0)).unwrap();
+        assert!(v["eta_s"].is_null());
+    }
+
+    #[test]
+    fn only_quiet_silences_notes() {
+        for m in [Mode::Auto, Mode::Always, Mode::Never, Mode::Json] {
+            assert!(m.notes(), "{m:?}");
+        }
+        assert!(!Mode::Quiet.notes());
     }
 }

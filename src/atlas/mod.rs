@@ -15,4 +15,6 @@ pub mod tiles;
 pub mod unwrap;
 
 pub use geometry::build_geometry;
-pub use prepared::{match_views, prepare, state_dir, Prepared, ShapeRef};
+pub use prepared::{
+    check_lit, match_views, prepare, prepare_layout, read_photos, state_dir, Prepared, ShapeRef,
+};

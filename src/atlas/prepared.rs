@@ -2,6 +2,11 @@
 //! atlas of every reconstructed shape, their tile layout and the photos, plus the helpers every
 //! stage needs to address them (a shape's atlas, a store shaped like the layout, the tile
 //! window under the memory budget) and the fingerprint of the run's inputs.
+//!
+//! [`prepare`] checks every input before any heavy work (the BVH, the unwrap, the geometry
+//! store): the scene and its meshes parse, every photo decodes to its end at its sensor's film
+//! size, and some emitter has positive power. The decoded photos are kept for the projection,
+//! so each is read once.
 
 use super::density::{self, DensityPlan, ShapeDensity};
 use super::layout::{Layout, TexelGeom};
@@ -11,6 +16,8 @@ use crate::accel::Accel;
 use crate::config::{Config, Density};
 use crate::error::{Error, Result};
 use crate::fsio::Fnv;
+use crate::image::{read_sensor_image, Image};
+use crate::light::emitter_power;
 use crate::progress::{note, Mode, Stage};
 use crate::report::ShapeTexels;
 use crate::scene::{mitsuba, Mesh, Scene, Sides};
@@ -18,6 +25,7 @@ use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Mutex;
 
 /// The scene with its acceleration structure, atlases and tile layout: everything fixed.
 pub struct Prepared {
@@ -30,6 +38,9 @@ pub struct Prepared {
     pub views: Vec<(usize, PathBuf)>,
     /// The texel density of every reconstructed shape and how it was chosen.
     pub density: DensityPlan,
+    /// The photos decoded by [`prepare`], per view, until a stage takes them
+    /// ([`Prepared::take_photo`]).
+    photos: Mutex<Vec<Option<Image>>>,
 }
 
 /// Everything a stage needs about one reconstructed shape's surface and atlas.
@@ -70,11 +81,38 @@ pub fn state_dir(out: &Path) -> PathBuf {
     out.join("checkpoint")
 }
 
-/// Load the scene, pick the views, choose the texel densities, unwrap every reconstructed
-/// shape and lay out the tiles.
+/// Load the scene, pick the views, check every input (photos decoded and sized, some light),
+/// then choose the texel densities, unwrap every reconstructed shape and lay out the tiles.
+/// What the scene file alone tells (photos against films, no emitter at all) is checked
+/// before the meshes are read.
 pub fn prepare(cfg: &Config, mode: Mode) -> Result<Prepared> {
+    let outline = mitsuba::load_outline(&cfg.scene)?;
+    let views = match_views(&outline, cfg, mode)?;
+    if outline.emitters.is_empty() {
+        check_lit(&outline)?;
+    }
+    let photos = read_photos(&outline, &views, mode)?;
+    let scene = mitsuba::load(&cfg.scene)?;
+    check_lit(&scene)?;
+    let p = prepare_scene(cfg, scene, views, mode)?;
+    *p.photos.lock().unwrap_or_else(|e| e.into_inner()) = photos.into_iter().map(Some).collect();
+    Ok(p)
+}
+
+/// [`prepare`] without reading the photos or checking the light: the atlas of a run whose
+/// inputs were checked when it ran (scoring a finished run).
+pub fn prepare_layout(cfg: &Config, mode: Mode) -> Result<Prepared> {
     let scene = mitsuba::load(&cfg.scene)?;
     let views = match_views(&scene, cfg, mode)?;
+    prepare_scene(cfg, scene, views, mode)
+}
+
+fn prepare_scene(
+    cfg: &Config,
+    scene: Scene,
+    views: Vec<(usize, PathBuf)>,
+    mode: Mode,
+) -> Result<Prepared> {
     let settings = AtlasSettings {
         texels_per_unit: cfg
             .atlas
@@ -114,6 +152,51 @@ pub fn plan_density(
         return density::plan(scene, &fine, cfg.atlas.max_texture_size, budget);
     };
     DensityPlan::fixed(scene, d)
+}
+
+/// Refuses a scene that nothing lights: no emitter, or none with positive finite power.
+pub fn check_lit(scene: &Scene) -> Result<()> {
+    let lit = scene.emitters.iter().any(|e| {
+        let p = emitter_power(scene, e);
+        p.is_finite() && p.max_element() > 0.0
+    });
+    match lit {
+        true => Ok(()),
+        false => Err(Error::input(
+            &scene.path,
+            match scene.emitters.len() {
+                0 => "the scene is unlit: it has no emitter, and albedo cannot be recovered \
+                      without light"
+                    .to_string(),
+                n => format!(
+                    "the scene is unlit: none of its {n} emitters has positive power, and \
+                     albedo cannot be recovered without light"
+                ),
+            },
+        )),
+    }
+}
+
+/// Every view's photo decoded to its end (in parallel) and its size checked against its
+/// sensor's film: the first bad photo in view order is the error. Masked pixels are noted.
+pub fn read_photos(scene: &Scene, views: &[(usize, PathBuf)], mode: Mode) -> Result<Vec<Image>> {
+    let photos = views
+        .par_iter()
+        .map(|(si, path)| read_sensor_image(path, &scene.sensors[*si]))
+        .collect::<Vec<Result<Image>>>()
+        .into_iter()
+        .collect::<Result<Vec<Image>>>()?;
+    for ((_, path), image) in views.iter().zip(&photos) {
+        if image.masked > 0 {
+            let n = image.masked;
+            let msg = format!(
+                "{}: {n} non-finite or negative pixels masked",
+                path.display()
+            );
+            note(mode, &msg);
+        }
+    }
+    Ok(photos)
 }
 
 /// The (sensor, photo) pairs of a run: the config's `views`, or every sensor with an
@@ -216,6 +299,7 @@ impl Prepared {
             layout,
             views,
             density,
+            photos: Mutex::new(Vec::new()),
         })
     }
 
@@ -251,6 +335,21 @@ impl Prepared {
             }
         });
         Ok(rows.collect())
+    }
+
+    /// The photo of view `view` as [`prepare`] decoded it, handed over once (`None` if it
+    /// was taken already or this `Prepared` was not made by [`prepare`]).
+    pub fn take_photo(&self, view: usize) -> Option<Image> {
+        let mut photos = self.photos.lock().unwrap_or_else(|e| e.into_inner());
+        photos.get_mut(view).and_then(Option::take)
+    }
+
+    /// Frees the decoded photos that no stage took (a resumed run does not project).
+    pub fn release_photos(&self) {
+        self.photos
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .clear();
     }
 
     /// The shape of layout slot `slot`.

@@ -41,12 +41,13 @@ pub use view::{classify_pixels, PixelInfo, View};
 use crate::atlas::hits::HitTable;
 use crate::atlas::layout::{flags, TexelGeom, TexelState};
 use crate::atlas::tiles::{map_tiles, TileStore};
-use crate::atlas::{Prepared, ShapeRef};
+use crate::atlas::{read_photos as read_photos_checked, Prepared, ShapeRef};
 use crate::camera::Camera;
 use crate::config::Config;
 use crate::error::Result;
-use crate::image::{read_sensor_image, Image};
-use crate::progress::{note, Mode, Stage};
+use crate::image::Image;
+use crate::interrupt;
+use crate::progress::{Mode, Stage};
 use crate::scene::Sides;
 use glam::Vec3;
 use std::time::Instant;
@@ -110,6 +111,7 @@ pub fn run(
         })?;
         views.push(view);
         stage.inc(1);
+        interrupt::check(interrupt::NOTHING_SAVED)?;
     }
     state.for_each_tile_mut(window, |_, st| finish_tile(st))?;
     let ctx = refine::Refine {
@@ -134,24 +136,17 @@ pub fn run(
     Ok(stats)
 }
 
-/// Every view's photo, its size checked against its sensor; masked pixels noted.
+/// Every view's photo: as `prepare` decoded and checked it, else read again (checked the
+/// same way).
 fn read_photos(p: &Prepared, mode: Mode) -> Result<Vec<Image>> {
-    let mut photos = Vec::with_capacity(p.views.len());
-    for (si, path) in &p.views {
-        let image = read_sensor_image(path, &p.scene.sensors[*si])?;
-        if image.masked > 0 {
-            note(
-                mode,
-                &format!(
-                    "{}: {} non-finite or negative pixels masked",
-                    path.display(),
-                    image.masked
-                ),
-            );
+    let taken: Option<Vec<Image>> = (0..p.views.len()).map(|i| p.take_photo(i)).collect();
+    match taken {
+        Some(photos) => Ok(photos),
+        None => {
+            p.release_photos();
+            read_photos_checked(&p.scene, &p.views, mode)
         }
-        photos.push(image);
     }
-    Ok(photos)
 }
 
 /// Per tile, the bounding box of its covered texels' squares (`None` if it has none): what a

@@ -110,6 +110,7 @@ impl Refine<'_> {
             for view in self.views {
                 self.backproject(view, &textures, &mut delta)?;
                 stage.inc(1);
+                crate::interrupt::check(crate::interrupt::NOTHING_SAVED)?;
             }
             state.for_each_tile_mut(self.window, |t, st| {
                 if !delta[t].is_empty() {

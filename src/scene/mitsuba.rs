@@ -47,9 +47,22 @@ pub fn load(path: &Path) -> Result<Scene> {
     parse(&text, path)
 }
 
+/// The scene file alone, its mesh files not read: sensors, emitters, and shapes whose
+/// `obj`/`ply` meshes are empty (so area emitters on them have no area). What the checks
+/// that must come before the (possibly slow) meshes need: films, photos, emitter count.
+pub fn load_outline(path: &Path) -> Result<Scene> {
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    parse_with(&text, path, false)
+}
+
 /// [`load`] on XML text already read; `path` names the file in errors and its directory is
 /// where relative mesh paths are looked up.
 pub fn parse(text: &str, path: &Path) -> Result<Scene> {
+    parse_with(text, path, true)
+}
+
+/// [`parse`], reading the mesh files only if `meshes`.
+fn parse_with(text: &str, path: &Path, meshes: bool) -> Result<Scene> {
     check_depth(text, path)?;
     let doc = Document::parse(text).map_err(|e| {
         let pos = e.pos();
@@ -76,6 +89,7 @@ pub fn parse(text: &str, path: &Path) -> Result<Scene> {
         textures: HashMap::new(),
         ids: HashSet::new(),
         files: Vec::new(),
+        meshes,
     };
     p.scene(doc.root_element())
 }
@@ -246,6 +260,8 @@ struct Parser<'a, 'i> {
     ids: HashSet<String>,
     /// Every file named so far (meshes, bitmaps), in file order.
     files: Vec<PathBuf>,
+    /// Whether mesh files are read (else their meshes are left empty: [`load_outline`]).
+    meshes: bool,
 }
 
 /// What kdmap reads of a bsdf: which sides reflect, and the reflectance it states.
@@ -832,10 +848,10 @@ impl<'a, 'i> Parser<'a, 'i> {
             .ok_or_else(|| self.err(node, "missing property 'filename'"))?;
         let name = self.string_of(fnode)?;
         let p = self.dir.join(&name);
-        let loaded = if kind == "obj" {
-            mesh::load_obj(&p)
-        } else {
-            mesh::load_ply(&p)
+        let loaded = match kind {
+            _ if !self.meshes => Ok(Mesh::default()),
+            "obj" => mesh::load_obj(&p),
+            _ => mesh::load_ply(&p),
         };
         let mut mesh = loaded.map_err(|e| self.err(node, format!("cannot load mesh: {e}")))?;
         if kind == "obj" {
@@ -1308,6 +1324,25 @@ impl<'a, 'i> Parser<'a, 'i> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn an_outline_has_every_sensor_and_emitter_but_reads_no_mesh() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/cbox/input.xml");
+        let (full, outline) = (load(&path).unwrap(), load_outline(&path).unwrap());
+        assert_eq!(outline.sensors.len(), full.sensors.len());
+        for (a, b) in outline.sensors.iter().zip(&full.sensors) {
+            assert_eq!((&a.id, a.width, a.height), (&b.id, b.width, b.height));
+        }
+        assert_eq!(outline.emitters.len(), full.emitters.len());
+        assert_eq!(outline.shapes.len(), full.shapes.len());
+        assert!(full.triangle_count() > 0);
+        assert_eq!(outline.triangle_count(), 0, "obj meshes are not read");
+        // a missing mesh file is only found by the full load
+        let text = std::fs::read_to_string(&path).unwrap();
+        let text = text.replace("meshes/floor.obj", "meshes/no-such-floor.obj");
+        assert!(parse_with(&text, &path, false).is_ok());
+        assert!(parse_with(&text, &path, true).is_err());
+    }
 
     fn scene(body: &str) -> Result<Scene> {
         parse(

@@ -94,6 +94,16 @@ fn accuracy_of_a_finished_run(out: &Path) {
     );
     let json = std::fs::read_to_string(out.join("accuracy/accuracy.json")).unwrap();
     let v: serde_json::Value = serde_json::from_str(&json).unwrap();
+    // `--json`: the same document on stdout
+    let o = kdmap(&[
+        "accuracy",
+        out.to_str().unwrap(),
+        truth.to_str().unwrap(),
+        "--json",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let printed: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(printed, v, "accuracy --json differs from accuracy.json");
     let shapes = v["shapes"].as_array().unwrap();
     assert_eq!(shapes.len(), 7, "{json}");
     let (mut n, mut sum) = (0.0, 0.0);

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 
 /// The layers of `src/lib.rs`, bottom up, each in its allowed order.
 const LAYERS: &[&[&str]] = &[
-    &["error", "rng", "progress", "fsio"],
+    &["error", "rng", "progress", "fsio", "interrupt"],
     &[
         "config", "report", "scene", "image", "camera", "accel", "light", "render", "atlas",
     ],
