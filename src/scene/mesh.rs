@@ -263,10 +263,15 @@ fn check_obj_face(path: &Path, line: usize, corners: Vec<&str>, c: &mut ObjCount
 /// Load a Wavefront OBJ file (all objects and groups merged, polygons fan-triangulated),
 /// keeping positions, normals and UVs as written (see the module docs on conventions).
 pub fn load_obj(path: &Path) -> Result<Mesh> {
-    let bytes = read_bytes(path)?;
-    let text = String::from_utf8(bytes)
+    parse_obj_bytes(&read_bytes(path)?, path)
+}
+
+/// [`load_obj`] on the bytes of a file already read (the text must be UTF-8); `path` names
+/// the file in errors.
+pub fn parse_obj_bytes(bytes: &[u8], path: &Path) -> Result<Mesh> {
+    let text = std::str::from_utf8(bytes)
         .map_err(|_| Error::input(path, "the OBJ file is not valid UTF-8 text"))?;
-    parse_obj(&text, path)
+    parse_obj(text, path)
 }
 
 /// [`load_obj`] on text already read; `path` names the file in errors.

@@ -5,6 +5,7 @@ mod accuracy;
 mod camera;
 mod cli;
 mod diskfull;
+mod fuzz_regressions;
 mod import;
 mod layers;
 mod output;
