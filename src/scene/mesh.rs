@@ -439,6 +439,10 @@ fn check_ply_header(bytes: &[u8], path: &Path) -> Result<()> {
     };
     for (i, l) in header.lines().enumerate() {
         let mut w = l.split_whitespace();
+        let keyword = w.clone().next();
+        if let (Some(k @ ("format" | "element")), Some(n)) = (keyword, oversized_number(l)) {
+            return Err(at_line(path, i + 1, k, format!("number {n} is too large")));
+        }
         match w.next() {
             Some("element") => {
                 finish(current.take(), &mut total)?;
@@ -468,6 +472,13 @@ fn check_ply_header(bytes: &[u8], path: &Path) -> Result<()> {
         ));
     }
     Ok(())
+}
+
+/// The first run of digits in `line` that does not fit a `u64` (ply-rs panics on those in
+/// `format` and `element` lines).
+fn oversized_number(line: &str) -> Option<&str> {
+    line.split(|c: char| !c.is_ascii_digit())
+        .find(|run| !run.is_empty() && run.parse::<u64>().is_err())
 }
 
 /// Load a PLY mesh (ASCII or binary, either byte order): `vertex` with `x y z`, optional
