@@ -136,7 +136,22 @@ pub fn decode<P: DeserializeOwned>(bytes: &[u8]) -> std::result::Result<Manifest
             payload.len() - used
         ));
     }
+    check_snapshot_name(&m)?;
     Ok(m)
+}
+
+/// A manifest names only its own snapshot, `state.<seq>.tiles` in its directory: never a
+/// path elsewhere, whatever the (checksummed) content says.
+fn check_snapshot_name<P>(m: &Manifest<P>) -> std::result::Result<(), String> {
+    match &m.snapshot {
+        Some(s) if s.file != snapshot_name(m.seq) => Err(format!(
+            "bad payload: checkpoint {} names snapshot {:?}, not {:?}",
+            m.seq,
+            s.file,
+            snapshot_name(m.seq)
+        )),
+        _ => Ok(()),
+    }
 }
 
 /// Copy `from` to `to` (through `<to>.tmp`, fsynced, renamed), returning its length and
@@ -268,7 +283,7 @@ impl Writer {
         let nth = CHECKPOINT_WRITES.fetch_add(1, Ordering::SeqCst) + 1;
         let seq = self.seq + 1;
         let snapshot = if let Some(state_path) = state_path {
-            let file = format!("state.{seq}.tiles");
+            let file = snapshot_name(seq);
             let pause = (fault() == Some(Fault::PauseInCheckpoint(nth))).then_some(&*self.dir);
             let (bytes, fnv1a) = copy_hashed(state_path, &self.dir.join(&file), pause)?;
             self.bytes_written += bytes;
@@ -324,6 +339,11 @@ impl Writer {
         self.last = std::time::Instant::now();
         Ok(())
     }
+}
+
+/// The snapshot file of checkpoint `seq`.
+fn snapshot_name(seq: u64) -> String {
+    format!("state.{seq}.tiles")
 }
 
 /// `Some(seq)` for a file named `state.<seq>.tiles`.

@@ -12,6 +12,7 @@ use exr::prelude::{
     SpecificChannels, WritableImage,
 };
 use glam::Vec3;
+use std::io::{Read, Seek, SeekFrom};
 use std::path::Path;
 
 /// A linear RGB image with a per-pixel validity mask.
@@ -125,6 +126,69 @@ fn samples_f32(s: &FlatSamples) -> Vec<f32> {
 /// order; alpha and other channels ignored). Non-finite or negative pixels are masked.
 pub fn read_exr(path: impl AsRef<Path>) -> Result<Image> {
     let path = path.as_ref();
+    let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    read_exr_from(std::io::BufReader::new(file), path)
+}
+
+/// [`read_exr`] on the bytes of a file already read; `path` names the file in errors.
+pub fn read_exr_bytes(bytes: &[u8], path: &Path) -> Result<Image> {
+    read_exr_from(std::io::Cursor::new(bytes), path)
+}
+
+/// Most decoded sample bytes an EXR may hold per byte of file: above what any of its
+/// compressions reaches (deflate, in ZIP and PXR24, tops out near 1032:1), so only a header
+/// that lies about its size is refused, before the decoder allocates for it.
+const MAX_EXPANSION: u64 = 2048;
+
+/// Decoded sample bytes always accepted, whatever the file's size.
+const MIN_DECODED_LIMIT: u64 = 1 << 20;
+
+/// Bytes the decoder allocates for the samples of every layer's full-resolution level.
+fn decoded_bytes(meta: &x::MetaData) -> u64 {
+    meta.headers
+        .iter()
+        .map(|h| {
+            let area = (h.layer_size.x() as u64).saturating_mul(h.layer_size.y() as u64);
+            h.channels
+                .list
+                .iter()
+                .map(|c| area.saturating_mul(c.sample_type.bytes_per_sample() as u64))
+                .fold(0, u64::saturating_add)
+        })
+        .fold(0, u64::saturating_add)
+}
+
+/// Reads the header and refuses an image whose samples could not fit in a file of
+/// `file_bytes` bytes; leaves `reader` at the start of the file.
+fn check_exr_size(reader: &mut (impl Read + Seek), file_bytes: u64, path: &Path) -> Result<()> {
+    let meta =
+        x::MetaData::read_from_buffered(&mut *reader, true).map_err(|e| exr_error(path, e))?;
+    let decoded = decoded_bytes(&meta);
+    let limit = file_bytes
+        .saturating_mul(MAX_EXPANSION)
+        .max(MIN_DECODED_LIMIT);
+    if decoded > limit {
+        return Err(Error::input(
+            path,
+            format!(
+                "not a readable OpenEXR file: its header declares {decoded} bytes of samples, \
+                 more than a {file_bytes}-byte file can hold"
+            ),
+        ));
+    }
+    reader
+        .seek(SeekFrom::Start(0))
+        .map_err(|e| Error::io(path, e))?;
+    Ok(())
+}
+
+/// [`read_exr`] from any seekable reader of the file's bytes.
+fn read_exr_from(mut reader: impl Read + Seek, path: &Path) -> Result<Image> {
+    let file_bytes = reader
+        .seek(SeekFrom::End(0))
+        .and_then(|n| reader.seek(SeekFrom::Start(0)).map(|_| n))
+        .map_err(|e| Error::io(path, e))?;
+    check_exr_size(&mut reader, file_bytes, path)?;
     let img = x::read()
         .no_deep_data()
         .largest_resolution_level()
@@ -132,7 +196,7 @@ pub fn read_exr(path: impl AsRef<Path>) -> Result<Image> {
         .all_layers()
         .all_attributes()
         .pedantic()
-        .from_file(path)
+        .from_buffered(reader)
         .map_err(|e| exr_error(path, e))?;
 
     let mut names: Vec<String> = Vec::new();

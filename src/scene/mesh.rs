@@ -263,10 +263,15 @@ fn check_obj_face(path: &Path, line: usize, corners: Vec<&str>, c: &mut ObjCount
 /// Load a Wavefront OBJ file (all objects and groups merged, polygons fan-triangulated),
 /// keeping positions, normals and UVs as written (see the module docs on conventions).
 pub fn load_obj(path: &Path) -> Result<Mesh> {
-    let bytes = read_bytes(path)?;
-    let text = String::from_utf8(bytes)
+    parse_obj_bytes(&read_bytes(path)?, path)
+}
+
+/// [`load_obj`] on the bytes of a file already read (the text must be UTF-8); `path` names
+/// the file in errors.
+pub fn parse_obj_bytes(bytes: &[u8], path: &Path) -> Result<Mesh> {
+    let text = std::str::from_utf8(bytes)
         .map_err(|_| Error::input(path, "the OBJ file is not valid UTF-8 text"))?;
-    parse_obj(&text, path)
+    parse_obj(text, path)
 }
 
 /// [`load_obj`] on text already read; `path` names the file in errors.
@@ -434,6 +439,10 @@ fn check_ply_header(bytes: &[u8], path: &Path) -> Result<()> {
     };
     for (i, l) in header.lines().enumerate() {
         let mut w = l.split_whitespace();
+        let keyword = w.clone().next();
+        if let (Some(k @ ("format" | "element")), Some(n)) = (keyword, oversized_number(l)) {
+            return Err(at_line(path, i + 1, k, format!("number {n} is too large")));
+        }
         match w.next() {
             Some("element") => {
                 finish(current.take(), &mut total)?;
@@ -463,6 +472,13 @@ fn check_ply_header(bytes: &[u8], path: &Path) -> Result<()> {
         ));
     }
     Ok(())
+}
+
+/// The first run of digits in `line` that does not fit a `u64` (ply-rs panics on those in
+/// `format` and `element` lines).
+fn oversized_number(line: &str) -> Option<&str> {
+    line.split(|c: char| !c.is_ascii_digit())
+        .find(|run| !run.is_empty() && run.parse::<u64>().is_err())
 }
 
 /// Load a PLY mesh (ASCII or binary, either byte order): `vertex` with `x y z`, optional

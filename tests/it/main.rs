@@ -6,6 +6,7 @@ mod camera;
 mod cli;
 mod diskfull;
 mod failfast;
+mod fuzz_regressions;
 mod import;
 mod layers;
 mod output;
