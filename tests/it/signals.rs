@@ -63,6 +63,27 @@ fn delays(n: usize, lo: u64, hi: u64) -> Vec<u64> {
         .collect()
 }
 
+/// Runs `a`, sends `sig` when the `k`-th photon progress line reaches stderr, and returns
+/// the exit status with the whole of stderr.
+fn signal_at_photon_line(a: &[&str], k: usize, sig: &str) -> (Output, String) {
+    use std::io::BufRead;
+    let mut child = spawn(a, None);
+    let stderr = child.stderr.take().expect("piped stderr");
+    let (mut seen, mut err) = (0, String::new());
+    for line in std::io::BufReader::new(stderr).lines() {
+        let line = line.expect("utf-8 stderr");
+        if line.starts_with("[photons") {
+            seen += 1;
+            if seen == k {
+                signal(&child, sig);
+            }
+        }
+        err.push_str(&line);
+        err.push('\n');
+    }
+    (finish(child), err)
+}
+
 #[test]
 fn runs_interrupted_at_random_moments_resume_bit_identically() {
     let tmp = tempfile::tempdir().unwrap();
@@ -77,20 +98,22 @@ fn runs_interrupted_at_random_moments_resume_bit_identically() {
     let mut resume = fresh.clone();
     resume.push("--resume");
     let (mut stopped, mut saved) = (0, 0);
-    for (i, ms) in delays(4, 300, 2500).into_iter().enumerate() {
+    // Signalled at pseudo-random moments of the photon passes, told by the progress lines
+    // on stderr (not by wall time: the machine's load must not decide what is tested).
+    for (i, k) in delays(4, 1, 12).into_iter().enumerate() {
         let a = if i == 0 { &fresh } else { &resume };
-        let child = spawn(a, None);
-        std::thread::sleep(Duration::from_millis(ms));
-        signal(&child, if i % 2 == 0 { "INT" } else { "TERM" });
-        let o = finish(child);
-        let err = String::from_utf8_lossy(&o.stderr);
+        let sig = if i % 2 == 0 { "INT" } else { "TERM" };
+        let (o, err) = signal_at_photon_line(a, k as usize, sig);
         assert!(!err.contains("panicked"), "{err}");
         if o.status.success() {
-            continue; // finished before the signal came: nothing to stop
+            continue; // finished before the k-th photon line: nothing to stop
         }
-        assert_eq!(o.status.code(), Some(130), "after {ms} ms: {err}");
+        assert_eq!(o.status.code(), Some(130), "at photon line {k}: {err}");
         let last = err.lines().last().unwrap_or("");
-        assert!(last.starts_with("interrupted: "), "after {ms} ms: {err}");
+        assert!(
+            last.starts_with("interrupted: "),
+            "at photon line {k}: {err}"
+        );
         stopped += 1;
         if last.contains("--resume") {
             let seq = manifest(&out).expect("a checkpoint after the stop").seq;
