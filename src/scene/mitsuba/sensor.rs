@@ -459,3 +459,135 @@ impl<'a, 'i> Parser<'a, 'i> {
         self.check_attrs(node, &["type", "id", "name"])
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::super::parse;
+    use crate::scene::{FovAxis, PixelFilter, Scene};
+    use glam::Vec2;
+    use std::path::Path;
+
+    fn scene(body: &str) -> crate::Result<Scene> {
+        parse(
+            &format!("<scene version=\"3.0.0\">\n{body}\n</scene>"),
+            Path::new("s/scene.xml"),
+        )
+    }
+
+    /// Every property Mitsuba 3.9's perspective sensor, hdrfilm, tent filter and stratified
+    /// sampler accept parses; the ones that shape the photo are kept.
+    #[test]
+    fn every_accepted_sensor_property_parses() {
+        let s = scene(
+            r#"<integrator type="prb" name="integrator"><integer name="max_depth" value="-1"/>
+                 <integer name="rr_depth" value="8"/><boolean name="hide_emitters" value="true"/></integrator>
+               <sensor type="perspective" id="cam" name="sensor">
+                 <float name="fov" value="39.3077"/><string name="fov_axis" value="smaller"/>
+                 <float name="near_clip" value="0.001"/><float name="far_clip" value="100.0"/>
+                 <float name="focus_distance" value="1000"/>
+                 <float name="principal_point_offset_x" value="0.1"/>
+                 <float name="principal_point_offset_y" value="-0.25"/>
+                 <float name="shutter_open" value="0"/><float name="shutter_close" value="1"/>
+                 <transform name="to_world"><lookat origin="0,0,4" target="0,0,0" up="0,1,0"/></transform>
+                 <sampler type="stratified" name="sampler"><integer name="sample_count" value="64"/>
+                   <integer name="seed" value="3"/><boolean name="jitter" value="false"/></sampler>
+                 <film type="hdrfilm" name="film">
+                   <integer name="width" value="64"/><integer name="height" value="48"/>
+                   <integer name="crop_offset_x" value="4"/><integer name="crop_offset_y" value="2"/>
+                   <integer name="crop_width" value="32"/><integer name="crop_height" value="40"/>
+                   <boolean name="sample_border" value="true"/>
+                   <string name="file_format" value="openexr"/><string name="pixel_format" value="rgb"/>
+                   <string name="component_format" value="float32"/>
+                   <boolean name="banner" value="false"/><boolean name="compensate" value="true"/>
+                   <rfilter type="tent" name="filter"><float name="radius" value="1.5"/></rfilter>
+                 </film>
+               </sensor>"#,
+        )
+        .unwrap();
+        let c = &s.sensors[0];
+        assert_eq!(c.id, "cam");
+        assert_eq!((c.fov, c.fov_axis), (39.3077, FovAxis::Smaller));
+        assert_eq!(c.principal_point, Vec2::new(0.1, -0.25));
+        assert_eq!((c.film_width, c.film_height), (64, 48));
+        assert_eq!((c.width, c.height, c.crop_offset), (32, 40, (4, 2)));
+        assert_eq!(c.filter, PixelFilter::Tent { radius: 1.5 });
+    }
+
+    #[test]
+    fn filters_parse_with_mitsubas_defaults() {
+        let film = |f: &str| {
+            let s = scene(&format!(
+                "<sensor type=\"perspective\"><film type=\"hdrfilm\">{f}</film></sensor>"
+            ))
+            .unwrap();
+            s.sensors[0].filter
+        };
+        assert_eq!(film("<rfilter type=\"tent\"/>"), PixelFilter::Tent { radius: 1.0 });
+        assert_eq!(film("<rfilter type=\"box\"/>"), PixelFilter::Box);
+        assert_eq!(
+            film("<rfilter type=\"gaussian\"><float name=\"stddev\" value=\"0.3\"/></rfilter>"),
+            PixelFilter::Gaussian { stddev: 0.3 }
+        );
+        // No rfilter, or no film at all: Mitsuba's gaussian of stddev 0.5.
+        assert_eq!(film(""), PixelFilter::Gaussian { stddev: 0.5 });
+        let s = scene("<sensor type=\"perspective\"/>").unwrap();
+        assert_eq!(s.sensors[0].filter, PixelFilter::Gaussian { stddev: 0.5 });
+    }
+
+    /// Sensors without an id are `sensor_<index>` among the sensors (their photo is
+    /// `images/sensor_<index>.exr`); a `name` attribute changes nothing.
+    #[test]
+    fn sensors_without_id_and_name_attributes() {
+        let s = scene(
+            "<sensor type=\"perspective\" name=\"a\"/><sensor type=\"perspective\" id=\"main\"/>\
+             <sensor type=\"perspective\"/>\
+             <shape type=\"rectangle\" name=\"floor\"><emitter type=\"area\" name=\"emitter\">\
+               <rgb value=\"2\" name=\"radiance\"/></emitter></shape>\
+             <emitter type=\"point\" name=\"p\"/>",
+        )
+        .unwrap();
+        let ids: Vec<_> = s.sensors.iter().map(|c| c.id.as_str()).collect();
+        assert_eq!(ids, ["sensor_0", "main", "sensor_2"]);
+        assert_eq!(s.shapes[0].id, "shape_0");
+        assert_eq!(s.emitters.len(), 2);
+    }
+
+    #[test]
+    fn focal_length_is_a_diagonal_fov() {
+        let s = scene(
+            "<sensor type=\"perspective\"><string name=\"focal_length\" value=\"35mm\"/></sensor>",
+        )
+        .unwrap();
+        let want = (2.0 * (43.2666f64 / 70.0).atan()).to_degrees() as f32;
+        assert!((s.sensors[0].fov - want).abs() < 1e-3, "{}", s.sensors[0].fov);
+        assert_eq!(s.sensors[0].fov_axis, FovAxis::Diagonal);
+    }
+
+    /// Properties Mitsuba itself would reject are refused with file, line and element.
+    #[test]
+    fn properties_mitsuba_rejects_are_refused_with_line_and_element() {
+        let cases = [
+            (
+                "<sensor type=\"perspective\">\n<float name=\"x_fov\" value=\"30\"/></sensor>",
+                "s/scene.xml (line 3, col 1), <float name=\"x_fov\">: unsupported property 'x_fov' on <sensor type=\"perspective\">",
+            ),
+            (
+                "<sensor type=\"perspective\"><film type=\"hdrfilm\">\n<integer name=\"depth\" value=\"3\"/></film></sensor>",
+                "s/scene.xml (line 3, col 1), <integer name=\"depth\">: unsupported property 'depth' on <film type=\"hdrfilm\">",
+            ),
+            (
+                "<sensor type=\"perspective\"><film type=\"hdrfilm\">\n<rfilter type=\"box\"><float name=\"radius\" value=\"1\"/></rfilter></film></sensor>",
+                "s/scene.xml (line 3, col 21), <float name=\"radius\">: unsupported property 'radius' on <rfilter type=\"box\">",
+            ),
+            (
+                "<sensor type=\"perspective\"><float name=\"fov\" value=\"30\"/>\n<string name=\"focal_length\" value=\"50mm\"/></sensor>",
+                "(line 3, col 1), <string name=\"focal_length\">: give either 'fov' or 'focal_length'",
+            ),
+        ];
+        for (body, want) in cases {
+            let e = scene(body).unwrap_err().to_string();
+            assert!(e.contains(want), "{body}: {e}");
+            assert!(!e.contains('\n'));
+        }
+    }
+}
