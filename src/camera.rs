@@ -189,8 +189,14 @@ impl Camera {
             self.shift,
             self.shift + Vec2::new(self.width as f32, self.height as f32) / self.film,
         );
-        let (x_lo, x_hi) = ((1.0 - 2.0 * s1.x) * self.tan_x, (1.0 - 2.0 * s0.x) * self.tan_x);
-        let (y_lo, y_hi) = ((1.0 - 2.0 * s1.y) * self.tan_y, (1.0 - 2.0 * s0.y) * self.tan_y);
+        let (x_lo, x_hi) = (
+            (1.0 - 2.0 * s1.x) * self.tan_x,
+            (1.0 - 2.0 * s0.x) * self.tan_x,
+        );
+        let (y_lo, y_hi) = (
+            (1.0 - 2.0 * s1.y) * self.tan_y,
+            (1.0 - 2.0 * s0.y) * self.tan_y,
+        );
         // inside: z > 0, x_lo z <= x <= x_hi z, y_lo z <= y <= y_hi z
         let outside: [&dyn Fn(Vec3) -> bool; 5] = [
             &|q| q.z <= 0.0,
@@ -231,16 +237,12 @@ impl Camera {
         }
         // The (unnormalized) world direction D(px, py) = M (x/z, y/z, 1) is linear in the pixel
         // coordinates; the hit is P = o + t D with t = q.z (so that t D(p's pixel) = v).
-        let dx = self.to_world.transform_vector3(Vec3::new(
-            -2.0 * self.tan_x / self.film.x,
-            0.0,
-            0.0,
-        ));
-        let dy = self.to_world.transform_vector3(Vec3::new(
-            0.0,
-            -2.0 * self.tan_y / self.film.y,
-            0.0,
-        ));
+        let dx =
+            self.to_world
+                .transform_vector3(Vec3::new(-2.0 * self.tan_x / self.film.x, 0.0, 0.0));
+        let dy =
+            self.to_world
+                .transform_vector3(Vec3::new(0.0, -2.0 * self.tan_y / self.film.y, 0.0));
         let (a, b) = (dx * q.z, dy * q.z);
         let pa = a - v * (n.dot(a) / nv);
         let pb = b - v * (n.dot(b) / nv);
@@ -474,13 +476,20 @@ mod tests {
         let dot = Vec3::new(0.8, 0.5, 0.0);
         // The dot without offsets: x = 40 (1 + 0.8 / (5 tan 20 deg)), y = 30 (1 - 0.5 / (5 tan_y)).
         let tan_x = 20f32.to_radians().tan();
-        let dot0 = Vec2::new(40.0 * (1.0 + 0.8 / (5.0 * tan_x)), 30.0 * (1.0 - 0.5 / (5.0 * tan_x * 0.75)));
+        let dot0 = Vec2::new(
+            40.0 * (1.0 + 0.8 / (5.0 * tan_x)),
+            30.0 * (1.0 - 0.5 / (5.0 * tan_x * 0.75)),
+        );
         for (c, center) in &cases {
             let q = c.project(Vec3::ZERO).unwrap();
             assert!((q - *center).length() < 1e-3, "{q} vs {center}");
             let shift = *center - Vec2::new(40.0, 30.0);
             let d = c.project(dot).unwrap();
-            assert!((d - (dot0 + shift)).length() < 1e-3, "{d} vs {}", dot0 + shift);
+            assert!(
+                (d - (dot0 + shift)).length() < 1e-3,
+                "{d} vs {}",
+                dot0 + shift
+            );
             // rays through those pixels go back through the points
             let (o, dir) = c.ray(center.x, center.y);
             assert!((o + dir * 5.0).length() < 1e-4);

@@ -124,7 +124,10 @@ fn write_sensor(w: &mut String, sensor: &Sensor) {
         w,
         "    <sampler type=\"independent\"><integer name=\"sample_count\" value=\"$spp\"/></sampler>"
     );
-    for (axis, v) in [("x", sensor.principal_point.x), ("y", sensor.principal_point.y)] {
+    for (axis, v) in [
+        ("x", sensor.principal_point.x),
+        ("y", sensor.principal_point.y),
+    ] {
         if v != 0.0 {
             let _ = writeln!(
                 w,

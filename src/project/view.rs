@@ -169,7 +169,11 @@ fn erode_to_filter(infos: Vec<PixelInfo>, camera: &Camera) -> Vec<PixelInfo> {
                 p.clean = (-n..=n).all(|dy| {
                     (-n..=n).all(|dx| {
                         let (nx, ny) = (x + dx, y + dy);
-                        nx >= 0 && ny >= 0 && nx < w && ny < h && same(&infos[(ny * w + nx) as usize])
+                        nx >= 0
+                            && ny >= 0
+                            && nx < w
+                            && ny < h
+                            && same(&infos[(ny * w + nx) as usize])
                     })
                 });
                 p

@@ -157,7 +157,10 @@ mod tests {
         let t = PixelFilter::Tent { radius: 1.0 }.pixel_weights();
         // Tent over pixel squares: the neighbours get 2 * (1/2)(1/2)^2 / 1 ... = 1/8 each.
         assert_eq!(t.len(), 3);
-        assert!((t[0] - 0.125).abs() < 1e-4 && (t[1] - 0.75).abs() < 1e-4, "{t:?}");
+        assert!(
+            (t[0] - 0.125).abs() < 1e-4 && (t[1] - 0.75).abs() < 1e-4,
+            "{t:?}"
+        );
         assert_eq!(t[0], t[2]);
         let g = PixelFilter::default().pixel_weights();
         assert_eq!(g.len(), 5);

@@ -26,9 +26,7 @@
 //! sensor and sphere transforms may not shear either (Mitsuba only checks scale).
 
 use crate::error::{Error, Location};
-use crate::scene::{
-    mesh, Emitter, Mesh, ReflectanceSpec, Rgb, Scene, Shape, Sides,
-};
+use crate::scene::{mesh, Emitter, Mesh, ReflectanceSpec, Rgb, Scene, Shape, Sides};
 use crate::Result;
 use glam::{DMat3, DMat4, DVec3, Vec3};
 use roxmltree::{Document, Node};
@@ -761,7 +759,10 @@ impl<'a, 'i> Parser<'a, 'i> {
                 "include" | "path" | "alias" => {
                     return Err(self.err(
                         c,
-                        format!("<{}> is not supported yet; inline the content", c.tag_name().name()),
+                        format!(
+                            "<{}> is not supported yet; inline the content",
+                            c.tag_name().name()
+                        ),
                     ))
                 }
                 // Textures only feed bsdfs, which are not trusted; keep their ids reserved
@@ -799,9 +800,7 @@ impl<'a, 'i> Parser<'a, 'i> {
             "obj" | "ply" | "rectangle" | "cube" | "sphere"
         ) {
             let msg = if OTHER_SHAPES.contains(&kind.as_str()) {
-                format!(
-                    "shape '{kind}' is not supported yet (obj, ply, rectangle, cube, sphere)"
-                )
+                format!("shape '{kind}' is not supported yet (obj, ply, rectangle, cube, sphere)")
             } else {
                 format!("unknown shape plugin '{kind}'")
             };
@@ -1039,7 +1038,10 @@ impl<'a, 'i> Parser<'a, 'i> {
                 "texture" => self.texture_kind(o)?,
                 "ref" => self.check_attrs(o, &["id", "name"])?,
                 other => {
-                    return Err(self.err(o, format!("unsupported element <{other}> in a diffuse bsdf")))
+                    return Err(self.err(
+                        o,
+                        format!("unsupported element <{other}> in a diffuse bsdf"),
+                    ))
                 }
             }
         }
@@ -1296,9 +1298,7 @@ impl<'a, 'i> Parser<'a, 'i> {
                     irradiance,
                 }
             }
-            "area" => {
-                return Err(self.err(node, "an area emitter must be nested inside a shape"))
-            }
+            "area" => return Err(self.err(node, "an area emitter must be nested inside a shape")),
             "envmap" | "constant" => {
                 self.environment(&mut props, &kind, node)?;
                 props.finish(self, &["sampling_weight"])?;

@@ -11,3 +11,4 @@ mod output;
 mod projection;
 mod resume;
 mod tiles;
+mod truth_refs;

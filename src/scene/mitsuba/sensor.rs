@@ -190,7 +190,10 @@ impl<'a, 'i> Parser<'a, 'i> {
         }
         if near_v >= far_v {
             let n = far.or(near).map(|v| v.1);
-            return Err(self.err(n.unwrap_or(self.doc.root_element()), "'near_clip' must be smaller than 'far_clip'"));
+            return Err(self.err(
+                n.unwrap_or(self.doc.root_element()),
+                "'near_clip' must be smaller than 'far_clip'",
+            ));
         }
         let open = val(props, "shutter_open")?;
         let close = val(props, "shutter_close")?;
@@ -261,7 +264,9 @@ impl<'a, 'i> Parser<'a, 'i> {
             Ok(v) if v > 0.0 && v.is_finite() => Ok(v),
             _ => Err(self.err(
                 n,
-                format!("invalid focal_length '{s}' (a positive number of millimetres, e.g. '50mm')"),
+                format!(
+                    "invalid focal_length '{s}' (a positive number of millimetres, e.g. '50mm')"
+                ),
             )),
         }
     }
@@ -522,7 +527,10 @@ mod tests {
             .unwrap();
             s.sensors[0].filter
         };
-        assert_eq!(film("<rfilter type=\"tent\"/>"), PixelFilter::Tent { radius: 1.0 });
+        assert_eq!(
+            film("<rfilter type=\"tent\"/>"),
+            PixelFilter::Tent { radius: 1.0 }
+        );
         assert_eq!(film("<rfilter type=\"box\"/>"), PixelFilter::Box);
         assert_eq!(
             film("<rfilter type=\"gaussian\"><float name=\"stddev\" value=\"0.3\"/></rfilter>"),
@@ -559,7 +567,11 @@ mod tests {
         )
         .unwrap();
         let want = (2.0 * (43.2666f64 / 70.0).atan()).to_degrees() as f32;
-        assert!((s.sensors[0].fov - want).abs() < 1e-3, "{}", s.sensors[0].fov);
+        assert!(
+            (s.sensors[0].fov - want).abs() < 1e-3,
+            "{}",
+            s.sensors[0].fov
+        );
         assert_eq!(s.sensors[0].fov_axis, FovAxis::Diagonal);
     }
 
