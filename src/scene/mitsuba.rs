@@ -2,21 +2,26 @@
 //! is settled here, once: meshes are in world space, emitter quantities are RGB in scene
 //! units, spot angles are radians, ids are assigned.
 //!
-//! The subset read (see `docs/contract.md`):
+//! The subset read (see `docs/contract.md`), against Mitsuba 3.9's plugin sources:
 //! - `<scene version>`, top-level `<default name value/>` with `$name` substitution in every
-//!   attribute value, `<ref id>` to earlier bsdfs;
+//!   attribute value, `<ref id name>` to earlier bsdfs, `name` attributes on any object;
 //! - shapes `obj`, `ply`, `rectangle`, `cube`, `sphere` with `to_world`, `flip_normals`,
-//!   `face_normals` (meshes), `flip_tex_coords` (obj), `center`/`radius` (sphere);
-//! - bsdfs `diffuse` (front side reflects) and `twosided` around diffuse (both sides). Their
-//!   parameters are read past: the reflectance is what kdmap recovers;
-//! - emitters `point`, `spot`, `directional`, and `area` inside a shape;
-//! - sensors `perspective` with an `hdrfilm`.
+//!   `face_normals` (meshes), `flip_tex_coords` (obj, ply), `center`/`radius` (sphere),
+//!   `silhouette_sampling_weight` (read past);
+//! - bsdfs `diffuse` (front side reflects) and `twosided` around diffuse (both sides), with any
+//!   `<texture>`. Their parameters are read past: the reflectance is what kdmap recovers.
+//!   Every other Mitsuba bsdf parses and is refused when a shape uses it ("not supported yet");
+//! - emitters `point`, `spot`, `directional`, and `area` inside a shape; `envmap` and
+//!   `constant` parse and are refused ("not supported yet");
+//! - sensors `perspective` with an `hdrfilm`, its `rfilter` and `sampler`, and integrators:
+//!   see `mitsuba/sensor.rs`.
 //!
 //! As in Mitsuba, a property no plugin reads is an error, so a setting that would change the
 //! answer is never silently ignored; only settings that cannot change it (`integrator`,
-//! `sampler`, `rfilter`, film pixel formats, clip planes, `sampling_weight`) are read past.
+//! `sampler`, film output formats, clip planes, `focus_distance` of a pinhole,
+//! `sampling_weight`) are read past.
 //! Every refusal is one line naming the file, line, column and element, e.g.
-//! `scene.xml (line 10, col 5), <shape type="foo">: unsupported shape plugin 'foo'`.
+//! `scene.xml (line 10, col 5), <shape type="foo">: unknown shape plugin 'foo'`.
 //!
 //! Transforms follow Mitsuba: inside `<transform>`, each operation left-multiplies what came
 //! before (`M = op_n * ... * op_1`); `lookat` builds the frame `(left, up, dir, origin)`.
