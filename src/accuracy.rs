@@ -252,13 +252,30 @@ pub fn score_run(out: &Path, truth_xml: &Path) -> Result<AccuracyReport> {
     let dir = state_dir(out);
     let geom: TileStore<TexelGeom> = p.open_store(dir.join("geometry.tiles"))?;
     let state: TileStore<TexelState> = p.open_store(dir.join("state.tiles"))?;
+    let mut scores = Vec::new();
+    for slot in 0..p.layout.slots.len() {
+        if let Some(score) = score_slot(&truth, &p, &geom, &state, slot)? {
+            scores.push((slot, score));
+        }
+    }
+    // A truth that scores no texel would print a meaningless 0.00%: refuse it, naming the
+    // shapes it could have covered.
+    if scores.iter().all(|(_, s)| s.accuracy.texels == 0) {
+        let ids: Vec<&str> = (0..p.layout.slots.len()).map(|s| p.slot_id(s)).collect();
+        let what = if scores.is_empty() {
+            "states the reflectance of none of the run's reconstructed shapes"
+        } else {
+            "states the reflectance only of shapes no camera observed"
+        };
+        return Err(Error::input(
+            truth_xml,
+            format!("{what} (by shape id: {})", ids.join(", ")),
+        ));
+    }
     let adir = out.join("accuracy");
     fsio::create_dir(&adir)?;
     let mut acc = Vec::new();
-    for slot in 0..p.layout.slots.len() {
-        let Some(score) = score_slot(&truth, &p, &geom, &state, slot)? else {
-            continue;
-        };
+    for (slot, score) in scores {
         let st = p.layout.slots[slot];
         let id = p.slot_id(slot);
         let tv: Vec<Vec3> = score
@@ -277,12 +294,6 @@ pub fn score_run(out: &Path, truth_xml: &Path) -> Result<AccuracyReport> {
         write_png_srgb(adir.join(format!("{id}_truth.png")), w, h, &tv, 0.0)?;
         write_png_srgb(adir.join(format!("{id}_diff.png")), w, h, &diff, 0.0)?;
         acc.push(score.accuracy);
-    }
-    if acc.is_empty() {
-        return Err(Error::input(
-            truth_xml,
-            "states the reflectance of none of the run's reconstructed shapes (by shape id)",
-        ));
     }
     let rep = AccuracyReport::new(acc);
     let json = serde_json::to_vec_pretty(&rep)

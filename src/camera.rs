@@ -9,12 +9,19 @@
 //!   `((i + 0.5) / W, (j + 0.5) / H)`; continuous pixel coordinates are `(sx W, sy H)`;
 //! - the camera-space direction is `x/z = (1 - 2 sx) tan(fov_x / 2)`,
 //!   `y/z = (1 - 2 sy) tan(fov_x / 2) / aspect`, with `aspect = W / H`;
-//! - `fov` is converted to `fov_x` according to `fov_axis` (see [`fov_x_degrees`]).
+//! - `fov` is converted to `fov_x` according to `fov_axis` (see [`fov_x_degrees`]), with the
+//!   aspect of the whole film;
+//! - a crop window (`crop_offset_x/y`, `crop_width/height`) is the part of the film the photo
+//!   holds: photo pixel `(i, j)` is film pixel `(i + crop_x, j + crop_y)`;
+//! - `principal_point_offset_x/y` (fractions of the film size) move the film position a ray
+//!   is generated for: the photo's `(sx, sy)` sees what a centered camera sees at
+//!   `(sx + offset_x, sy + offset_y)`, so the image moves by `-offset * film size` pixels
+//!   (`perspective.cpp`, `sample_ray`: the sample plus `size * offset / crop_size`).
 //!
 //! Mitsuba starts rays at the near clip plane (0.01 along z by default); we start them at the
 //! camera center, which only differs for geometry closer than that to the camera.
 
-use crate::scene::{FovAxis, Sensor};
+use crate::scene::{FovAxis, PixelFilter, Sensor};
 use glam::{Mat4, Vec2, Vec3};
 
 /// Mitsuba's conversion of `fov` (degrees, along `axis`) to the horizontal field of view in
@@ -61,14 +68,21 @@ pub struct Camera {
     tan_x: f32,
     /// `tan(fov_x / 2) / aspect`: the half-extent of the image plane at z = 1 along y.
     tan_y: f32,
+    /// The photo's size (the crop window).
     width: u32,
     height: u32,
+    /// The whole film's size, pixels.
+    film: Vec2,
+    /// Film position of the photo's top-left corner as the rays see it, in fractions of the
+    /// film: crop offset / film size + principal point offset (zero for a plain camera).
+    shift: Vec2,
+    filter: PixelFilter,
 }
 
 impl Camera {
     /// The camera of a Mitsuba `perspective` sensor.
     pub fn from_sensor(s: &Sensor) -> Camera {
-        let aspect = s.width as f32 / s.height as f32;
+        let aspect = s.film_width as f32 / s.film_height as f32;
         let fov_x = fov_x_degrees(s.fov, s.fov_axis, aspect).to_radians();
         let tan_x = (0.5 * fov_x).tan();
         Camera {
@@ -80,7 +94,18 @@ impl Camera {
             tan_y: tan_x / aspect,
             width: s.width,
             height: s.height,
+            film: Vec2::new(s.film_width as f32, s.film_height as f32),
+            shift: Vec2::new(
+                s.crop_offset.0 as f32 / s.film_width as f32,
+                s.crop_offset.1 as f32 / s.film_height as f32,
+            ) + s.principal_point,
+            filter: s.filter,
         }
+    }
+
+    /// The film's reconstruction filter.
+    pub fn filter(&self) -> PixelFilter {
+        self.filter
     }
 
     pub fn width(&self) -> u32 {
@@ -114,8 +139,8 @@ impl Camera {
     /// Camera-space direction (z = 1) through continuous pixel coordinates `(px, py)`.
     #[inline]
     fn local_dir(&self, px: f32, py: f32) -> Vec3 {
-        let sx = px / self.width as f32;
-        let sy = py / self.height as f32;
+        let sx = px / self.film.x + self.shift.x;
+        let sy = py / self.film.y + self.shift.y;
         Vec3::new(
             (1.0 - 2.0 * sx) * self.tan_x,
             (1.0 - 2.0 * sy) * self.tan_y,
@@ -140,9 +165,9 @@ impl Camera {
         if q.z <= 0.0 || !q.is_finite() {
             return None;
         }
-        let sx = 0.5 * (1.0 - q.x / (q.z * self.tan_x));
-        let sy = 0.5 * (1.0 - q.y / (q.z * self.tan_y));
-        Some(Vec2::new(sx * self.width as f32, sy * self.height as f32))
+        let sx = 0.5 * (1.0 - q.x / (q.z * self.tan_x)) - self.shift.x;
+        let sy = 0.5 * (1.0 - q.y / (q.z * self.tan_y)) - self.shift.y;
+        Some(Vec2::new(sx * self.film.x, sy * self.film.y))
     }
 
     /// Whether any point of the axis-aligned box `lo..hi` may be in view (conservative: `false`
@@ -158,14 +183,27 @@ impl Camera {
                 self.to_camera.transform_point3(c)
             })
             .collect();
-        let (tx, ty) = (self.tan_x, self.tan_y);
-        // inside: z > 0, |x| <= tx z, |y| <= ty z
+        // The photo spans film positions shift .. shift + size / film, i.e. x/z from
+        // (1 - 2 sx_max) tan_x to (1 - 2 sx_min) tan_x (and likewise y).
+        let (s0, s1) = (
+            self.shift,
+            self.shift + Vec2::new(self.width as f32, self.height as f32) / self.film,
+        );
+        let (x_lo, x_hi) = (
+            (1.0 - 2.0 * s1.x) * self.tan_x,
+            (1.0 - 2.0 * s0.x) * self.tan_x,
+        );
+        let (y_lo, y_hi) = (
+            (1.0 - 2.0 * s1.y) * self.tan_y,
+            (1.0 - 2.0 * s0.y) * self.tan_y,
+        );
+        // inside: z > 0, x_lo z <= x <= x_hi z, y_lo z <= y <= y_hi z
         let outside: [&dyn Fn(Vec3) -> bool; 5] = [
             &|q| q.z <= 0.0,
-            &|q| q.x > tx * q.z,
-            &|q| q.x < -tx * q.z,
-            &|q| q.y > ty * q.z,
-            &|q| q.y < -ty * q.z,
+            &|q| q.x > x_hi * q.z,
+            &|q| q.x < x_lo * q.z,
+            &|q| q.y > y_hi * q.z,
+            &|q| q.y < y_lo * q.z,
         ];
         !outside.iter().any(|out| corners.iter().all(|&q| out(q)))
     }
@@ -199,16 +237,12 @@ impl Camera {
         }
         // The (unnormalized) world direction D(px, py) = M (x/z, y/z, 1) is linear in the pixel
         // coordinates; the hit is P = o + t D with t = q.z (so that t D(p's pixel) = v).
-        let dx = self.to_world.transform_vector3(Vec3::new(
-            -2.0 * self.tan_x / self.width as f32,
-            0.0,
-            0.0,
-        ));
-        let dy = self.to_world.transform_vector3(Vec3::new(
-            0.0,
-            -2.0 * self.tan_y / self.height as f32,
-            0.0,
-        ));
+        let dx =
+            self.to_world
+                .transform_vector3(Vec3::new(-2.0 * self.tan_x / self.film.x, 0.0, 0.0));
+        let dy =
+            self.to_world
+                .transform_vector3(Vec3::new(0.0, -2.0 * self.tan_y / self.film.y, 0.0));
         let (a, b) = (dx * q.z, dy * q.z);
         let pa = a - v * (n.dot(a) / nv);
         let pb = b - v * (n.dot(b) / nv);
@@ -250,14 +284,7 @@ mod tests {
     }
 
     fn sensor(w: u32, h: u32, fov: f32, axis: FovAxis, to_world: Mat4) -> Sensor {
-        Sensor {
-            id: "cam".into(),
-            to_world,
-            fov,
-            fov_axis: axis,
-            width: w,
-            height: h,
-        }
+        Sensor::simple("cam", to_world, fov, axis, (w, h), PixelFilter::Box)
     }
 
     fn cams() -> Vec<Camera> {
@@ -411,5 +438,73 @@ mod tests {
         let b = a * 48.0 / 64.0;
         let exact = 4.0 * (a * b / ((1.0 + a * a) * (1.0 + b * b)).sqrt()).asin();
         assert!((sum - exact).abs() < 1e-3 * exact, "{sum} vs {exact}");
+    }
+    /// `principal_point_offset_x/y` and a crop window, parsed from XML, move the image as
+    /// Mitsuba 3.9.1 does: a point on the optical axis lands at `film / 2 - offset * film -
+    /// crop_offset`. The pixel positions asserted were measured on Mitsuba renders of this
+    /// camera (80 x 60, fov 40, a small sphere at the origin and one at (0.8, 0.5, 0)):
+    /// centers (40, 30) centered, (32, 30) for x = 0.1, (40, 33) for y = -0.05, (32, 18)
+    /// for (0.1, 0.2), (22, 13) with the crop window (10, 5) 50 x 40 on top.
+    #[test]
+    fn principal_point_offset_and_crop_shift_the_image() {
+        let cam = |extra: &str, film: &str| {
+            let xml = format!(
+                "<scene version=\"3.0.0\"><sensor type=\"perspective\">\
+                 <float name=\"fov\" value=\"40\"/>{extra}\
+                 <transform name=\"to_world\"><lookat origin=\"0,0,5\" target=\"0,0,0\" up=\"0,1,0\"/></transform>\
+                 <film type=\"hdrfilm\"><integer name=\"width\" value=\"80\"/>\
+                 <integer name=\"height\" value=\"60\"/>{film}</film></sensor></scene>"
+            );
+            let s = crate::scene::mitsuba::parse(&xml, std::path::Path::new("c.xml")).unwrap();
+            Camera::from_sensor(&s.sensors[0])
+        };
+        let ppo = |x: f32, y: f32| {
+            format!(
+                "<float name=\"principal_point_offset_x\" value=\"{x}\"/>\
+                 <float name=\"principal_point_offset_y\" value=\"{y}\"/>"
+            )
+        };
+        let crop = "<integer name=\"crop_offset_x\" value=\"10\"/><integer name=\"crop_offset_y\" value=\"5\"/>\
+                    <integer name=\"crop_width\" value=\"50\"/><integer name=\"crop_height\" value=\"40\"/>";
+        let cases = [
+            (cam("", ""), Vec2::new(40.0, 30.0)),
+            (cam(&ppo(0.1, 0.0), ""), Vec2::new(32.0, 30.0)),
+            (cam(&ppo(0.0, -0.05), ""), Vec2::new(40.0, 33.0)),
+            (cam(&ppo(0.1, 0.2), ""), Vec2::new(32.0, 18.0)),
+            (cam(&ppo(0.1, 0.2), crop), Vec2::new(22.0, 13.0)),
+        ];
+        let dot = Vec3::new(0.8, 0.5, 0.0);
+        // The dot without offsets: x = 40 (1 + 0.8 / (5 tan 20 deg)), y = 30 (1 - 0.5 / (5 tan_y)).
+        let tan_x = 20f32.to_radians().tan();
+        let dot0 = Vec2::new(
+            40.0 * (1.0 + 0.8 / (5.0 * tan_x)),
+            30.0 * (1.0 - 0.5 / (5.0 * tan_x * 0.75)),
+        );
+        for (c, center) in &cases {
+            let q = c.project(Vec3::ZERO).unwrap();
+            assert!((q - *center).length() < 1e-3, "{q} vs {center}");
+            let shift = *center - Vec2::new(40.0, 30.0);
+            let d = c.project(dot).unwrap();
+            assert!(
+                (d - (dot0 + shift)).length() < 1e-3,
+                "{d} vs {}",
+                dot0 + shift
+            );
+            // rays through those pixels go back through the points
+            let (o, dir) = c.ray(center.x, center.y);
+            assert!((o + dir * 5.0).length() < 1e-4);
+        }
+        let cropped = &cases[4].0;
+        assert_eq!((cropped.width(), cropped.height()), (50, 40));
+        // The frustum test follows the shifted, cropped window: the dot at (47.6, 4) in
+        // the crop is in view, a point projecting left of the crop window is not.
+        assert!(cropped.may_see(dot - Vec3::splat(0.01), dot + Vec3::splat(0.01)));
+        let left = Vec3::new(0.85, 0.0, 0.0); // x = 22 + 40 * 0.85 / 1.82 = 40.7 px: in view
+        assert!(cropped.may_see(left, left));
+        // x = 80 (0.5 (1 - 1.2 / 1.82) - 0.1) - 10 = -4.4 px: left of the crop window, though
+        // on the film of a centered camera.
+        let off = Vec3::new(-1.2, 0.0, 0.0);
+        assert!(!cropped.may_see(off, off));
+        assert!(cases[0].0.may_see(off, off));
     }
 }

@@ -512,14 +512,14 @@ mod tests {
         write_exr_rgb(&p, 8, 8, &ramp(8, 8), true).unwrap();
         let e = read_exr_expect(&p, 16, 16).unwrap_err().to_string();
         assert!(e.contains("cam_train_0.exr") && e.contains("8x8") && e.contains("16x16"));
-        let s = Sensor {
-            id: "cam_train_0".into(),
-            to_world: glam::Mat4::IDENTITY,
-            fov: 40.0,
-            fov_axis: crate::scene::FovAxis::X,
-            width: 16,
-            height: 16,
-        };
+        let s = Sensor::simple(
+            "cam_train_0",
+            glam::Mat4::IDENTITY,
+            40.0,
+            crate::scene::FovAxis::X,
+            (16, 16),
+            crate::scene::PixelFilter::Box,
+        );
         let e = read_sensor_image(&p, &s).unwrap_err().to_string();
         assert!(
             e.ends_with("cam_train_0.exr: image is 8x8 but sensor cam_train_0 film is 16x16"),

@@ -6,7 +6,7 @@
 use crate::accel::Accel;
 use crate::camera::Camera;
 use crate::image::Image;
-use crate::scene::Scene;
+use crate::scene::{PixelFilter, Scene};
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
@@ -132,6 +132,50 @@ fn flat_pixel(textures: &[Option<Texture>], k: u32, f: &FlatPixel) -> Option<Vec
     Some(sum / (k * k) as f32)
 }
 
+/// Apply a film's pixel filter to an image of pixel means (what [`render_view`] makes: a box
+/// film): every pixel becomes the mean of its neighbours within the filter's reach weighted
+/// by the filter integrated over each neighbour's square ([`PixelFilter::pixel_weights`]),
+/// over the neighbours that have a value (`None` stays `None`). A box filter returns the
+/// image as it is. This is the photo a `tent` or `gaussian` film records, to the extent the
+/// radiance is flat within each pixel.
+pub fn apply_pixel_filter(
+    pixels: &[Option<Vec3>],
+    width: u32,
+    height: u32,
+    filter: PixelFilter,
+) -> Vec<Option<Vec3>> {
+    if filter.is_box() {
+        return pixels.to_vec();
+    }
+    let wts = filter.pixel_weights();
+    let n = filter.reach() as i64;
+    let (w, h) = (width as i64, height as i64);
+    (0..h)
+        .into_par_iter()
+        .flat_map_iter(|y| {
+            let wts = &wts;
+            (0..w).map(move |x| {
+                pixels[(y * w + x) as usize]?;
+                let (mut sum, mut total) = (Vec3::ZERO, 0.0f32);
+                for dy in -n..=n {
+                    for dx in -n..=n {
+                        let (nx, ny) = (x + dx, y + dy);
+                        if nx < 0 || ny < 0 || nx >= w || ny >= h {
+                            continue;
+                        }
+                        if let Some(v) = pixels[(ny * w + nx) as usize] {
+                            let k = wts[(dx + n) as usize] * wts[(dy + n) as usize];
+                            sum += v * k;
+                            total += k;
+                        }
+                    }
+                }
+                Some(sum / total)
+            })
+        })
+        .collect()
+}
+
 /// One pixel of [`render_view`].
 fn pixel(
     accel: &Accel,
@@ -208,6 +252,28 @@ fn trace(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A one-pixel impulse spreads by the tent's per-pixel weights (1/8, 3/4, 1/8 per
+    /// axis); a box leaves it alone; missing pixels drop out of the weighted mean.
+    #[test]
+    fn pixel_filter_spreads_an_impulse_by_the_kernel() {
+        let mut img = vec![Some(Vec3::ZERO); 25];
+        img[12] = Some(Vec3::ONE);
+        assert_eq!(apply_pixel_filter(&img, 5, 5, PixelFilter::Box), img);
+        let t = apply_pixel_filter(&img, 5, 5, PixelFilter::Tent { radius: 1.0 });
+        let v = |i: usize| t[i].unwrap().x;
+        assert!((v(12) - 0.75 * 0.75).abs() < 1e-4, "{}", v(12));
+        assert!((v(11) - 0.75 * 0.125).abs() < 1e-4);
+        assert!((v(6) - 0.125 * 0.125).abs() < 1e-4);
+        assert_eq!(v(0), 0.0);
+        let sum: f32 = (0..25).map(v).sum();
+        assert!((sum - 1.0).abs() < 1e-4);
+        // A hole: the center's neighbours renormalize over what is there.
+        img[11] = None;
+        let t = apply_pixel_filter(&img, 5, 5, PixelFilter::Tent { radius: 1.0 });
+        assert!(t[11].is_none());
+        assert!((t[12].unwrap().x - 0.5625 / (1.0 - 0.09375)).abs() < 1e-4);
+    }
 
     #[test]
     fn bilinear_is_exact_at_centers_and_linear_between() {

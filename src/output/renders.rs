@@ -7,6 +7,8 @@
 //! emitter shape sees its known area radiance from the front and black from behind (the
 //! emitter is not reconstructed); a ray that hits nothing contributes black. Misses count in
 //! the mean, so silhouettes against the background come out partly dark, as in the photo.
+//! A film with a `tent` or `gaussian` filter then blurs these pixel means by its kernel
+//! (`render::apply_pixel_filter`), as it blurred the photo.
 //! Pixels that lie wholly on emitters keep the ORIGINAL photo's value, so the light itself
 //! never shows up as reconstruction error.
 //!
@@ -27,7 +29,7 @@ use crate::image::{
     auto_exposure, read_sensor_image, write_exr_rgb, write_pixmap_png, write_png_srgb, Image,
 };
 use crate::project::{PixelInfo, View};
-use crate::render::{render_view_with, Film, Plan, Texture};
+use crate::render::{apply_pixel_filter, render_view_with, Film, Plan, Texture};
 use crate::report::ViewShapeRow;
 use crate::scene::{luminance, Scene};
 use crate::{Error, Result};
@@ -54,7 +56,9 @@ pub fn render_recovered(
         photo: view.image,
     };
     let plan = |x, y| view.flat(hits, x, y).map_or(Plan::Trace, Plan::Flat);
-    render_view_with(&p.accel, &view.camera, textures, k, film, &plan)
+    let cam = &view.camera;
+    let render = render_view_with(&p.accel, cam, textures, k, film, &plan);
+    apply_pixel_filter(&render, cam.width(), cam.height(), cam.filter())
         .into_iter()
         .map(|v| v.unwrap_or(Vec3::ZERO))
         .collect()

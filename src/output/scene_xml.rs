@@ -11,7 +11,7 @@
 //! round trip through `scene::mitsuba::load`.
 
 use crate::fsio::write_atomic;
-use crate::scene::{Emitter, FovAxis, Rgb, Scene, Sensor, Shape, Sides};
+use crate::scene::{Emitter, FovAxis, PixelFilter, Rgb, Scene, Sensor, Shape, Sides};
 use crate::Result;
 use glam::{Mat4, Vec3};
 use std::fmt::Write as _;
@@ -124,13 +124,52 @@ fn write_sensor(w: &mut String, sensor: &Sensor) {
         w,
         "    <sampler type=\"independent\"><integer name=\"sample_count\" value=\"$spp\"/></sampler>"
     );
+    for (axis, v) in [
+        ("x", sensor.principal_point.x),
+        ("y", sensor.principal_point.y),
+    ] {
+        if v != 0.0 {
+            let _ = writeln!(
+                w,
+                "    <float name=\"principal_point_offset_{axis}\" value=\"{v}\"/>"
+            );
+        }
+    }
     let _ = writeln!(
         w,
         "    <film type=\"hdrfilm\"><integer name=\"width\" value=\"{}\"/><integer name=\"height\" value=\"{}\"/>\
-         <string name=\"pixel_format\" value=\"rgb\"/><rfilter type=\"box\"/></film>",
-        sensor.width, sensor.height
+         {}<string name=\"pixel_format\" value=\"rgb\"/>{}</film>",
+        sensor.film_width,
+        sensor.film_height,
+        crop_window(sensor),
+        rfilter(sensor.filter)
     );
     let _ = writeln!(w, "  </sensor>");
+}
+
+/// The film's crop window properties, empty for the whole film.
+fn crop_window(s: &Sensor) -> String {
+    if (s.width, s.height, s.crop_offset) == (s.film_width, s.film_height, (0, 0)) {
+        return String::new();
+    }
+    format!(
+        "<integer name=\"crop_offset_x\" value=\"{}\"/><integer name=\"crop_offset_y\" value=\"{}\"/>\
+         <integer name=\"crop_width\" value=\"{}\"/><integer name=\"crop_height\" value=\"{}\"/>",
+        s.crop_offset.0, s.crop_offset.1, s.width, s.height
+    )
+}
+
+/// The film's `<rfilter>` with its parameter.
+fn rfilter(f: PixelFilter) -> String {
+    match f {
+        PixelFilter::Box => "<rfilter type=\"box\"/>".to_string(),
+        PixelFilter::Tent { radius } => {
+            format!("<rfilter type=\"tent\"><float name=\"radius\" value=\"{radius}\"/></rfilter>")
+        }
+        PixelFilter::Gaussian { stddev } => format!(
+            "<rfilter type=\"gaussian\"><float name=\"stddev\" value=\"{stddev}\"/></rfilter>"
+        ),
+    }
 }
 
 /// One emitter (area emitters are written with their shape).

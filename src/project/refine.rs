@@ -13,12 +13,13 @@ use crate::atlas::Prepared;
 use crate::error::{Error, Result};
 use crate::image::Image;
 use crate::progress::{Mode, Stage};
-use crate::render::{render_view_with, Film, Plan, Texture};
+use crate::render::{apply_pixel_filter, render_view_with, Film, Plan, Texture};
 use glam::Vec3;
 use rayon::prelude::*;
 use std::sync::Mutex;
 
-/// Sub-pixel rays per side when a view is re-rendered for refinement (a box pixel filter).
+/// Sub-pixel rays per side when a view is re-rendered for refinement (pixel means, then the
+/// film's filter over them).
 pub const REFINE_SUPERSAMPLE: u32 = 4;
 /// Texels of dilation around observed texels before re-rendering, as for written maps.
 const REFINE_DILATE: u32 = 4;
@@ -150,14 +151,20 @@ impl Refine<'_> {
     ) -> Result<()> {
         let (p, photo) = (self.p, view.image);
         let w = photo.width;
+        // A blurring film needs the neighbours of clean pixels within its reach too.
+        let filter = view.camera.filter();
+        let needed = view.near_clean(filter.reach());
         let plan = |x: u32, y: u32| {
-            if !view.pixels[(y * w + x) as usize].clean {
+            let i = (y * w + x) as usize;
+            if !needed[i] {
                 return Plan::Skip;
             }
             view.flat(self.hits, x, y).map_or(Plan::Trace, Plan::Flat)
         };
         let k = REFINE_SUPERSAMPLE;
         let render = render_view_with(&p.accel, &view.camera, textures, k, Film::HitsOnly, &plan);
+        // The photo is the scene seen through the film's filter: so is what it is compared with.
+        let render = apply_pixel_filter(&render, w, photo.height, filter);
         let mut residual: Vec<Vec3> = photo
             .pixels
             .iter()

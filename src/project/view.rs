@@ -98,12 +98,14 @@ fn classify(
             })
         })
         .collect();
+    // A blurring film spreads an emitter over `reach` more pixels.
+    let r = 1 + camera.filter().reach();
     let near_emitter = |x: u32, y: u32| {
-        (y.saturating_sub(1)..(y + 2).min(h)).any(|ny| {
-            (x.saturating_sub(1)..(x + 2).min(w)).any(|nx| touches[(ny * w + nx) as usize])
+        (y.saturating_sub(r)..(y + r + 1).min(h)).any(|ny| {
+            (x.saturating_sub(r)..(x + r + 1).min(w)).any(|nx| touches[(ny * w + nx) as usize])
         })
     };
-    (0..h)
+    let infos: Vec<PixelInfo> = (0..h)
         .into_par_iter()
         .flat_map_iter(|y| {
             (0..w).map(move |x| {
@@ -132,6 +134,49 @@ fn classify(
                     plane: nrm.dot(c),
                     clean: coplanar && !near_emitter(x, y) && image.is_valid(x, y),
                 }
+            })
+        })
+        .collect();
+    erode_to_filter(infos, camera)
+}
+
+/// With a film filter that reaches `n > 0` pixels beyond the pixel (tent, gaussian), a pixel's
+/// value mixes its neighbours': it stays clean only if every pixel within `n` is clean and
+/// sees the same plane of the same shape. A box filter changes nothing.
+fn erode_to_filter(infos: Vec<PixelInfo>, camera: &Camera) -> Vec<PixelInfo> {
+    let n = camera.filter().reach() as i64;
+    if n == 0 {
+        return infos;
+    }
+    let (w, h) = (camera.width() as i64, camera.height() as i64);
+    let eye = camera.position();
+    (0..h)
+        .into_par_iter()
+        .flat_map_iter(|y| {
+            let infos = &infos;
+            (0..w).map(move |x| {
+                let mut p = infos[(y * w + x) as usize];
+                if !p.clean {
+                    return p;
+                }
+                let tol = plane_tol((p.normal.dot(eye) - p.plane).abs());
+                let same = |q: &PixelInfo| {
+                    q.clean
+                        && q.shape == p.shape
+                        && q.normal.dot(p.normal) > 0.99
+                        && (q.plane - p.plane).abs() <= tol
+                };
+                p.clean = (-n..=n).all(|dy| {
+                    (-n..=n).all(|dx| {
+                        let (nx, ny) = (x + dx, y + dy);
+                        nx >= 0
+                            && ny >= 0
+                            && nx < w
+                            && ny < h
+                            && same(&infos[(ny * w + nx) as usize])
+                    })
+                });
+                p
             })
         })
         .collect()
@@ -175,6 +220,21 @@ impl<'a> View<'a> {
             pixels: self.pixels.clone(),
             corners: self.corners.clone(),
         }
+    }
+
+    /// Per pixel, whether a clean pixel lies within `n` pixels of it (the clean mask for
+    /// `n = 0`).
+    pub fn near_clean(&self, n: u32) -> Vec<bool> {
+        let (w, h) = (self.camera.width() as i64, self.camera.height() as i64);
+        let n = n as i64;
+        let clean = |x: i64, y: i64| {
+            x >= 0 && y >= 0 && x < w && y < h && self.pixels[(y * w + x) as usize].clean
+        };
+        (0..h)
+            .flat_map(|y| {
+                (0..w).map(move |x| (-n..=n).any(|dy| (-n..=n).any(|dx| clean(x + dx, y + dy))))
+            })
+            .collect()
     }
 
     /// A clean pixel whose four corners lie on one chart, with their texel coordinates (see

@@ -2,21 +2,26 @@
 //! is settled here, once: meshes are in world space, emitter quantities are RGB in scene
 //! units, spot angles are radians, ids are assigned.
 //!
-//! The subset read (see `docs/contract.md`):
+//! The subset read (see `docs/contract.md`), against Mitsuba 3.9's plugin sources:
 //! - `<scene version>`, top-level `<default name value/>` with `$name` substitution in every
-//!   attribute value, `<ref id>` to earlier bsdfs;
+//!   attribute value, `<ref id name>` to earlier bsdfs, `name` attributes on any object;
 //! - shapes `obj`, `ply`, `rectangle`, `cube`, `sphere` with `to_world`, `flip_normals`,
-//!   `face_normals` (meshes), `flip_tex_coords` (obj), `center`/`radius` (sphere);
-//! - bsdfs `diffuse` (front side reflects) and `twosided` around diffuse (both sides). Their
-//!   parameters are read past: the reflectance is what kdmap recovers;
-//! - emitters `point`, `spot`, `directional`, and `area` inside a shape;
-//! - sensors `perspective` with an `hdrfilm`.
+//!   `face_normals` (meshes), `flip_tex_coords` (obj, ply), `center`/`radius` (sphere),
+//!   `silhouette_sampling_weight` (read past);
+//! - bsdfs `diffuse` (front side reflects) and `twosided` around diffuse (both sides), with any
+//!   `<texture>`. Their parameters are read past: the reflectance is what kdmap recovers.
+//!   Every other Mitsuba bsdf parses and is refused when a shape uses it ("not supported yet");
+//! - emitters `point`, `spot`, `directional`, and `area` inside a shape; `envmap` and
+//!   `constant` parse and are refused ("not supported yet");
+//! - sensors `perspective` with an `hdrfilm`, its `rfilter` and `sampler`, and integrators:
+//!   see `mitsuba/sensor.rs`.
 //!
 //! As in Mitsuba, a property no plugin reads is an error, so a setting that would change the
 //! answer is never silently ignored; only settings that cannot change it (`integrator`,
-//! `sampler`, `rfilter`, film pixel formats, clip planes, `sampling_weight`) are read past.
+//! `sampler`, film output formats, clip planes, `focus_distance` of a pinhole,
+//! `sampling_weight`) are read past.
 //! Every refusal is one line naming the file, line, column and element, e.g.
-//! `scene.xml (line 10, col 5), <shape type="foo">: unsupported shape plugin 'foo'`.
+//! `scene.xml (line 10, col 5), <shape type="foo">: unknown shape plugin 'foo'`.
 //!
 //! Transforms follow Mitsuba: inside `<transform>`, each operation left-multiplies what came
 //! before (`M = op_n * ... * op_1`); `lookat` builds the frame `(left, up, dir, origin)`.
@@ -26,17 +31,16 @@
 //! sensor and sphere transforms may not shear either (Mitsuba only checks scale).
 
 use crate::error::{Error, Location};
-use crate::scene::{
-    mesh, Emitter, FovAxis, Mesh, ReflectanceSpec, Rgb, Scene, Sensor, Shape, Sides,
-};
+use crate::scene::{mesh, Emitter, Mesh, ReflectanceSpec, Rgb, Scene, Shape, Sides};
 use crate::Result;
 use glam::{DMat3, DMat4, DVec3, Vec3};
 use roxmltree::{Document, Node};
 use std::collections::{HashMap, HashSet};
 use std::path::{Path, PathBuf};
 
-/// Mitsuba's film size when a sensor has no `<film>`.
-pub const DEFAULT_FILM: (u32, u32) = (768, 576);
+mod sensor;
+
+pub use sensor::DEFAULT_FILM;
 
 /// Mitsuba's default spot `cutoff_angle`, degrees.
 pub const DEFAULT_SPOT_CUTOFF_DEG: f64 = 20.0;
@@ -226,6 +230,11 @@ struct Props<'a, 'i> {
 }
 
 impl<'a, 'i> Props<'a, 'i> {
+    /// The property `name`, if present, without marking it read.
+    fn peek(&self, name: &str) -> Option<Node<'a, 'i>> {
+        self.items.iter().find(|(n, _, _)| n == name).map(|i| i.1)
+    }
+
     fn take(&mut self, name: &str) -> Option<Node<'a, 'i>> {
         let item = self
             .items
@@ -269,7 +278,56 @@ struct Parser<'a, 'i> {
 struct Bsdf {
     sides: Sides,
     reflectance: Option<ReflectanceSpec>,
+    /// The plugin name of a non-diffuse bsdf (also one wrapped in `twosided`): parsed, not
+    /// supported yet.
+    unsupported: Option<String>,
 }
+
+/// Mitsuba 3.9's bsdf plugins besides `diffuse` and `twosided` (`src/bsdfs/`).
+const OTHER_BSDFS: &[&str] = &[
+    "blendbsdf",
+    "bumpmap",
+    "circular",
+    "conductor",
+    "dielectric",
+    "hair",
+    "mask",
+    "measured",
+    "measured_polarized",
+    "normalmap",
+    "null",
+    "plastic",
+    "polarizer",
+    "pplastic",
+    "principled",
+    "principledthin",
+    "retarder",
+    "roughconductor",
+    "roughdielectric",
+    "roughplastic",
+    "thindielectric",
+];
+
+/// Mitsuba 3.9's emitter plugins kdmap does not model yet (`src/emitters/`).
+const OTHER_EMITTERS: &[&str] = &["projector", "directionalarea", "sunsky", "timed_sunsky"];
+
+/// Mitsuba 3.9's texture plugins (`src/textures/`).
+const TEXTURES: &[&str] = &["bitmap", "checkerboard", "mesh_attribute", "volume"];
+
+/// Mitsuba 3.9's shape plugins kdmap does not read yet (`src/shapes/`).
+const OTHER_SHAPES: &[&str] = &[
+    "disk",
+    "cylinder",
+    "bsplinecurve",
+    "linearcurve",
+    "sdfgrid",
+    "ellipsoids",
+    "ellipsoidsmesh",
+    "instance",
+    "shapegroup",
+    "merge",
+    "serialized",
+];
 
 /// `<tag type=".." id=".." name="..">` as written, for messages.
 fn describe(node: Node) -> String {
@@ -717,10 +775,21 @@ impl<'a, 'i> Parser<'a, 'i> {
                     scene.sensors.push(s);
                 }
                 // Rendering settings that cannot change the answer.
-                "integrator" | "sampler" => {}
+                "integrator" => self.integrator(c)?,
+                "sampler" => self.sampler(c)?,
+                "include" | "path" | "alias" => {
+                    return Err(self.err(
+                        c,
+                        format!(
+                            "<{}> is not supported yet; inline the content",
+                            c.tag_name().name()
+                        ),
+                    ))
+                }
                 // Textures only feed bsdfs, which are not trusted; keep their ids reserved
                 // and remember bitmaps for the truth reader.
                 "texture" => {
+                    self.texture_kind(c)?;
                     if let Some(id) = self.attr(c, "id")? {
                         self.register_id(c, &id)?;
                         if let Some(f) = self.bitmap_file(c) {
@@ -745,13 +814,18 @@ impl<'a, 'i> Parser<'a, 'i> {
         index: usize,
         emitters: &mut Vec<Emitter>,
     ) -> Result<Shape> {
-        self.check_attrs(node, &["type", "id"])?;
+        self.check_attrs(node, &["type", "id", "name"])?;
         let kind = self.req_attr(node, "type")?;
         if !matches!(
             kind.as_str(),
             "obj" | "ply" | "rectangle" | "cube" | "sphere"
         ) {
-            return Err(self.err(node, format!("unsupported shape plugin '{kind}'")));
+            let msg = if OTHER_SHAPES.contains(&kind.as_str()) {
+                format!("shape '{kind}' is not supported yet (obj, ply, rectangle, cube, sphere)")
+            } else {
+                format!("unknown shape plugin '{kind}'")
+            };
+            return Err(self.err(node, msg));
         }
         let id = self
             .attr(node, "id")?
@@ -792,7 +866,7 @@ impl<'a, 'i> Parser<'a, 'i> {
                 mesh::sphere()
             }
         };
-        let objects = props.finish(self, &[])?;
+        let objects = props.finish(self, &["silhouette_sampling_weight"])?;
 
         let det = m.determinant();
         if det == 0.0 || !det.is_finite() {
@@ -814,6 +888,15 @@ impl<'a, 'i> Parser<'a, 'i> {
             .map_err(|e| self.err(node, format!("after to_world: {e}")))?;
 
         let (bsdf, emission) = self.shape_objects(objects)?;
+        if let Some((b, at)) = &bsdf {
+            if let Some(kind) = &b.unsupported {
+                return Err(self.err(
+                    *at,
+                    format!("bsdf '{kind}' is not supported yet: kdmap handles diffuse materials only (diffuse, twosided diffuse)"),
+                ));
+            }
+        }
+        let bsdf = bsdf.map(|(b, _)| b);
         if let Some(radiance) = emission {
             emitters.push(Emitter::Area {
                 shape: index,
@@ -824,6 +907,7 @@ impl<'a, 'i> Parser<'a, 'i> {
         let bsdf = bsdf.unwrap_or(Bsdf {
             sides: Sides::Front,
             reflectance: None,
+            unsupported: None,
         });
         Ok(Shape {
             id,
@@ -854,16 +938,17 @@ impl<'a, 'i> Parser<'a, 'i> {
             _ => mesh::load_ply(&p),
         };
         let mut mesh = loaded.map_err(|e| self.err(node, format!("cannot load mesh: {e}")))?;
-        if kind == "obj" {
-            let flip_tc = props
-                .take("flip_tex_coords")
-                .map(|n| self.bool_of(n))
-                .transpose()?
-                .unwrap_or(true);
-            if !flip_tc {
-                // The file's v already runs down (Mitsuba's convention).
-                mesh::flip_v(&mut mesh);
-            }
+        // Mitsuba flips v by default for OBJ files, not for PLY files.
+        let flip_tc = props
+            .take("flip_tex_coords")
+            .map(|n| self.bool_of(n))
+            .transpose()?
+            .unwrap_or(kind == "obj");
+        match (kind, flip_tc) {
+            // The file's v already runs down (Mitsuba's convention).
+            ("obj", false) => mesh::flip_v(&mut mesh),
+            ("ply", true) => mesh::flip_v(&mut mesh),
+            _ => {}
         }
         self.files.push(p.clone());
         Ok((mesh, p))
@@ -905,8 +990,13 @@ impl<'a, 'i> Parser<'a, 'i> {
         Ok(m)
     }
 
-    /// A shape's nested objects: the bsdf (or a reference to one) and an area emitter.
-    fn shape_objects(&mut self, objects: Vec<Node<'a, 'i>>) -> Result<(Option<Bsdf>, Option<Rgb>)> {
+    /// A shape's nested objects: the bsdf (or a reference to one) with its element, and an
+    /// area emitter.
+    #[allow(clippy::type_complexity)]
+    fn shape_objects(
+        &mut self,
+        objects: Vec<Node<'a, 'i>>,
+    ) -> Result<(Option<(Bsdf, Node<'a, 'i>)>, Option<Rgb>)> {
         let mut bsdf = None;
         let mut emission = None;
         for o in objects {
@@ -917,7 +1007,7 @@ impl<'a, 'i> Parser<'a, 'i> {
                     } else {
                         self.bsdf_ref(o)?
                     };
-                    if bsdf.replace(b).is_some() {
+                    if bsdf.replace((b, o)).is_some() {
                         return Err(self.err(o, "a shape can have only one bsdf"));
                     }
                 }
@@ -926,6 +1016,9 @@ impl<'a, 'i> Parser<'a, 'i> {
                     if emission.replace(r).is_some() {
                         return Err(self.err(o, "a shape can have only one emitter"));
                     }
+                }
+                "medium" => {
+                    return Err(self.err(o, "participating media are not supported"));
                 }
                 other => {
                     return Err(self.err(o, format!("unsupported element <{other}> in a shape")))
@@ -938,59 +1031,113 @@ impl<'a, 'i> Parser<'a, 'i> {
     // ---- bsdfs -------------------------------------------------------------------------------
 
     /// Which sides reflect, and the reflectance the file states (read leniently: it is not
-    /// trusted, so a form kdmap cannot read is no error, just no stated reflectance).
+    /// trusted, so a form kdmap cannot read is no error, just no stated reflectance). Every
+    /// bsdf plugin of Mitsuba 3.9 parses; the non-diffuse ones come back `unsupported`, and
+    /// a shape using one is refused.
     fn bsdf(&mut self, node: Node<'a, 'i>) -> Result<Bsdf> {
         self.check_attrs(node, &["type", "id", "name"])?;
         let kind = self.req_attr(node, "type")?;
-        let mut reflectance = None;
-        let sides = match kind.as_str() {
-            "diffuse" => {
-                reflectance = self.stated_reflectance(node);
-                Sides::Front
-            }
-            "twosided" => {
-                let mut inner = 0;
-                for c in Self::elements(node) {
-                    let b = match c.tag_name().name() {
-                        // Checked before recursing, so nesting depth stays bounded.
-                        "bsdf" if c.attribute("type") != Some("diffuse") => {
-                            return Err(self.err(c, "twosided must wrap a diffuse bsdf"))
-                        }
-                        "bsdf" => self.bsdf(c)?,
-                        "ref" => self.bsdf_ref(c)?,
-                        other => {
-                            return Err(self.err(
-                                c,
-                                format!("unsupported element <{other}> in a twosided bsdf"),
-                            ))
-                        }
-                    };
-                    if b.sides != Sides::Front {
-                        return Err(self.err(c, "twosided must wrap a diffuse bsdf"));
-                    }
-                    if inner == 0 {
-                        reflectance = b.reflectance;
-                    }
-                    inner += 1;
-                }
-                if !(1..=2).contains(&inner) {
-                    return Err(self.err(node, "twosided needs one or two nested bsdfs"));
-                }
-                Sides::Both
-            }
-            other => {
-                return Err(self.err(
-                    node,
-                    format!("unsupported bsdf plugin '{other}' (only 'diffuse' and 'twosided': the reflectance is what kdmap recovers)"),
-                ))
-            }
+        let b = match kind.as_str() {
+            "diffuse" => self.diffuse(node)?,
+            "twosided" => self.twosided(node)?,
+            k if OTHER_BSDFS.contains(&k) => self.other_bsdf(node, k)?,
+            other => return Err(self.err(node, format!("unknown bsdf plugin '{other}'"))),
         };
-        let b = Bsdf { sides, reflectance };
         if let Some(id) = self.attr(node, "id")? {
             self.register_id(node, &id)?;
             self.bsdfs.insert(id, b.clone());
         }
         Ok(b)
+    }
+
+    /// A `diffuse` bsdf: `reflectance` (a value, a nested `<texture>` or a `<ref>` to one).
+    fn diffuse(&mut self, node: Node<'a, 'i>) -> Result<Bsdf> {
+        let mut props = self.props(node)?;
+        props.take("reflectance");
+        for o in props.finish(self, &[])? {
+            match o.tag_name().name() {
+                "texture" => self.texture_kind(o)?,
+                "ref" => self.check_attrs(o, &["id", "name"])?,
+                other => {
+                    return Err(self.err(
+                        o,
+                        format!("unsupported element <{other}> in a diffuse bsdf"),
+                    ))
+                }
+            }
+        }
+        Ok(Bsdf {
+            sides: Sides::Front,
+            reflectance: self.stated_reflectance(node),
+            unsupported: None,
+        })
+    }
+
+    /// A `twosided` bsdf around one or two bsdfs (front and back): both sides reflect.
+    fn twosided(&mut self, node: Node<'a, 'i>) -> Result<Bsdf> {
+        let mut props = self.props(node)?;
+        if let Some(n) = props.take("allow_transmission") {
+            self.bool_of(n)?;
+        }
+        let mut inner: Vec<Bsdf> = Vec::new();
+        for c in props.finish(self, &[])? {
+            let b = match c.tag_name().name() {
+                "bsdf" => self.bsdf(c)?,
+                "ref" => self.bsdf_ref(c)?,
+                other => {
+                    return Err(self.err(
+                        c,
+                        format!("unsupported element <{other}> in a twosided bsdf"),
+                    ))
+                }
+            };
+            if b.sides != Sides::Front {
+                return Err(self.err(c, "a twosided bsdf cannot wrap another twosided bsdf"));
+            }
+            inner.push(b);
+        }
+        if !(1..=2).contains(&inner.len()) {
+            return Err(self.err(node, "twosided needs one or two nested bsdfs"));
+        }
+        let unsupported = inner.iter().find_map(|b| b.unsupported.clone());
+        Ok(Bsdf {
+            sides: Sides::Both,
+            reflectance: inner.swap_remove(0).reflectance,
+            unsupported,
+        })
+    }
+
+    /// A non-diffuse Mitsuba bsdf: its nested bsdfs and textures are parsed (ids registered,
+    /// plugins checked), its properties read past; it comes back `unsupported`.
+    fn other_bsdf(&mut self, node: Node<'a, 'i>, kind: &str) -> Result<Bsdf> {
+        let props = self.props(node)?;
+        for o in props.objects {
+            match o.tag_name().name() {
+                "bsdf" => {
+                    self.bsdf(o)?;
+                }
+                "texture" => self.texture_kind(o)?,
+                "ref" => self.check_attrs(o, &["id", "name"])?,
+                other => {
+                    return Err(self.err(o, format!("unsupported element <{other}> in a bsdf")))
+                }
+            }
+        }
+        Ok(Bsdf {
+            sides: Sides::Front,
+            reflectance: None,
+            unsupported: Some(kind.to_string()),
+        })
+    }
+
+    /// Check that a `<texture>` names one of Mitsuba 3.9's texture plugins.
+    fn texture_kind(&self, node: Node<'a, 'i>) -> Result<()> {
+        self.check_attrs(node, &["type", "id", "name"])?;
+        let kind = self.req_attr(node, "type")?;
+        if !TEXTURES.contains(&kind.as_str()) {
+            return Err(self.err(node, format!("unknown texture plugin '{kind}'")));
+        }
+        Ok(())
     }
 
     /// The `reflectance` a diffuse bsdf states: a constant, a nested bitmap texture or a
@@ -1041,8 +1188,30 @@ impl<'a, 'i> Parser<'a, 'i> {
 
     // ---- emitters ----------------------------------------------------------------------------
 
+    /// The properties of an `envmap` (`filename`, `scale`, `to_world`, `mis_compensation`)
+    /// or a `constant` (`radiance`) emitter, checked as Mitsuba checks them.
+    fn environment(&mut self, props: &mut Props<'a, 'i>, kind: &str, node: Node) -> Result<()> {
+        if kind == "constant" {
+            self.emission(props, "radiance", 1.0)?;
+            return Ok(());
+        }
+        let f = props
+            .take("filename")
+            .ok_or_else(|| self.err(node, "missing property 'filename'"))?;
+        let name = self.string_of(f)?;
+        self.files.push(self.dir.join(name));
+        if let Some(n) = props.take("scale") {
+            self.float_of(n)?;
+        }
+        if let Some(n) = props.take("mis_compensation") {
+            self.bool_of(n)?;
+        }
+        self.to_world(props)?;
+        Ok(())
+    }
+
     fn emitter_props(&mut self, node: Node<'a, 'i>) -> Result<(String, Props<'a, 'i>)> {
-        self.check_attrs(node, &["type", "id"])?;
+        self.check_attrs(node, &["type", "id", "name"])?;
         let kind = self.req_attr(node, "type")?;
         if let Some(id) = self.attr(node, "id")? {
             self.register_id(node, &id)?;
@@ -1150,180 +1319,32 @@ impl<'a, 'i> Parser<'a, 'i> {
                     irradiance,
                 }
             }
-            "area" => {
-                return Err(self.err(node, "an area emitter must be nested inside a shape"))
-            }
-            other => {
+            "area" => return Err(self.err(node, "an area emitter must be nested inside a shape")),
+            "envmap" | "constant" => {
+                self.environment(&mut props, &kind, node)?;
+                props.finish(self, &["sampling_weight"])?;
                 return Err(self.err(
                     node,
-                    format!("unsupported emitter plugin '{other}' (point, spot, directional, or area inside a shape)"),
+                    format!("emitter '{kind}' is not supported yet: environment light is not modelled (point, spot, directional, area)"),
+                ));
+            }
+            k if OTHER_EMITTERS.contains(&k) => {
+                return Err(self.err(
+                    node,
+                    format!("emitter '{k}' is not supported yet (point, spot, directional, area)"),
                 ))
             }
+            other => return Err(self.err(node, format!("unknown emitter plugin '{other}'"))),
         };
         props.finish(self, &["sampling_weight"])?;
         Ok(e)
-    }
-
-    // ---- sensors -----------------------------------------------------------------------------
-
-    /// A sensor's `fov` and `fov_axis` (Mitsuba's defaults when absent).
-    fn sensor_fov(&self, props: &mut Props<'a, 'i>) -> Result<(f64, FovAxis)> {
-        let fov_node = props.take("fov");
-        let axis_node = props.take("fov_axis");
-        Ok(match fov_node {
-            Some(n) => {
-                let f = self.float_of(n)?;
-                if !(f > 0.0 && f < 180.0) {
-                    return Err(self.err(n, "'fov' must be in (0, 180) degrees"));
-                }
-                let axis = match axis_node {
-                    Some(a) => {
-                        let s = self.string_of(a)?;
-                        match s.trim().to_ascii_lowercase().as_str() {
-                            "x" => FovAxis::X,
-                            "y" => FovAxis::Y,
-                            "diagonal" => FovAxis::Diagonal,
-                            "smaller" => FovAxis::Smaller,
-                            "larger" => FovAxis::Larger,
-                            _ => {
-                                return Err(self.err(
-                                    a,
-                                    format!(
-                                        "invalid fov_axis '{s}' (x, y, diagonal, smaller, larger)"
-                                    ),
-                                ))
-                            }
-                        }
-                    }
-                    None => FovAxis::X,
-                };
-                (f, axis)
-            }
-            None => {
-                if let Some(a) = axis_node {
-                    return Err(self.err(a, "'fov_axis' without 'fov'"));
-                }
-                // Mitsuba's default: a 50 mm lens on a 36 x 24 mm film, as a diagonal fov.
-                let diag = (36.0f64 * 36.0 + 24.0 * 24.0).sqrt();
-                (
-                    (2.0 * (diag / (2.0 * 50.0)).atan()).to_degrees(),
-                    FovAxis::Diagonal,
-                )
-            }
-        })
-    }
-
-    /// A sensor's `to_world`: rotation and translation only, as Mitsuba requires.
-    fn camera_frame(&self, props: &mut Props<'a, 'i>) -> Result<DMat4> {
-        Ok(match self.to_world(props)? {
-            Some((m, n)) => {
-                let l = DMat3::from_mat4(m);
-                let cols = [l.x_axis, l.y_axis, l.z_axis];
-                let ortho = cols.iter().all(|c| (c.length() - 1.0).abs() <= 1e-3)
-                    && l.x_axis.dot(l.y_axis).abs() <= 1e-3
-                    && l.y_axis.dot(l.z_axis).abs() <= 1e-3
-                    && l.x_axis.dot(l.z_axis).abs() <= 1e-3;
-                if !ortho {
-                    return Err(self.err(
-                        n,
-                        "scale or shear in a camera's to_world is not allowed (as in Mitsuba)",
-                    ));
-                }
-                m
-            }
-            None => DMat4::IDENTITY,
-        })
-    }
-
-    fn sensor(&mut self, node: Node<'a, 'i>, index: usize) -> Result<Sensor> {
-        self.check_attrs(node, &["type", "id"])?;
-        let kind = self.req_attr(node, "type")?;
-        if kind != "perspective" {
-            return Err(self.err(
-                node,
-                format!("unsupported sensor plugin '{kind}' (only 'perspective')"),
-            ));
-        }
-        let id = self
-            .attr(node, "id")?
-            .unwrap_or_else(|| format!("sensor_{index}"));
-        self.register_id(node, &id)?;
-        let mut props = self.props(node)?;
-
-        if let Some(n) = props.take("focal_length") {
-            return Err(self.err(n, "'focal_length' is not supported; give 'fov' in degrees"));
-        }
-        let (fov, fov_axis) = self.sensor_fov(&mut props)?;
-        let to_world = self.camera_frame(&mut props)?;
-        let objects = props.finish(self, &["near_clip", "far_clip"])?;
-
-        let (mut width, mut height) = DEFAULT_FILM;
-        let mut have_film = false;
-        for o in objects {
-            match o.tag_name().name() {
-                "film" => {
-                    if have_film {
-                        return Err(self.err(o, "a sensor can have only one film"));
-                    }
-                    have_film = true;
-                    (width, height) = self.film(o)?;
-                }
-                "sampler" => {}
-                other => {
-                    return Err(self.err(o, format!("unsupported element <{other}> in a sensor")))
-                }
-            }
-        }
-        Ok(Sensor {
-            id,
-            to_world: to_world.as_mat4(),
-            fov: fov as f32,
-            fov_axis,
-            width,
-            height,
-        })
-    }
-
-    fn film(&self, node: Node<'a, 'i>) -> Result<(u32, u32)> {
-        self.check_attrs(node, &["type", "id", "name"])?;
-        let kind = self.req_attr(node, "type")?;
-        if kind != "hdrfilm" {
-            return Err(self.err(
-                node,
-                format!("unsupported film plugin '{kind}' (only 'hdrfilm')"),
-            ));
-        }
-        let mut props = self.props(node)?;
-        let mut dim = |name: &str, default: u32| -> Result<u32> {
-            match props.take(name) {
-                Some(n) => {
-                    let v = self.int_of(n)?;
-                    if !(1..=1 << 16).contains(&v) {
-                        return Err(self.err(n, format!("'{name}' must be in 1..=65536")));
-                    }
-                    Ok(v as u32)
-                }
-                None => Ok(default),
-            }
-        };
-        let width = dim("width", DEFAULT_FILM.0)?;
-        let height = dim("height", DEFAULT_FILM.1)?;
-        for o in &props.objects {
-            if o.tag_name().name() != "rfilter" {
-                return Err(self.err(
-                    *o,
-                    format!("unsupported element <{}> in a film", o.tag_name().name()),
-                ));
-            }
-        }
-        props.finish(self, &["pixel_format", "component_format"])?;
-        Ok((width, height))
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::scene::FovAxis;
 
     #[test]
     fn an_outline_has_every_sensor_and_emitter_but_reads_no_mesh() {
@@ -1554,20 +1575,40 @@ mod tests {
     #[test]
     fn refusals_name_line_and_element() {
         let cases: &[(&str, &str)] = &[
-            ("<shape type=\"foo\"/>", "(line 2, col 1), <shape type=\"foo\">: unsupported shape plugin 'foo'"),
-            ("<emitter type=\"envmap\"/>", "unsupported emitter plugin 'envmap'"),
+            ("<shape type=\"foo\"/>", "(line 2, col 1), <shape type=\"foo\">: unknown shape plugin 'foo'"),
+            ("<emitter type=\"envmap\"><string name=\"filename\" value=\"sky.exr\"/></emitter>", "emitter 'envmap' is not supported yet"),
+            ("<emitter type=\"envmap\"><string name=\"filename\" value=\"sky.exr\"/><float name=\"gamma\" value=\"2\"/></emitter>", "unsupported property 'gamma'"),
+            ("<emitter type=\"constant\"><rgb name=\"radiance\" value=\"1\"/></emitter>", "emitter 'constant' is not supported yet"),
+            ("<emitter type=\"sky\"/>", "unknown emitter plugin 'sky'"),
             ("<emitter type=\"area\"/>", "nested inside a shape"),
             ("<emitter type=\"point\"><texture name=\"intensity\" type=\"bitmap\"/></emitter>", "not supported"),
             ("<shape type=\"cube\"><emitter type=\"area\"><spectrum name=\"radiance\" value=\"400:1, 500:2\"/></emitter></shape>", "wavelength"),
             ("<shape type=\"cube\"><emitter type=\"area\"><rgb name=\"radiance\" value=\"-1\"/></emitter></shape>", "negative"),
             ("<sensor type=\"perspective\"><float name=\"focal_length\" value=\"50\"/></sensor>", "focal_length"),
-            ("<sensor type=\"orthographic\"/>", "unsupported sensor plugin"),
+            ("<sensor type=\"orthographic\"/>", "sensor 'orthographic' is not supported yet"),
+            ("<sensor type=\"fisheye\"/>", "unknown sensor plugin 'fisheye'"),
             ("<sensor type=\"perspective\"><float name=\"fov\" value=\"nan\"/></sensor>", "non-finite"),
             ("<sensor type=\"perspective\"><float name=\"fov\" value=\"abc\"/></sensor>", "invalid number"),
-            ("<sensor type=\"perspective\"><film type=\"hdrfilm\"><integer name=\"crop_width\" value=\"3\"/></film></sensor>", "unsupported property 'crop_width'"),
+            ("<sensor type=\"perspective\"><film type=\"hdrfilm\"><integer name=\"crop_width\" value=\"769\"/></film></sensor>", "crop window"),
+            ("<sensor type=\"perspective\"><film type=\"hdrfilm\"><rfilter type=\"tent\"><float name=\"stddev\" value=\"1\"/></rfilter></film></sensor>", "unsupported property 'stddev' on <rfilter type=\"tent\">"),
+            ("<sensor type=\"perspective\"><film type=\"hdrfilm\"><rfilter type=\"mitchell\"/></film></sensor>", "rfilter 'mitchell' is not supported yet"),
+            ("<sensor type=\"perspective\"><film type=\"hdrfilm\"><string name=\"component_format\" value=\"half\"/></film></sensor>", "invalid component_format 'half'"),
+            ("<sensor type=\"perspective\"><float name=\"aperture_radius\" value=\"0.1\"/></sensor>", "unsupported property 'aperture_radius' on <sensor type=\"perspective\">"),
+            ("<sensor type=\"perspective\"><float name=\"near_clip\" value=\"0\"/></sensor>", "'near_clip' must be greater than zero"),
+            ("<sensor type=\"thinlens\"/>", "sensor 'thinlens' is not supported yet"),
+            ("<sensor type=\"perspective\"><sampler type=\"sobol\"/></sensor>", "unknown sampler plugin 'sobol'"),
+            ("<sensor type=\"perspective\"><sampler type=\"independent\"><boolean name=\"jitter\" value=\"true\"/></sampler></sensor>", "unsupported property 'jitter'"),
+            ("<integrator type=\"photonmapper\"/>", "unknown integrator plugin 'photonmapper'"),
+            ("<shape type=\"disk\"/>", "shape 'disk' is not supported yet"),
+            ("<shape type=\"sphere\"><bsdf type=\"dielectric\"/></shape>", "bsdf 'dielectric' is not supported yet"),
+            ("<bsdf type=\"conductor\" id=\"m\"/><shape type=\"sphere\"><ref id=\"m\"/></shape>", "<ref id=\"m\">: bsdf 'conductor' is not supported yet"),
+            ("<shape type=\"cube\"><bsdf type=\"twosided\"><bsdf type=\"roughplastic\"/></bsdf></shape>", "bsdf 'roughplastic' is not supported yet"),
+            ("<shape type=\"cube\"><bsdf type=\"shiny\"/></shape>", "unknown bsdf plugin 'shiny'"),
+            ("<shape type=\"cube\"><bsdf type=\"diffuse\"><float name=\"roughness\" value=\"0.1\"/></bsdf></shape>", "unsupported property 'roughness' on <bsdf type=\"diffuse\">"),
+            ("<shape type=\"cube\"><bsdf type=\"diffuse\"><texture type=\"noise\" name=\"reflectance\"/></bsdf></shape>", "unknown texture plugin 'noise'"),
             ("<sensor type=\"perspective\"><transform name=\"to_world\"><scale value=\"2\"/></transform></sensor>", "scale"),
             ("<shape type=\"cube\"><float name=\"radius\" value=\"1\"/></shape>", "unsupported property 'radius' on <shape type=\"cube\">"),
-            ("<shape type=\"cube\"><bsdf type=\"conductor\"/></shape>", "unsupported bsdf plugin 'conductor'"),
+            ("<shape type=\"cube\"><bsdf type=\"conductor\"/></shape>", "bsdf 'conductor' is not supported yet"),
             ("<shape type=\"cube\"><ref id=\"nope\"/></shape>", "unknown bsdf 'nope'"),
             ("<shape type=\"cube\" id=\"a\"/><shape type=\"cube\" id=\"a\"/>", "duplicate id 'a'"),
             ("<shape type=\"cube\"><transform name=\"to_world\"><lookat origin=\"1,1,1\" target=\"1,1,1\"/></transform></shape>", "degenerate lookat"),
@@ -1576,7 +1617,7 @@ mod tests {
             ("<shape type=\"cube\"><transform name=\"to_world\"><rotate angle=\"3\"/></transform></shape>", "zero length"),
             ("<shape type=\"obj\"/>", "missing property 'filename'"),
             ("<shape type=\"sphere\"><float name=\"radius\" value=\"$undefined\"/></shape>", "undefined parameter '$undefined'"),
-            ("<include filename=\"x.xml\"/>", "unsupported element <include>"),
+            ("<include filename=\"x.xml\"/>", "<include> is not supported yet"),
             ("<shape type=\"sphere\"><transform name=\"to_world\"><scale x=\"2\"/></transform></shape>", "uniformly"),
             ("<shape type=\"cube\" id=\"a/b\"/>", "id 'a/b'"),
         ];

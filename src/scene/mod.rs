@@ -4,9 +4,12 @@
 //! `mitsuba.rs` builds it from a Mitsuba 3 XML file, `mesh.rs` loads OBJ/PLY meshes and the
 //! built-in shapes. Nothing downstream knows about XML.
 
+pub mod filter;
 pub mod mesh;
 pub mod mitsuba;
 pub mod truth;
+
+pub use filter::PixelFilter;
 
 use glam::{Mat4, Vec2, Vec3};
 use std::path::PathBuf;
@@ -165,14 +168,52 @@ pub enum FovAxis {
 /// A perspective sensor as Mitsuba 3 defines it.
 #[derive(Debug, Clone)]
 pub struct Sensor {
+    /// The sensor's `id`, or `sensor_<index>` (index in file order among the sensors).
     pub id: String,
     /// Camera-to-world; camera looks along local +z, local +x is image left, +y image up.
     pub to_world: Mat4,
     /// Field of view in degrees, along `fov_axis`, as written in the file.
     pub fov: f32,
     pub fov_axis: FovAxis,
+    /// The photo's size: the film's crop window (the whole film without one).
     pub width: u32,
     pub height: u32,
+    /// The film's full size, which the field of view spans.
+    pub film_width: u32,
+    pub film_height: u32,
+    /// The crop window's top-left pixel on the film (`crop_offset_x/y`).
+    pub crop_offset: (u32, u32),
+    /// Mitsuba's `principal_point_offset_x/y`: the principal point's offset from the film
+    /// center, in fractions of the film's width and height (the image moves the other way).
+    pub principal_point: Vec2,
+    /// The film's reconstruction filter.
+    pub filter: PixelFilter,
+}
+
+impl Sensor {
+    /// A sensor with a whole `width x height` film, a centered principal point and `filter`.
+    pub fn simple(
+        id: &str,
+        to_world: Mat4,
+        fov: f32,
+        fov_axis: FovAxis,
+        (width, height): (u32, u32),
+        filter: PixelFilter,
+    ) -> Sensor {
+        Sensor {
+            id: id.to_string(),
+            to_world,
+            fov,
+            fov_axis,
+            width,
+            height,
+            film_width: width,
+            film_height: height,
+            crop_offset: (0, 0),
+            principal_point: Vec2::ZERO,
+            filter,
+        }
+    }
 }
 
 #[derive(Debug, Clone)]

@@ -15,3 +15,4 @@ mod resume;
 mod scripting;
 mod signals;
 mod tiles;
+mod truth_refs;
