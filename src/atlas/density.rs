@@ -71,13 +71,7 @@ impl DensityPlan {
                 })
             })
             .collect();
-        let estimated_texels = scene
-            .shapes
-            .iter()
-            .filter(|s| s.is_reconstructed())
-            .map(|s| s.mesh.area() * (texels_per_unit as f64).powi(2))
-            .sum::<f64>()
-            .round() as u64;
+        let estimated_texels = estimate(scene, &shapes).round() as u64;
         DensityPlan {
             shapes,
             budget: 0,
@@ -243,15 +237,7 @@ pub fn plan(scene: &Scene, fine: &[Option<f32>], max_size: u32, budget: u64) -> 
             d.limited_by = Some("max_texture_size".into());
         }
     }
-    let estimate = |shapes: &[Option<ShapeDensity>]| -> f64 {
-        scene
-            .shapes
-            .iter()
-            .zip(shapes)
-            .filter_map(|(s, d)| d.as_ref().map(|d| s.mesh.area() * sq(d)))
-            .sum()
-    };
-    let total = estimate(&shapes);
+    let total = estimate(scene, &shapes);
     if total > budget as f64 {
         let k = (budget as f64 / total).sqrt() as f32;
         notes.push(format!(
@@ -269,15 +255,24 @@ pub fn plan(scene: &Scene, fine: &[Option<f32>], max_size: u32, budget: u64) -> 
         d.texels_per_unit = round3(d.texels_per_unit);
     }
     DensityPlan {
-        estimated_texels: estimate(&shapes).round() as u64,
+        estimated_texels: estimate(scene, &shapes).round() as u64,
         shapes,
         budget,
         notes,
     }
 }
 
-fn sq(d: &ShapeDensity) -> f64 {
-    (d.texels_per_unit as f64).powi(2)
+/// Surface texels at `shapes`' densities: `sum(area * density^2)`.
+fn estimate(scene: &Scene, shapes: &[Option<ShapeDensity>]) -> f64 {
+    scene
+        .shapes
+        .iter()
+        .zip(shapes)
+        .filter_map(|(s, d)| {
+            d.as_ref()
+                .map(|d| s.mesh.area() * (d.texels_per_unit as f64).powi(2))
+        })
+        .sum()
 }
 
 /// The highest density whose atlas of a surface of `area` fits in `max_size` texels a side.
@@ -383,6 +378,20 @@ mod tests {
         assert_eq!(near.limited_by.as_deref(), Some("max_texture_size"));
         assert!(near.texels_per_unit <= 16.0 * 0.95 / 6.4f32.sqrt() + 0.01);
         assert!(r.notes[0].contains("'near'"), "{:?}", r.notes);
+    }
+
+    #[test]
+    fn needs_count_the_stores_on_disk_and_at_most_the_budget_in_memory() {
+        let sc = scene(2.0, 64, false);
+        let plan = DensityPlan::fixed(&sc, 100.0); // 4 units^2 -> 40,000 surface texels
+        assert_eq!(plan.estimated_texels, 40_000);
+        let big = needs(&sc, &plan, 4096, u64::MAX);
+        assert_eq!(big.store_texels, 60_000);
+        // geometry (52 B) and state (72 B) stores, two state snapshots, outputs
+        let stores = 60_000 * (52 + 72);
+        assert_eq!(big.disk_bytes, stores + 2 * 60_000 * 72 + 40_000 * 140);
+        let small = needs(&sc, &plan, 4096, 1000);
+        assert_eq!(big.memory_bytes - small.memory_bytes, stores - 1000);
     }
 
     #[test]
