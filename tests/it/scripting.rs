@@ -74,7 +74,10 @@ fn inspect_json_parses_back_and_matches_the_scene() {
         .filter_map(|d| d["texels_per_unit"].as_f64())
         .collect();
     assert_eq!(densities.len(), 7, "{atlas}");
-    assert!(densities.iter().all(|&d| d > 16.0 && d < 512.0), "{densities:?}");
+    assert!(
+        densities.iter().all(|&d| d > 16.0 && d < 512.0),
+        "{densities:?}"
+    );
     let est = atlas["estimated_texels"].as_u64().unwrap();
     assert!(est <= 3 * 256 * 256 && est > 150_000, "{est}");
     assert!(v["needs"]["disk_bytes"].as_u64().unwrap() > est * 124);
