@@ -43,7 +43,16 @@ pub const SPHERE_RINGS: usize = 64;
 /// Longitude segments of the tessellated `sphere`.
 pub const SPHERE_SEGMENTS: usize = 128;
 
+/// The whole of a mesh file. Only regular files: a device or a pipe (`/dev/zero`) named as a
+/// mesh would never end.
 fn read_bytes(path: &Path) -> Result<Vec<u8>> {
+    let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
+    if !meta.is_file() {
+        return Err(Error::input(
+            path,
+            "not a regular file (a mesh must be an .obj or .ply file)",
+        ));
+    }
     std::fs::read(path).map_err(|e| Error::io(path, e))
 }
 
@@ -866,6 +875,18 @@ mod tests {
     const QUAD_OBJ: &str = "# a unit quad\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n\
         vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nvn 0 0 2\n\
         o a\nf 1/1/1 2/2/1 3/3/1 4/4/1\nl 1 2 3\np 1\n";
+
+    #[test]
+    fn a_device_or_directory_named_as_a_mesh_is_refused_not_read() {
+        let dir = tempfile::tempdir().unwrap();
+        for p in [Path::new("/dev/zero"), dir.path()] {
+            for load in [load_obj, load_ply] {
+                let e = load(p).unwrap_err();
+                assert!(matches!(e, Error::Input { .. }), "{e}");
+                assert!(e.to_string().contains("not a regular file"), "{e}");
+            }
+        }
+    }
 
     #[test]
     fn obj_quad_is_two_triangles_with_uvs_and_normals() {
