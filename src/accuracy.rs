@@ -39,19 +39,6 @@ pub struct ShapeAccuracy {
     pub mean_truth: [f64; 3],
 }
 
-/// Barycentrics `(b1, b2)` of point `p` in triangle `tri` of `mesh`.
-fn barycentrics(mesh: &Mesh, tri: usize, p: Vec3) -> (f32, f32) {
-    let [a, b, c] = mesh.triangle(tri);
-    let (e1, e2, d) = (b - a, c - a, p - a);
-    let (d11, d12, d22) = (e1.dot(e1), e1.dot(e2), e2.dot(e2));
-    let den = d11 * d22 - d12 * d12;
-    if den == 0.0 {
-        return (0.0, 0.0);
-    }
-    let (p1, p2) = (d.dot(e1), d.dot(e2));
-    ((d22 * p1 - d12 * p2) / den, (d11 * p2 - d12 * p1) / den)
-}
-
 /// Samples per axis of a texel's square when averaging the truth over it.
 const FOOTPRINT_SAMPLES: u32 = 4;
 
@@ -118,7 +105,7 @@ pub fn bake_slot(
             out[(y * st.width + x) as usize] = Some(match atlas {
                 Some(a) => footprint_mean(r, &shape.mesh, a, tri, x, y),
                 None => {
-                    let (b1, b2) = barycentrics(&shape.mesh, tri, g.p());
+                    let (b1, b2) = shape.mesh.barycentric(tri, g.p());
                     r.eval(&shape.mesh, tri, b1, b2)
                 }
             });
@@ -369,7 +356,7 @@ mod tests {
                 for i in 0..k {
                     let u = (x as f32 + (i as f32 + 0.5) / k as f32) / 5.0;
                     let v = 1.0 - (y as f32 + (j as f32 + 0.5) / k as f32) / 5.0;
-                    let (b1, b2) = barycentrics(&mesh, tri, Vec3::new(u, v, 0.0));
+                    let (b1, b2) = mesh.barycentric(tri, Vec3::new(u, v, 0.0));
                     sum += r.eval(&mesh, tri, b1, b2).x as f64;
                 }
             }

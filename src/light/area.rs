@@ -39,23 +39,9 @@ pub(crate) fn irradiance_factor(
     let (mut total, mut lit, mut dark, mut partial) = (0.0, false, false, false);
     let area = mesh.area();
     for t in 0..mesh.triangles.len() {
-        let Some(front) = front_normal(mesh, t) else {
+        let Some((front, unoccluded)) = facing_solid_angle(mesh, t, pd, nd) else {
             continue;
         };
-        let [a, b, c] = mesh.triangle(t);
-        let v = [a.as_dvec3() - pd, b.as_dvec3() - pd, c.as_dvec3() - pd];
-        // The receiver must be on the front side (strictly) of the emitter's plane.
-        if v[0].dot(front) >= 0.0 {
-            continue;
-        }
-        let (poly, m) = clip_to_hemisphere(v, nd);
-        if m < 3 {
-            continue;
-        }
-        let unoccluded = projected_solid_angle(&poly[..m], nd);
-        if unoccluded <= 0.0 || !unoccluded.is_finite() {
-            continue;
-        }
         if params.area_samples == 0 {
             total += unoccluded;
             lit = true;
@@ -94,24 +80,30 @@ pub(crate) fn unoccluded_factor(mesh: &Mesh, p: Vec3, n: Vec3) -> f64 {
     let (nd, pd) = (n.as_dvec3(), p.as_dvec3());
     let mut total = 0.0;
     for t in 0..mesh.triangles.len() {
-        let Some(front) = front_normal(mesh, t) else {
-            continue;
-        };
-        let [a, b, c] = mesh.triangle(t);
-        let v = [a.as_dvec3() - pd, b.as_dvec3() - pd, c.as_dvec3() - pd];
-        if v[0].dot(front) >= 0.0 {
-            continue;
-        }
-        let (poly, m) = clip_to_hemisphere(v, nd);
-        if m < 3 {
-            continue;
-        }
-        let u = projected_solid_angle(&poly[..m], nd);
-        if u > 0.0 && u.is_finite() {
+        if let Some((_, u)) = facing_solid_angle(mesh, t, pd, nd) {
             total += u;
         }
     }
     total
+}
+
+/// Emitter triangle `t`'s unit front normal and its projected solid angle above the
+/// hemisphere of normal `nd` at `pd`, if the receiver is strictly on its front side and it
+/// shows a positive, finite amount of itself.
+fn facing_solid_angle(mesh: &Mesh, t: usize, pd: DVec3, nd: DVec3) -> Option<(DVec3, f64)> {
+    let front = front_normal(mesh, t)?;
+    let [a, b, c] = mesh.triangle(t);
+    let v = [a.as_dvec3() - pd, b.as_dvec3() - pd, c.as_dvec3() - pd];
+    // The receiver must be on the front side (strictly) of the emitter's plane.
+    if v[0].dot(front) >= 0.0 {
+        return None;
+    }
+    let (poly, m) = clip_to_hemisphere(v, nd);
+    if m < 3 {
+        return None;
+    }
+    let u = projected_solid_angle(&poly[..m], nd);
+    (u > 0.0 && u.is_finite()).then_some((front, u))
 }
 
 /// Unit front normal of triangle `t` (see the module notes), `None` if degenerate.
@@ -353,19 +345,6 @@ fn clip_polygon(poly: &[DVec3], normal: DVec3) -> Vec<DVec3> {
         }
     }
     out
-}
-
-/// Barycentrics `(b1, b2)` of point `y` (in its plane) of triangle `t` of `mesh`.
-fn barycentric_of(mesh: &Mesh, t: usize, y: Vec3) -> (f32, f32) {
-    let [a, b, c] = mesh.triangle(t);
-    let (e1, e2, d) = (b - a, c - a, y - a);
-    let (d11, d12, d22) = (e1.dot(e1), e1.dot(e2), e2.dot(e2));
-    let den = d11 * d22 - d12 * d12;
-    if den == 0.0 {
-        return (0.0, 0.0);
-    }
-    let (p1, p2) = (d.dot(e1), d.dot(e2));
-    ((d22 * p1 - d12 * p2) / den, (d11 * p2 - d12 * p1) / den)
 }
 
 /// One emitter triangle as a shadow-ray target.
@@ -682,7 +661,7 @@ impl Target<'_> {
             return false;
         }
         if self.mesh.normals.is_some() {
-            let (b1, b2) = barycentric_of(self.mesh, self.t, y);
+            let (b1, b2) = self.mesh.barycentric(self.t, y);
             if self.mesh.shading_normal(self.t, b1, b2).dot(q - y) <= 0.0 {
                 return false;
             }

@@ -44,6 +44,20 @@ impl Mesh {
         ]
     }
 
+    /// Barycentrics `(b1, b2)` of point `p` (in its plane) of triangle `t`: the weights of
+    /// vertices 1 and 2; `(0, 0)` for a degenerate triangle.
+    pub fn barycentric(&self, t: usize, p: Vec3) -> (f32, f32) {
+        let [a, b, c] = self.triangle(t);
+        let (e1, e2, d) = (b - a, c - a, p - a);
+        let (d11, d12, d22) = (e1.dot(e1), e1.dot(e2), e2.dot(e2));
+        let den = d11 * d22 - d12 * d12;
+        if den == 0.0 {
+            return (0.0, 0.0);
+        }
+        let (p1, p2) = (d.dot(e1), d.dot(e2));
+        ((d22 * p1 - d12 * p2) / den, (d11 * p2 - d12 * p1) / den)
+    }
+
     /// Unnormalized geometric normal of triangle `t` (length = 2 x area).
     pub fn face_normal_raw(&self, t: usize) -> Vec3 {
         let [p0, p1, p2] = self.triangle(t);
