@@ -67,6 +67,36 @@ pub enum RunStage {
     Finished,
 }
 
+/// A checkpoint's stage must be one these settings can reach (its checksum only says the bytes
+/// are the ones written, not that they came from this build's logic).
+fn check_stage(stage: &RunStage, cfg: &Config, manifest: &Path) -> Result<()> {
+    let batches = cfg.photons.div_ceil(u64::from(cfg.batch_size.max(1)));
+    let bad = match *stage {
+        RunStage::Pass {
+            iteration,
+            batches_done,
+            photons,
+            ..
+        } => {
+            cfg.method != Method::Photons
+                || iteration >= cfg.iterations
+                || batches_done > batches
+                || photons > cfg.photons
+        }
+        RunStage::Iterations {
+            iterations_done, ..
+        } => iterations_done > cfg.iterations,
+        RunStage::Direct | RunStage::Finished => false,
+    };
+    match bad {
+        true => Err(Error::corrupt(
+            manifest,
+            format!("checkpoint stage {stage:?} is impossible with these settings"),
+        )),
+        false => Ok(()),
+    }
+}
+
 /// The projection counts the report needs at the end.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 pub struct ProjCounts {
@@ -372,6 +402,7 @@ impl<'a> Run<'a> {
 
     /// Continue from checkpoint `m`: its state snapshot restored, its report and stage.
     fn resume(&self, m: Manifest<Progress>, clock: Instant) -> Result<Running> {
+        check_stage(&m.payload.stage, self.cfg, &self.dir.join(ck::MANIFEST))?;
         // no projection: the photos `prepare` checked are not needed
         self.p.release_photos();
         ck::restore(&self.dir, &m, &self.state_path)?;
@@ -772,4 +803,51 @@ struct PassResume {
     clamped: u64,
     photon_seconds: f64,
     update_seconds: f64,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn pass(iteration: u32, batches_done: u64, photons: u64) -> RunStage {
+        RunStage::Pass {
+            iteration,
+            batches_done,
+            clamped: 0,
+            photons,
+            photon_seconds: 0.0,
+            update_seconds: 0.0,
+        }
+    }
+
+    #[test]
+    fn a_checkpoint_stage_these_settings_cannot_reach_is_corrupt() {
+        let mut cfg = Config::for_scene("s.xml".into());
+        cfg.method = Method::Photons;
+        cfg.photons = 1000;
+        cfg.batch_size = 100;
+        cfg.iterations = 4;
+        let m = Path::new("out/checkpoint/progress.kdm");
+        let ok = |s: RunStage| check_stage(&s, &cfg, m).is_ok();
+        assert!(ok(pass(3, 10, 1000)));
+        assert!(ok(RunStage::Iterations {
+            iterations_done: 4,
+            stopped: true
+        }));
+        assert!(!ok(pass(4, 0, 0)), "iteration beyond the last");
+        assert!(!ok(pass(0, 11, 1000)), "more batches than a pass has");
+        assert!(!ok(pass(0, 1, 1001)), "more photons than a pass has");
+        assert!(!ok(RunStage::Iterations {
+            iterations_done: 5,
+            stopped: false
+        }));
+        let e = check_stage(&pass(9, 0, 0), &cfg, m).unwrap_err();
+        assert!(matches!(e, Error::Corrupt { .. }), "{e}");
+        assert!(e.to_string().contains("progress.kdm"), "{e}");
+        cfg.method = Method::Gather;
+        assert!(
+            check_stage(&pass(0, 1, 100), &cfg, m).is_err(),
+            "a photon pass in a gather run"
+        );
+    }
 }
