@@ -65,37 +65,31 @@ impl AnsiStderr {
     }
 }
 
+impl AnsiStderr {
+    /// Moves the cursor `n` cells in the direction of ANSI final byte `dir` (A/B/C/D).
+    fn cursor(&self, n: usize, dir: char) -> std::io::Result<()> {
+        match n {
+            0 => Ok(()),
+            _ => self.put(&format!("\x1b[{n}{dir}")),
+        }
+    }
+}
+
 impl TermLike for AnsiStderr {
     fn width(&self) -> u16 {
         100
     }
     fn move_cursor_up(&self, n: usize) -> std::io::Result<()> {
-        if n > 0 {
-            self.put(&format!("\x1b[{n}A"))
-        } else {
-            Ok(())
-        }
+        self.cursor(n, 'A')
     }
     fn move_cursor_down(&self, n: usize) -> std::io::Result<()> {
-        if n > 0 {
-            self.put(&format!("\x1b[{n}B"))
-        } else {
-            Ok(())
-        }
+        self.cursor(n, 'B')
     }
     fn move_cursor_right(&self, n: usize) -> std::io::Result<()> {
-        if n > 0 {
-            self.put(&format!("\x1b[{n}C"))
-        } else {
-            Ok(())
-        }
+        self.cursor(n, 'C')
     }
     fn move_cursor_left(&self, n: usize) -> std::io::Result<()> {
-        if n > 0 {
-            self.put(&format!("\x1b[{n}D"))
-        } else {
-            Ok(())
-        }
+        self.cursor(n, 'D')
     }
     fn write_line(&self, s: &str) -> std::io::Result<()> {
         self.put(&format!("{s}\n"))
