@@ -34,6 +34,7 @@ pub(super) fn shape(mesh: Mesh, emission: Option<Vec3>) -> Shape {
         sides: Sides::Front,
         emission,
         reflectance: None,
+        material: Default::default(),
     }
 }
 

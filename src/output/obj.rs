@@ -129,6 +129,7 @@ mod tests {
             sides: Sides::Front,
             emission: None,
             reflectance: None,
+            material: Default::default(),
         }
     }
 

@@ -31,7 +31,7 @@
 //! sensor and sphere transforms may not shear either (Mitsuba only checks scale).
 
 use crate::error::{Error, Location};
-use crate::scene::{mesh, Emitter, Mesh, ReflectanceSpec, Rgb, Scene, Shape, Sides};
+use crate::scene::{mesh, Emitter, Material, Mesh, ReflectanceSpec, Rgb, Scene, Shape, Sides};
 use crate::Result;
 use glam::{DMat3, DMat4, DVec3, Vec3};
 use roxmltree::{Document, Node};
@@ -917,6 +917,7 @@ impl<'a, 'i> Parser<'a, 'i> {
             sides: bsdf.sides,
             emission,
             reflectance: bsdf.reflectance,
+            material: Material::Unknown,
         })
     }
 

@@ -126,6 +126,26 @@ pub struct Shape {
     /// The diffuse reflectance its BSDF states, if it states one kdmap can read. Never an
     /// input of a reconstruction (that is what kdmap recovers); the truth reader uses it.
     pub reflectance: Option<ReflectanceSpec>,
+    /// Whether kdmap recovers this shape's albedo or knows its material.
+    pub material: Material,
+}
+
+/// What a shape's surface is to kdmap.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub enum Material {
+    /// A diffuse surface of unknown albedo: reconstructed.
+    #[default]
+    Unknown,
+    /// A material the scene (or the run config) states and kdmap does not reconstruct:
+    /// part of the light transport only.
+    Known(Box<KnownBsdf>),
+}
+
+/// A known (not reconstructed) material, as the light transport uses it.
+#[derive(Debug, Clone, PartialEq)]
+pub enum KnownBsdf {
+    /// A diffuse surface of known reflectance (run config `reconstruct = false`).
+    Diffuse(Rgb),
 }
 
 /// A diffuse reflectance as a scene file writes it.
@@ -139,9 +159,9 @@ pub enum ReflectanceSpec {
 }
 
 impl Shape {
-    /// Whether the albedo of this shape is recovered (emitters are not).
+    /// Whether the albedo of this shape is recovered (emitters and known materials are not).
     pub fn is_reconstructed(&self) -> bool {
-        self.emission.is_none()
+        self.emission.is_none() && self.material == Material::Unknown
     }
 }
 
