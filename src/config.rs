@@ -33,6 +33,25 @@ pub struct RawConfig {
     pub solver: RawSolver,
     #[serde(default)]
     pub run: RawRun,
+    /// Per-shape settings, by shape id: `[shapes.<id>] reconstruct = false, reflectance = ...`.
+    #[serde(default)]
+    pub shapes: BTreeMap<String, RawShape>,
+}
+
+/// `[shapes.<id>]`: a shape whose diffuse reflectance the user knows.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawShape {
+    pub reconstruct: Option<bool>,
+    pub reflectance: Option<RawColor>,
+}
+
+/// A reflectance: one number or `[r, g, b]`.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(untagged)]
+pub enum RawColor {
+    Grey(f32),
+    Rgb([f32; 3]),
 }
 
 #[derive(Debug, Clone, Default, Deserialize)]
@@ -250,6 +269,37 @@ impl std::str::FromStr for Preset {
     }
 }
 
+/// The `[shapes.<id>]` tables: shapes marked `reconstruct = false` with their reflectance in
+/// [0, 1]; anything else is refused.
+fn known_shapes(
+    path: &Path,
+    raw: BTreeMap<String, RawShape>,
+) -> Result<BTreeMap<String, [f32; 3]>> {
+    let mut out = BTreeMap::new();
+    for (id, s) in raw {
+        let rho = match s.reflectance {
+            Some(RawColor::Grey(v)) => Some([v; 3]),
+            Some(RawColor::Rgb(v)) => Some(v),
+            None => None,
+        };
+        let bad = |m: &str| Error::config_in(path, format!("[shapes.{id}]: {m}"));
+        match (s.reconstruct, rho) {
+            (Some(false), Some(r)) if r.iter().all(|v| (0.0..=1.0).contains(v)) => {
+                out.insert(id, r);
+            }
+            (Some(false), Some(_)) => return Err(bad("reflectance must lie in [0, 1]")),
+            (Some(false), None) => {
+                return Err(bad(
+                    "reconstruct = false needs the shape's `reflectance` (a number or [r, g, b])",
+                ))
+            }
+            (_, Some(_)) => return Err(bad("reflectance is only read with reconstruct = false")),
+            (_, None) => {}
+        }
+    }
+    Ok(out)
+}
+
 /// Every setting of a run, validated.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Config {
@@ -300,6 +350,13 @@ pub struct Config {
     pub checkpoint_every_seconds: f64,
     /// Budget for memory-mapped working sets, MiB.
     pub memory_budget_mib: u64,
+    /// Shapes not reconstructed, by id, with the diffuse reflectance the user gives them
+    /// (linear RGB): they keep that albedo and take part in the light transport.
+    #[serde(default)]
+    pub known_shapes: BTreeMap<String, [f32; 3]>,
+    /// The run-config file these settings came from, if any (named in errors).
+    #[serde(skip)]
+    pub source: Option<PathBuf>,
 }
 
 impl Config {
@@ -336,6 +393,8 @@ impl Config {
             checkpoint_every_batches: 32,
             checkpoint_every_seconds: 60.0,
             memory_budget_mib: 1024,
+            known_shapes: BTreeMap::new(),
+            source: None,
         }
     }
 
@@ -445,6 +504,8 @@ impl Config {
             .into_iter()
             .map(|(k, v)| (k, base.join(v)))
             .collect();
+        c.source = Some(path.to_path_buf());
+        c.known_shapes = known_shapes(path, raw.shapes)?;
         let a = raw.atlas;
         if let Some(d) = a.texels_per_unit {
             c.atlas.texels_per_unit = match d {

@@ -5,7 +5,10 @@
 //! and Hawkins, SIGGRAPH 1999). So from a point, cosine-weighted rays: a hit on an observed
 //! texel returns its observed radiance `L_orig`, a hit on an unobserved one its current
 //! estimate `K_d (E_d + E_i) / pi`, a hit on an emitter (its light is `E_d`), on nothing, or on
-//! the back of a one-sided surface returns 0; `E_i = pi * mean`. Observed surfaces need no
+//! the back of a one-sided surface returns 0; `E_i = pi * mean`. A ray that meets a known
+//! material (mirror, glass) goes on through it (`scatter::sample`, at most [`MAX_SPECULAR`]
+//! times) with its throughput, and there an emitter counts: light by way of a mirror or
+//! through glass is not in `E_d`. Observed surfaces need no
 //! `K_d`, so it converges in one or two passes where photon tracing needs many.
 //!
 //! `E_i` varies slowly, so it is gathered on a coarser set of points and interpolated: each
@@ -34,6 +37,7 @@ use crate::atlas::tiles::{map_tiles, TileStore};
 use crate::atlas::Prepared;
 use crate::error::Result;
 use crate::rng::Rng;
+use crate::scatter;
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 use std::f32::consts::{PI, TAU};
@@ -320,6 +324,8 @@ struct CachedHit {
     slot: u32,
     chart: u32,
     uv: Vec2,
+    /// Throughput of the known materials on the way (1 for a direct hit).
+    weight: Vec3,
 }
 
 /// The rays of a gather, cast once: per point, the part of `E_i` from observed surfaces
@@ -384,7 +390,7 @@ impl GatherCache {
                 let hits = &self.hits[self.start[i] as usize..self.start[i + 1] as usize];
                 let sum: Vec3 = hits
                     .iter()
-                    .map(|h| radiance.lookup(charts, h.slot as usize, h.uv, h.chart).0)
+                    .map(|h| radiance.lookup(charts, h.slot as usize, h.uv, h.chart).0 * h.weight)
                     .sum();
                 *f + sum * self.scale
             })
@@ -416,34 +422,82 @@ fn trace_point(ctx: &GatherContext, index: u64, pt: &Point) -> (Vec3, Vec<Cached
             if d.dot(pt.ng) * side <= 0.0 {
                 continue;
             }
-            let Some(h) = surface_along(ctx, offset_origin(pt.p, pt.ng, d), d) else {
-                continue;
-            };
-            match ctx
-                .radiance
-                .lookup(ctx.charts, h.slot as usize, h.uv, h.chart)
-            {
-                (l, true) => sum += l,
-                (_, false) => cached.push(h),
+            match walk(ctx, offset_origin(pt.p, pt.ng, d), d, &mut rng) {
+                Seen::Surface(h) => {
+                    match ctx
+                        .radiance
+                        .lookup(ctx.charts, h.slot as usize, h.uv, h.chart)
+                    {
+                        (l, true) => sum += l * h.weight,
+                        (_, false) => cached.push(h),
+                    }
+                }
+                Seen::Light(l) => sum += l,
+                Seen::Nothing => {}
             }
         }
     }
     (sum, cached)
 }
 
-/// The reconstructed surface the ray sees first (`None` for emitters, misses and the back
-/// of one-sided surfaces: they send no secondary light).
-#[inline]
-fn surface_along(ctx: &GatherContext, o: Vec3, d: Vec3) -> Option<CachedHit> {
-    let (hit, prim) = ctx.hits.trace(ctx.accel, o, d, f32::INFINITY)?;
-    if prim.slot == NONE || prim.chart == NONE || (prim.one_sided && d.dot(hit.ns) >= 0.0) {
-        return None;
+/// What a gather ray brings back.
+enum Seen {
+    /// A reconstructed surface (directly, or through mirrors and glass: `weight`).
+    Surface(CachedHit),
+    /// Emitted light seen through at least one known material (the light itself seen
+    /// directly is `E_d`), already weighted.
+    Light(Vec3),
+    Nothing,
+}
+
+/// Most known-material bounces a gather ray follows (mirror-in-glass chains beyond this add
+/// too little to pay).
+pub const MAX_SPECULAR: u32 = 8;
+
+/// Follows a gather ray from `o` along `d` through known materials (sampled by `scatter`)
+/// to the reconstructed surface or the light it sees. Emitters seen directly, misses and the
+/// back of one-sided surfaces bring nothing.
+fn walk(ctx: &GatherContext, mut o: Vec3, mut d: Vec3, rng: &mut Rng) -> Seen {
+    let mut weight = Vec3::ONE;
+    for bounce in 0..=MAX_SPECULAR {
+        let Some((hit, prim)) = ctx.hits.trace(ctx.accel, o, d, f32::INFINITY) else {
+            return Seen::Nothing;
+        };
+        let back = d.dot(hit.ns) >= 0.0;
+        if prim.slot != NONE {
+            if prim.chart == NONE || (prim.one_sided && back) {
+                return Seen::Nothing;
+            }
+            return Seen::Surface(CachedHit {
+                slot: prim.slot,
+                chart: prim.chart,
+                uv: hit.uv,
+                weight,
+            });
+        }
+        if let Some(e) = ctx.hits.emitted(prim, hit.ns, d) {
+            return match bounce {
+                0 => Seen::Nothing,
+                _ => Seen::Light(e * weight),
+            };
+        }
+        let Some(b) = ctx.hits.known(prim) else {
+            return Seen::Nothing;
+        };
+        if prim.one_sided && back {
+            return Seen::Nothing;
+        }
+        let Some(sc) = scatter::sample(b, d, hit.ns, rng) else {
+            return Seen::Nothing;
+        };
+        weight *= sc.weight;
+        if weight.max_element() < 1e-4 {
+            return Seen::Nothing;
+        }
+        o = offset_origin(hit.p, prim.ng, sc.dir);
+        d = sc.dir;
     }
-    Some(CachedHit {
-        slot: prim.slot,
-        chart: prim.chart,
-        uv: hit.uv,
-    })
+    Seen::Nothing
 }
 
 /// Writes the gathered `E_i` into `TexelState::accum` of every covered texel (interpolated

@@ -17,12 +17,13 @@
 //! L4  pipeline                       the order of the stages, start / resume / finish
 //! L3  checkpoint  output/  accuracy  what a run leaves: checkpoints, results, scores
 //! L2  project/  direct  gather  photon/  solve   the stages, plain functions over tiles
-//! L1  config  report  scene/  image  camera  accel  light/  render  atlas/
+//! L1  config  report  scene/  scatter  image  camera  accel  light/  render  atlas/
 //!                                    settings, the scene and its physics, tiles
 //! L0  error  rng  progress  fsio  interrupt   no kdmap imports but L0
 //! ```
 //!
-//! Within L1 the order is as listed: `report` uses `config`; `image`, `camera`, `accel` use
+//! Within L1 the order is as listed: `report` uses `config`; `scatter` samples `scene`'s known
+//! materials; `image`, `camera`, `accel` use
 //! `scene`; `light` uses `accel`; `render` uses `camera`, `accel`, `image`; `atlas` uses all
 //! of them. The L2 stages are independent of each other. A stage's state lives in the tile stores of `atlas`, not in another stage.
 
@@ -40,6 +41,7 @@ pub mod image;
 pub mod light;
 pub mod render;
 pub mod report;
+pub mod scatter;
 pub mod scene;
 
 pub mod direct;

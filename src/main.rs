@@ -442,6 +442,8 @@ fn summary_json(scene: &Scene) -> serde_json::Value {
                 "area": sh.mesh.area(),
                 "sides": match sh.sides { Sides::Front => "front", Sides::Both => "both" },
                 "emission": sh.emission,
+                "known_material": sh.known().map(|k| k.plugin.clone()),
+                "reconstructed": sh.is_reconstructed(),
             })
         })
         .collect();
@@ -598,6 +600,9 @@ fn summary(scene: &Scene) -> String {
         );
         if let Some(l) = sh.emission {
             let _ = write!(s, "  emits radiance {}", v3(l));
+        }
+        if let Some(k) = sh.known() {
+            let _ = write!(s, "  known material ({}): not reconstructed", k.plugin);
         }
         s.push('\n');
     }

@@ -489,7 +489,14 @@ impl<'a> Run<'a> {
         let mut pass = match resume {
             Some(r) => r,
             None => {
-                let (clamped, _) = kd_step(&p.layout, charts, &self.geom, &mut r.state, window)?;
+                let (clamped, _) = kd_step(
+                    &p.layout,
+                    charts,
+                    &self.geom,
+                    &mut r.state,
+                    window,
+                    &p.pinned(),
+                )?;
                 PassResume {
                     batches_done: 0,
                     clamped,
@@ -734,13 +741,25 @@ impl<'a> Run<'a> {
         }
         let p = &self.p;
         let charts = &self.charts;
-        let (_, filled) = kd_step(&p.layout, charts, &self.geom, &mut r.state, self.window)?;
+        let (_, filled) = kd_step(
+            &p.layout,
+            charts,
+            &self.geom,
+            &mut r.state,
+            self.window,
+            &p.pinned(),
+        )?;
         r.state.flush()?;
         debug_check(&self.geom, &r.state)?;
         let proj = r.proj;
         r.report.counts = Counts {
             shapes: p.scene.shapes.len(),
-            reconstructed_shapes: p.layout.slots.len(),
+            reconstructed_shapes: p
+                .scene
+                .shapes
+                .iter()
+                .filter(|s| s.is_reconstructed())
+                .count(),
             triangles: p.scene.triangle_count(),
             emitters: p.scene.emitters.len(),
             views: proj.views,

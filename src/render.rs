@@ -3,10 +3,12 @@
 //! maps (outputs), by the projection's refinement, and to check projection (a luminance map
 //! re-projected must give back the photo).
 
-use crate::accel::Accel;
+use crate::accel::{offset_origin, Accel};
 use crate::camera::Camera;
 use crate::image::Image;
-use crate::scene::{PixelFilter, Scene};
+use crate::rng::Rng;
+use crate::scatter;
+use crate::scene::{PixelFilter, Scene, Sides};
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
@@ -50,6 +52,8 @@ pub enum Film<'a> {
 enum Seen {
     Texture(Vec3),
     Emitter(Vec3),
+    /// Radiance through (or absorbed by) known materials: counts in a box film's mean.
+    Known(Vec3),
     Nothing,
 }
 
@@ -195,7 +199,10 @@ fn pixel(
         for i in 0..k {
             let px = x as f32 + (i as f32 + 0.5) / k as f32;
             let py = y as f32 + (j as f32 + 0.5) / k as f32;
-            match trace(accel, camera, textures, scene, px, py) {
+            let stream = ((y as u64 * camera.width() as u64 + x as u64) * k as u64 + j as u64)
+                * k as u64
+                + i as u64;
+            match trace(accel, camera, textures, scene, (px, py), stream) {
                 Seen::Texture(v) => {
                     sum += v;
                     hits += 1;
@@ -204,6 +211,7 @@ fn pixel(
                     sum += v;
                     on_emitter += 1;
                 }
+                Seen::Known(v) => sum += v,
                 Seen::Nothing => {}
             }
         }
@@ -217,36 +225,74 @@ fn pixel(
     }
 }
 
-/// What the ray through continuous pixel coordinates `(px, py)` sees; emitters only with
-/// `scene` (else they are `Nothing`).
+/// Mixed into the seed of the re-renders' paths through known materials.
+const RENDER_TAG: u64 = 0x7e4d_e5ca_77e2_0001;
+
+/// Most known-material bounces a re-render ray follows.
+const MAX_SPECULAR: u32 = 8;
+
+/// What the ray through continuous pixel coordinates `(px, py)` sees; emitters and known
+/// materials (mirrors, glass: one path sampled through them, its random numbers a function
+/// of `stream`) only with `scene` (else they are `Nothing`).
 fn trace(
     accel: &Accel,
     camera: &Camera,
     textures: &[Option<Texture>],
     scene: Option<&Scene>,
-    px: f32,
-    py: f32,
+    (px, py): (f32, f32),
+    stream: u64,
 ) -> Seen {
-    let (o, d) = camera.ray(px, py);
-    let Some(hit) = accel.intersect(o, d, f32::INFINITY) else {
-        return Seen::Nothing;
-    };
-    let si = hit.shape as usize;
-    if let Some(tex) = textures.get(si).and_then(|t| t.as_ref()) {
-        let c = tex.corner_uv[hit.tri as usize];
-        let uv = c[0] * (1.0 - hit.b1 - hit.b2) + c[1] * hit.b1 + c[2] * hit.b2;
-        return Seen::Texture(bilinear(tex.texels, tex.width, tex.height, uv));
-    }
-    let Some(shape) = scene.map(|s| &s.shapes[si]) else {
-        return Seen::Nothing;
-    };
-    match shape.emission {
-        Some(radiance) => {
-            let n = shape.mesh.shading_normal(hit.tri as usize, hit.b1, hit.b2);
-            Seen::Emitter(if n.dot(d) < 0.0 { radiance } else { Vec3::ZERO })
+    let (mut o, mut d) = camera.ray(px, py);
+    let mut weight = Vec3::ONE;
+    let mut rng = None;
+    for bounce in 0..=MAX_SPECULAR {
+        let Some(hit) = accel.intersect(o, d, f32::INFINITY) else {
+            return Seen::Nothing;
+        };
+        let si = hit.shape as usize;
+        if let Some(tex) = textures.get(si).and_then(|t| t.as_ref()) {
+            let c = tex.corner_uv[hit.tri as usize];
+            let uv = c[0] * (1.0 - hit.b1 - hit.b2) + c[1] * hit.b1 + c[2] * hit.b2;
+            let v = bilinear(tex.texels, tex.width, tex.height, uv) * weight;
+            return match bounce {
+                0 => Seen::Texture(v),
+                _ => Seen::Known(v),
+            };
         }
-        None => Seen::Nothing,
+        let Some(shape) = scene.map(|s| &s.shapes[si]) else {
+            return Seen::Nothing;
+        };
+        let n = shape.mesh.shading_normal(hit.tri as usize, hit.b1, hit.b2);
+        if let Some(radiance) = shape.emission {
+            let v = if n.dot(d) < 0.0 {
+                radiance * weight
+            } else {
+                Vec3::ZERO
+            };
+            return match bounce {
+                0 => Seen::Emitter(v),
+                _ => Seen::Known(v),
+            };
+        }
+        let Some(known) = shape.known() else {
+            return Seen::Nothing;
+        };
+        if shape.sides == Sides::Front && n.dot(d) >= 0.0 {
+            return Seen::Known(Vec3::ZERO);
+        }
+        let rng = rng.get_or_insert_with(|| Rng::new(RENDER_TAG, 0, stream, 0));
+        let Some(sc) = scatter::sample(&known.bsdf, d, n, rng) else {
+            return Seen::Known(Vec3::ZERO);
+        };
+        weight *= sc.weight;
+        let ng = shape
+            .mesh
+            .face_normal_raw(hit.tri as usize)
+            .normalize_or_zero();
+        o = offset_origin(o + d * hit.t, ng, sc.dir);
+        d = sc.dir;
     }
+    Seen::Known(Vec3::ZERO)
 }
 
 #[cfg(test)]

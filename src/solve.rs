@@ -276,18 +276,31 @@ pub fn fill_unobserved(
 }
 
 /// Steps 3-5 over every tile, then the fill of unobserved texels: `K_d` from the current
-/// `E_i` everywhere. Returns `(clamped texels, filled texels)`.
+/// `E_i` everywhere, except in the slots `pinned` gives an albedo (known diffuse shapes),
+/// which keep it. Returns `(clamped texels, filled texels)`.
 pub fn kd_step(
     layout: &Layout,
     charts: &Charts,
     geom: &TileStore<TexelGeom>,
     state: &mut TileStore<TexelState>,
     window: usize,
+    pinned: &[Option<Vec3>],
 ) -> Result<(u64, u64)> {
     let clamped: u64 = map_tiles(state, geom, window, |_, g, s| kd_tile(s, g))?
         .iter()
         .sum();
     let filled = fill_unobserved_all(layout, charts, geom, state)?;
+    if pinned.iter().any(Option::is_some) {
+        map_tiles(state, geom, window, |t, g, s| {
+            if let Some(k) = pinned[layout.slot_of_tile(t as u32)] {
+                for (g, s) in g.iter().zip(s.iter_mut()) {
+                    if g.covered() {
+                        s.k_d = k.to_array();
+                    }
+                }
+            }
+        })?;
+    }
     Ok((clamped, filled))
 }
 

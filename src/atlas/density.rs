@@ -64,7 +64,7 @@ impl DensityPlan {
             .shapes
             .iter()
             .map(|s| {
-                s.is_reconstructed().then_some(ShapeDensity {
+                s.in_atlas().then_some(ShapeDensity {
                     texels_per_unit,
                     finest_footprint: None,
                     limited_by: None,
@@ -187,7 +187,7 @@ fn pixel_footprint(
     let (o, d) = cam.ray(x as f32 + 0.5, y as f32 + 0.5);
     let hit = accel.intersect(o, d, f32::INFINITY)?;
     let shape = &scene.shapes[hit.shape as usize];
-    if !shape.is_reconstructed() {
+    if !shape.in_atlas() {
         return None;
     }
     let n = shape.mesh.face_normal_raw(hit.tri as usize);
@@ -211,7 +211,7 @@ pub fn plan(scene: &Scene, fine: &[Option<f32>], max_size: u32, budget: u64) -> 
         .iter()
         .zip(fine)
         .map(|(s, &f)| {
-            s.is_reconstructed().then(|| {
+            s.in_atlas().then(|| {
                 let (d, limited_by) = match f {
                     Some(e) => (OVERSAMPLE / e, None),
                     None => (coarsest, Some("unseen".to_string())),

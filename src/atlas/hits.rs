@@ -9,7 +9,7 @@ use super::charts::Charts;
 use super::prepared::Prepared;
 use super::texels::NONE;
 use crate::accel::{Accel, Hit};
-use crate::scene::Sides;
+use crate::scene::{KnownBsdf, Rgb, Sides};
 use glam::{Vec2, Vec3};
 
 /// One triangle as light transport sees it.
@@ -43,9 +43,12 @@ pub struct SurfaceHit {
     pub uv: Vec2,
 }
 
-/// [`Prim`] for every BVH primitive, in BVH order.
+/// [`Prim`] for every BVH primitive, in BVH order, and per shape what light transport needs
+/// beyond the atlas: its known material and its emission.
 pub struct HitTable {
     prims: Vec<Prim>,
+    known: Vec<Option<KnownBsdf>>,
+    emission: Vec<Option<Rgb>>,
 }
 
 impl HitTable {
@@ -57,7 +60,29 @@ impl HitTable {
             .iter()
             .map(|&(shape, tri)| prim(p, charts, shape as usize, tri as usize))
             .collect();
-        HitTable { prims }
+        let shapes = &p.scene.shapes;
+        HitTable {
+            prims,
+            known: shapes
+                .iter()
+                .map(|s| s.known().map(|k| k.bsdf.clone()))
+                .collect(),
+            emission: shapes.iter().map(|s| s.emission).collect(),
+        }
+    }
+
+    /// The known material of `prim`'s shape (mirrors, glass, ...), if it has one.
+    #[inline]
+    pub fn known(&self, prim: &Prim) -> Option<&KnownBsdf> {
+        self.known[prim.shape as usize].as_ref()
+    }
+
+    /// The radiance `prim` emits towards a ray arriving along `dir` with shading normal `ns`
+    /// at the hit (one-sided area emitters shine on their front side), if its shape emits.
+    #[inline]
+    pub fn emitted(&self, prim: &Prim, ns: Vec3, dir: Vec3) -> Option<Rgb> {
+        let e = self.emission[prim.shape as usize]?;
+        Some(if dir.dot(ns) < 0.0 { e } else { Rgb::ZERO })
     }
 
     /// The record of BVH primitive `id`.

@@ -20,7 +20,7 @@ use crate::image::{read_sensor_image, Image};
 use crate::light::emitter_power;
 use crate::progress::{note, Mode, Stage};
 use crate::report::ShapeTexels;
-use crate::scene::{mitsuba, Mesh, Scene, Sides};
+use crate::scene::{mitsuba, KnownBsdf, KnownMaterial, Material, Mesh, Scene, Sides};
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
@@ -109,10 +109,11 @@ pub fn prepare_layout(cfg: &Config, mode: Mode) -> Result<Prepared> {
 
 fn prepare_scene(
     cfg: &Config,
-    scene: Scene,
+    mut scene: Scene,
     views: Vec<(usize, PathBuf)>,
     mode: Mode,
 ) -> Result<Prepared> {
+    apply_known_shapes(cfg, &mut scene)?;
     let settings = AtlasSettings {
         texels_per_unit: cfg
             .atlas
@@ -133,6 +134,32 @@ fn prepare_scene(
     }
     let atlases = build_atlases(&scene, &settings, &plan, true, mode)?;
     Prepared::assemble(scene, accel, views, atlases, plan, cfg.atlas.tile_size)
+}
+
+/// Marks the run config's `[shapes.<id>] reconstruct = false` shapes as known diffuse
+/// surfaces of the reflectance given; an id the scene lacks, or a shape that emits or already
+/// has a known material, is refused.
+fn apply_known_shapes(cfg: &Config, scene: &mut Scene) -> Result<()> {
+    for (id, rho) in &cfg.known_shapes {
+        let bad = |m: String| match &cfg.source {
+            Some(p) => Error::config_in(p, format!("[shapes.{id}]: {m}")),
+            None => Error::config(format!("[shapes.{id}]: {m}")),
+        };
+        let Some(s) = scene.shapes.iter_mut().find(|s| &s.id == id) else {
+            return Err(bad(format!("the scene has no shape '{id}'")));
+        };
+        if s.emission.is_some() || s.known().is_some() {
+            return Err(bad(format!(
+                "shape '{id}' is an emitter or has a non-diffuse material; only a diffuse \
+                 shape takes a known reflectance"
+            )));
+        }
+        s.material = Material::Known(Box::new(KnownMaterial {
+            plugin: "diffuse (known)".into(),
+            bsdf: KnownBsdf::Diffuse(Vec3::from_array(*rho)),
+        }));
+    }
+    Ok(())
 }
 
 /// The texel density of every shape under `cfg` (fixed, or from the photos of `views`).
@@ -270,6 +297,15 @@ impl Prepared {
             || build_atlases(&scene, settings, &plan, false, mode),
         );
         Self::assemble(scene, accel, views, atlases?, plan, tile_size)
+    }
+
+    /// Per layout slot, the albedo a known diffuse shape keeps (`None`: reconstructed).
+    pub fn pinned(&self) -> Vec<Option<Vec3>> {
+        self.layout
+            .slots
+            .iter()
+            .map(|st| self.scene.shapes[st.shape].pinned_albedo())
+            .collect()
     }
 
     fn assemble(
@@ -461,7 +497,7 @@ fn build_atlases(
     let total: u64 = scene
         .shapes
         .iter()
-        .filter(|s| s.is_reconstructed())
+        .filter(|s| s.in_atlas())
         .map(|s| s.mesh.triangles.len() as u64)
         .sum();
     let stage = Stage::new(mode, "unwrap", total, "triangles");
@@ -469,7 +505,7 @@ fn build_atlases(
         .shapes
         .par_iter()
         .zip(&plan.shapes)
-        .map(|(s, d)| match (s.is_reconstructed(), d) {
+        .map(|(s, d)| match (s.in_atlas(), d) {
             (true, Some(d)) => shape_atlas(&s.mesh, settings, d, refit, &stage)
                 .map(Some)
                 .map_err(|e| match e {

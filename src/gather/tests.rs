@@ -194,6 +194,81 @@ fn square_above_a_floor_matches_the_configuration_factor() {
     assert!(mean_err < 0.003, "mean over the floor off by {mean_err}");
 }
 
+/// A mirror doubles what a floor sees: the square of the test above at `x = -0.3`, and a
+/// perfect mirror in the plane `x = 0` (facing the floor, which ends at it): `E_i` is `L`
+/// times the projected solid angle of the square plus that of its mirror image at `x = +0.3`.
+#[test]
+fn a_square_and_its_mirror_image_match_two_configuration_factors() {
+    let mut floor = mesh::rectangle();
+    floor.transform(&Mat4::from_translation(Vec3::new(-1.0, 0.0, 0.0)));
+    let mut top = mesh::rectangle();
+    mesh::flip_normals(&mut top);
+    top.transform(
+        &(Mat4::from_translation(Vec3::new(-0.3, 0.0, 1.0)) * Mat4::from_scale(Vec3::splat(0.25))),
+    );
+    let mut mirror = mesh::rectangle();
+    mirror.transform(
+        &(Mat4::from_translation(Vec3::new(0.0, 0.0, 3.0))
+            * Mat4::from_rotation_y(-std::f32::consts::FRAC_PI_2)
+            * Mat4::from_scale(Vec3::splat(3.0))),
+    );
+    let mut mirror = shape("mirror", mirror, None);
+    mirror.material = crate::scene::Material::Known(Box::new(crate::scene::KnownMaterial {
+        plugin: "conductor".into(),
+        bsdf: crate::scene::KnownBsdf::Conductor {
+            eta: Vec3::ZERO,
+            k: Vec3::ONE,
+            tint: Vec3::ONE,
+            rough: None,
+        },
+    }));
+    let mut fx = Fixture::new(
+        vec![shape("floor", floor, None), shape("top", top, None), mirror],
+        8.0,
+    );
+    let l = Vec3::new(1.0, 2.0, 3.0);
+    fx.observe("top", l);
+    fx.observe("floor", Vec3::ZERO);
+    let (pts, vals) = fx.gather(0.25, 4096);
+    let square = |cx: f64| {
+        [(-0.25, -0.25), (0.25, -0.25), (0.25, 0.25), (-0.25, 0.25)]
+            .map(|(x, y)| DVec3::new(cx + x, y, 1.0))
+    };
+    let floor_pts = slot_points(&fx, &pts, &vals, fx.slot_of("floor"));
+    assert!(floor_pts.len() > 10);
+    let (mut sum_got, mut sum_want, mut peak) = (Vec3::ZERO, Vec3::ZERO, Vec3::ZERO);
+    let want: Vec<Vec3> = floor_pts
+        .iter()
+        .map(|(pt, _)| {
+            let psa = |c: [DVec3; 4]| {
+                let poly: Vec<DVec3> = c.iter().map(|c| *c - pt.p.as_dvec3()).collect();
+                projected_solid_angle(&poly, DVec3::Z)
+            };
+            l * (psa(square(-0.3)) + psa(square(0.3))) as f32
+        })
+        .collect();
+    for w in &want {
+        peak = peak.max(*w);
+    }
+    for ((pt, v), w) in floor_pts.iter().zip(&want) {
+        let err = ((*v - *w).abs() / peak).max_element();
+        assert!(err < 0.02, "at {}: {v} vs {w} ({err} of the peak)", pt.p);
+        sum_got += *v;
+        sum_want += *w;
+    }
+    let mean_err = ((sum_got - sum_want).abs() / sum_want).max_element();
+    assert!(mean_err < 0.005, "mean over the floor off by {mean_err}");
+    // the image is a real share of it (a gather blind to the mirror would fail above)
+    let real: f64 = floor_pts
+        .iter()
+        .map(|(pt, _)| {
+            let poly: Vec<DVec3> = square(-0.3).iter().map(|c| *c - pt.p.as_dvec3()).collect();
+            projected_solid_angle(&poly, DVec3::Z)
+        })
+        .sum();
+    assert!(sum_want.x as f64 > 1.3 * real, "{} vs {real}", sum_want.x);
+}
+
 /// The back of a one-sided surface, an emitter and an unobserved texel (its current estimate
 /// `K_d (E_d + E_i) / pi`) under the same square.
 #[test]

@@ -21,6 +21,7 @@
 //! leaves a half-written output; `report.json` appears last, so its presence means the
 //! directory is complete.
 
+pub mod bsdf_xml;
 pub mod font;
 pub mod maps;
 pub mod obj;

@@ -6,6 +6,7 @@ use super::{Deposit, PassContext};
 use crate::accel::offset_origin;
 use crate::atlas::texels::NONE;
 use crate::rng::Rng;
+use crate::scatter;
 use glam::Vec3;
 use std::f32::consts::TAU;
 use std::ops::AddAssign;
@@ -33,7 +34,9 @@ impl AddAssign for PathCounts {
 /// Traces photon `index` of batch `batch` and appends its deposits to `out`, in path order.
 ///
 /// At each hit, in order:
-/// 1. A shape without a slot (an emitter) absorbs. So does a one-sided (`Sides::Front`)
+/// 1. A known material (mirror, glass, ...) scatters the photon on (`scatter::sample`,
+///    Russian roulette on its weight; it counts as a bounce, so light reaching a diffuse
+///    surface through it is `E_i`); an emitter absorbs. So does a one-sided (`Sides::Front`)
 ///    surface hit from behind its shading normal, and any hit where the shading and
 ///    geometric normals disagree about the side (grazing; a shading-normal artifact).
 /// 2. After at least one bounce, the flux is deposited into the texel under the hit (if that
@@ -61,9 +64,26 @@ pub fn trace_photon(
         let Some((hit, prim)) = ctx.hits.trace(ctx.accel, o, d, f32::INFINITY) else {
             break;
         };
-        // emitters and shapes not reconstructed absorb
         if prim.slot == NONE {
-            break;
+            // known materials scatter (mirrors, glass: caustics are `E_i`); emitters absorb
+            let Some(b) = ctx.hits.known(prim) else {
+                break;
+            };
+            if bounces >= ctx.max_depth || (prim.one_sided && d.dot(hit.ns) >= 0.0) {
+                break;
+            }
+            let Some(sc) = scatter::sample(b, d, hit.ns, &mut rng) else {
+                break;
+            };
+            let q = sc.weight.max_element().clamp(MIN_SURVIVAL, 1.0);
+            if positive(q).is_none() || rng.f32() >= q {
+                break;
+            }
+            flux *= sc.weight / q;
+            o = offset_origin(hit.p, prim.ng, sc.dir);
+            d = sc.dir;
+            bounces += 1;
+            continue;
         }
         let slot = prim.slot as usize;
         let (ng, ns) = (prim.ng, hit.ns);

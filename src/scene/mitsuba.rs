@@ -31,13 +31,16 @@
 //! sensor and sphere transforms may not shear either (Mitsuba only checks scale).
 
 use crate::error::{Error, Location};
-use crate::scene::{mesh, Emitter, Material, Mesh, ReflectanceSpec, Rgb, Scene, Shape, Sides};
+use crate::scene::{
+    mesh, Emitter, KnownMaterial, Material, Mesh, ReflectanceSpec, Rgb, Scene, Shape, Sides,
+};
 use crate::Result;
 use glam::{DMat3, DMat4, DVec3, Vec3};
 use roxmltree::{Document, Node};
 use std::collections::{HashMap, HashSet};
 use std::path::{Path, PathBuf};
 
+mod bsdf;
 mod sensor;
 
 pub use sensor::DEFAULT_FILM;
@@ -278,34 +281,23 @@ struct Parser<'a, 'i> {
 struct Bsdf {
     sides: Sides,
     reflectance: Option<ReflectanceSpec>,
-    /// The plugin name of a non-diffuse bsdf (also one wrapped in `twosided`): parsed, not
-    /// supported yet.
+    /// The plugin name of a bsdf kdmap does not model (also one wrapped in `twosided`):
+    /// parsed, not supported yet.
     unsupported: Option<String>,
+    /// A non-diffuse bsdf kdmap models: the shape is a known material.
+    known: Option<KnownMaterial>,
 }
 
-/// Mitsuba 3.9's bsdf plugins besides `diffuse` and `twosided` (`src/bsdfs/`).
+/// Mitsuba 3.9's bsdf plugins kdmap does not model (`src/bsdfs/`; the modelled ones are
+/// `diffuse`, `twosided` and [`bsdf::KNOWN_BSDFS`]).
 const OTHER_BSDFS: &[&str] = &[
-    "blendbsdf",
-    "bumpmap",
     "circular",
-    "conductor",
-    "dielectric",
     "hair",
-    "mask",
     "measured",
     "measured_polarized",
-    "normalmap",
-    "null",
-    "plastic",
     "polarizer",
     "pplastic",
-    "principled",
-    "principledthin",
     "retarder",
-    "roughconductor",
-    "roughdielectric",
-    "roughplastic",
-    "thindielectric",
 ];
 
 /// Mitsuba 3.9's emitter plugins kdmap does not model yet (`src/emitters/`).
@@ -892,7 +884,7 @@ impl<'a, 'i> Parser<'a, 'i> {
             if let Some(kind) = &b.unsupported {
                 return Err(self.err(
                     *at,
-                    format!("bsdf '{kind}' is not supported yet: kdmap handles diffuse materials only (diffuse, twosided diffuse)"),
+                    format!("bsdf '{kind}' is not supported yet (diffuse, conductor, dielectric, plastic, principled and their rough, thin, blend, mask, twosided forms are)"),
                 ));
             }
         }
@@ -908,7 +900,12 @@ impl<'a, 'i> Parser<'a, 'i> {
             sides: Sides::Front,
             reflectance: None,
             unsupported: None,
+            known: None,
         });
+        let material = match bsdf.known {
+            Some(k) if emission.is_none() => Material::Known(Box::new(k)),
+            _ => Material::Unknown,
+        };
         Ok(Shape {
             id,
             kind,
@@ -917,7 +914,7 @@ impl<'a, 'i> Parser<'a, 'i> {
             sides: bsdf.sides,
             emission,
             reflectance: bsdf.reflectance,
-            material: Material::Unknown,
+            material,
         })
     }
 
@@ -1041,6 +1038,7 @@ impl<'a, 'i> Parser<'a, 'i> {
         let b = match kind.as_str() {
             "diffuse" => self.diffuse(node)?,
             "twosided" => self.twosided(node)?,
+            k if bsdf::KNOWN_BSDFS.contains(&k) => self.known_bsdf(node, k)?,
             k if OTHER_BSDFS.contains(&k) => self.other_bsdf(node, k)?,
             other => return Err(self.err(node, format!("unknown bsdf plugin '{other}'"))),
         };
@@ -1071,6 +1069,7 @@ impl<'a, 'i> Parser<'a, 'i> {
             sides: Sides::Front,
             reflectance: self.stated_reflectance(node),
             unsupported: None,
+            known: None,
         })
     }
 
@@ -1092,7 +1091,9 @@ impl<'a, 'i> Parser<'a, 'i> {
                     ))
                 }
             };
-            if b.sides != Sides::Front {
+            if b.sides != Sides::Front && b.known.is_none()
+                || c.attribute("type") == Some("twosided")
+            {
                 return Err(self.err(c, "a twosided bsdf cannot wrap another twosided bsdf"));
             }
             inner.push(b);
@@ -1101,10 +1102,12 @@ impl<'a, 'i> Parser<'a, 'i> {
             return Err(self.err(node, "twosided needs one or two nested bsdfs"));
         }
         let unsupported = inner.iter().find_map(|b| b.unsupported.clone());
+        let front = inner.swap_remove(0);
         Ok(Bsdf {
             sides: Sides::Both,
-            reflectance: inner.swap_remove(0).reflectance,
+            reflectance: front.reflectance,
             unsupported,
+            known: front.known,
         })
     }
 
@@ -1128,6 +1131,7 @@ impl<'a, 'i> Parser<'a, 'i> {
             sides: Sides::Front,
             reflectance: None,
             unsupported: Some(kind.to_string()),
+            known: None,
         })
     }
 

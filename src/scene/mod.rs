@@ -5,11 +5,13 @@
 //! built-in shapes. Nothing downstream knows about XML.
 
 pub mod filter;
+pub mod material;
 pub mod mesh;
 pub mod mitsuba;
 pub mod truth;
 
 pub use filter::PixelFilter;
+pub use material::{KnownBsdf, KnownMaterial, Rough};
 
 use glam::{Mat4, Vec2, Vec3};
 use std::path::PathBuf;
@@ -138,14 +140,7 @@ pub enum Material {
     Unknown,
     /// A material the scene (or the run config) states and kdmap does not reconstruct:
     /// part of the light transport only.
-    Known(Box<KnownBsdf>),
-}
-
-/// A known (not reconstructed) material, as the light transport uses it.
-#[derive(Debug, Clone, PartialEq)]
-pub enum KnownBsdf {
-    /// A diffuse surface of known reflectance (run config `reconstruct = false`).
-    Diffuse(Rgb),
+    Known(Box<KnownMaterial>),
 }
 
 /// A diffuse reflectance as a scene file writes it.
@@ -159,6 +154,28 @@ pub enum ReflectanceSpec {
 }
 
 impl Shape {
+    /// The known material, if the shape has one.
+    pub fn known(&self) -> Option<&KnownMaterial> {
+        match &self.material {
+            Material::Known(k) => Some(k),
+            Material::Unknown => None,
+        }
+    }
+
+    /// The albedo a known diffuse shape keeps (a run config's `reconstruct = false`): such a
+    /// shape has an atlas and is projected like the others, but its `K_d` is pinned.
+    pub fn pinned_albedo(&self) -> Option<Rgb> {
+        match self.known().map(|k| &k.bsdf) {
+            Some(KnownBsdf::Diffuse(rho)) if self.emission.is_none() => Some(*rho),
+            _ => None,
+        }
+    }
+
+    /// Whether the shape gets an atlas: reconstructed ones and pinned known diffuse ones.
+    pub fn in_atlas(&self) -> bool {
+        self.is_reconstructed() || self.pinned_albedo().is_some()
+    }
+
     /// Whether the albedo of this shape is recovered (emitters and known materials are not).
     pub fn is_reconstructed(&self) -> bool {
         self.emission.is_none() && self.material == Material::Unknown

@@ -22,7 +22,7 @@ fn fixtures() -> PathBuf {
 /// (`truth/`) of each scene.
 fn fixture_images() -> Vec<PathBuf> {
     let mut v = Vec::new();
-    for scene in ["cbox", "cbox-tex", "lights"] {
+    for scene in ["cbox", "cbox-tex", "lights", "mirror-cbox"] {
         for sub in ["images", "truth"] {
             let dir = fixtures().join(scene).join(sub);
             let mut files: Vec<PathBuf> = std::fs::read_dir(&dir)

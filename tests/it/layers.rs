@@ -9,7 +9,8 @@ use std::path::{Path, PathBuf};
 const LAYERS: &[&[&str]] = &[
     &["error", "rng", "progress", "fsio", "interrupt"],
     &[
-        "config", "report", "scene", "image", "camera", "accel", "light", "render", "atlas",
+        "config", "report", "scene", "scatter", "image", "camera", "accel", "light", "render",
+        "atlas",
     ],
     &["project", "direct", "gather", "photon", "solve"],
     &["checkpoint", "output", "accuracy"],

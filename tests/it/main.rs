@@ -8,6 +8,7 @@ mod diskfull;
 mod failfast;
 mod fuzz_regressions;
 mod import;
+mod known;
 mod layers;
 mod output;
 mod projection;
