@@ -8,9 +8,10 @@
 //! - shapes `obj`, `ply`, `rectangle`, `cube`, `sphere` with `to_world`, `flip_normals`,
 //!   `face_normals` (meshes), `flip_tex_coords` (obj, ply), `center`/`radius` (sphere),
 //!   `silhouette_sampling_weight` (read past);
-//! - bsdfs `diffuse` (front side reflects) and `twosided` around diffuse (both sides), with any
-//!   `<texture>`. Their parameters are read past: the reflectance is what kdmap recovers.
-//!   Every other Mitsuba bsdf parses and is refused when a shape uses it ("not supported yet");
+//! - bsdfs `diffuse` (front side reflects) and `twosided` around any bsdf (both sides), with
+//!   any `<texture>`; a diffuse reflectance is read past: it is what kdmap recovers. The
+//!   non-diffuse bsdfs of `mitsuba/bsdf.rs` make a shape a known material; the rest parse and
+//!   are refused when a shape uses them ("not supported yet");
 //! - emitters `point`, `spot`, `directional`, and `area` inside a shape; `envmap` and
 //!   `constant` parse and are refused ("not supported yet");
 //! - sensors `perspective` with an `hdrfilm`, its `rfilter` and `sampler`, and integrators:
@@ -1605,15 +1606,19 @@ mod tests {
             ("<sensor type=\"perspective\"><sampler type=\"independent\"><boolean name=\"jitter\" value=\"true\"/></sampler></sensor>", "unsupported property 'jitter'"),
             ("<integrator type=\"photonmapper\"/>", "unknown integrator plugin 'photonmapper'"),
             ("<shape type=\"disk\"/>", "shape 'disk' is not supported yet"),
-            ("<shape type=\"sphere\"><bsdf type=\"dielectric\"/></shape>", "bsdf 'dielectric' is not supported yet"),
-            ("<bsdf type=\"conductor\" id=\"m\"/><shape type=\"sphere\"><ref id=\"m\"/></shape>", "<ref id=\"m\">: bsdf 'conductor' is not supported yet"),
-            ("<shape type=\"cube\"><bsdf type=\"twosided\"><bsdf type=\"roughplastic\"/></bsdf></shape>", "bsdf 'roughplastic' is not supported yet"),
+            ("<shape type=\"sphere\"><bsdf type=\"retarder\"/></shape>", "bsdf 'retarder' is not supported yet"),
+            ("<bsdf type=\"pplastic\" id=\"m\"/><shape type=\"sphere\"><ref id=\"m\"/></shape>", "<ref id=\"m\">: bsdf 'pplastic' is not supported yet"),
+            ("<shape type=\"cube\"><bsdf type=\"twosided\"><bsdf type=\"hair\"/></bsdf></shape>", "bsdf 'hair' is not supported yet"),
+            ("<shape type=\"cube\"><bsdf type=\"blendbsdf\"><bsdf type=\"conductor\"/></bsdf></shape>", "blendbsdf needs 2 nested bsdf(s), found 1"),
+            ("<shape type=\"cube\"><bsdf type=\"dielectric\"><string name=\"int_ior\" value=\"unobtainium\"/></bsdf></shape>", "unknown index of refraction 'unobtainium'"),
+            ("<shape type=\"cube\"><bsdf type=\"roughconductor\"><string name=\"distribution\" value=\"phong\"/></bsdf></shape>", "invalid distribution 'phong'"),
+            ("<shape type=\"cube\"><bsdf type=\"conductor\"><rgb name=\"eta\" value=\"-1\"/></bsdf></shape>", "'eta' must be finite and non-negative"),
             ("<shape type=\"cube\"><bsdf type=\"shiny\"/></shape>", "unknown bsdf plugin 'shiny'"),
             ("<shape type=\"cube\"><bsdf type=\"diffuse\"><float name=\"roughness\" value=\"0.1\"/></bsdf></shape>", "unsupported property 'roughness' on <bsdf type=\"diffuse\">"),
             ("<shape type=\"cube\"><bsdf type=\"diffuse\"><texture type=\"noise\" name=\"reflectance\"/></bsdf></shape>", "unknown texture plugin 'noise'"),
             ("<sensor type=\"perspective\"><transform name=\"to_world\"><scale value=\"2\"/></transform></sensor>", "scale"),
             ("<shape type=\"cube\"><float name=\"radius\" value=\"1\"/></shape>", "unsupported property 'radius' on <shape type=\"cube\">"),
-            ("<shape type=\"cube\"><bsdf type=\"conductor\"/></shape>", "bsdf 'conductor' is not supported yet"),
+            ("<shape type=\"cube\"><bsdf type=\"measured\"/></shape>", "bsdf 'measured' is not supported yet"),
             ("<shape type=\"cube\"><ref id=\"nope\"/></shape>", "unknown bsdf 'nope'"),
             ("<shape type=\"cube\" id=\"a\"/><shape type=\"cube\" id=\"a\"/>", "duplicate id 'a'"),
             ("<shape type=\"cube\"><transform name=\"to_world\"><lookat origin=\"1,1,1\" target=\"1,1,1\"/></transform></shape>", "degenerate lookat"),
