@@ -584,10 +584,18 @@ fn scene_glb_holds_the_geometry_uvs_and_recovered_albedo() {
         assert_eq!(pos.len(), 3 * shape.mesh.triangles.len(), "{id}");
         for (t, tri) in shape.mesh.triangles.iter().enumerate() {
             for c in 0..3 {
-                assert_eq!(pos[3 * t + c], shape.mesh.positions[tri[c] as usize], "{id}");
+                assert_eq!(
+                    pos[3 * t + c],
+                    shape.mesh.positions[tri[c] as usize],
+                    "{id}"
+                );
             }
         }
-        let Some(info) = prim.material().pbr_metallic_roughness().base_color_texture() else {
+        let Some(info) = prim
+            .material()
+            .pbr_metallic_roughness()
+            .base_color_texture()
+        else {
             assert!(!shape.is_reconstructed(), "{id} has no texture");
             continue;
         };
@@ -597,16 +605,27 @@ fn scene_glb_holds_the_geometry_uvs_and_recovered_albedo() {
         };
         let png = &blob[view.offset()..view.offset() + view.length()];
         let pm = tiny_skia::Pixmap::decode_png(png).unwrap();
-        let uv: Vec<Vec2> = rd.read_tex_coords(0).unwrap().into_f32().map(Vec2::from).collect();
+        let uv: Vec<Vec2> = rd
+            .read_tex_coords(0)
+            .unwrap()
+            .into_f32()
+            .map(Vec2::from)
+            .collect();
         let want = k_d_of(id);
         for t in 0..shape.mesh.triangles.len() {
             let c = (uv[3 * t] + uv[3 * t + 1] + uv[3 * t + 2]) / 3.0;
-            let (x, y) = ((c.x * pm.width() as f32) as u32, (c.y * pm.height() as f32) as u32);
+            let (x, y) = (
+                (c.x * pm.width() as f32) as u32,
+                (c.y * pm.height() as f32) as u32,
+            );
             let px = pm.pixel(x, y).unwrap();
             let got = [px.red(), px.green(), px.blue()];
             for k in 0..3 {
                 let w = srgb(want[k]) * 255.0;
-                assert!((got[k] as f32 - w).abs() <= 1.0, "{id} triangle {t}: {got:?} vs {want}");
+                assert!(
+                    (got[k] as f32 - w).abs() <= 1.0,
+                    "{id} triangle {t}: {got:?} vs {want}"
+                );
             }
         }
     }
