@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 #[derive(Debug, Clone, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RawConfig {
-    /// Mitsuba 3 scene file, relative to the config file.
+    /// Mitsuba 3 scene file or glTF 2.0 file (`.gltf`/`.glb`), relative to the config file.
     pub scene: Option<PathBuf>,
     /// The named preset the other keys start from (see [`Preset`]); default `"default"`.
     pub preset: Option<String>,
@@ -36,6 +36,15 @@ pub struct RawConfig {
     /// Per-shape settings, by shape id: `[shapes.<id>] reconstruct = false, reflectance = ...`.
     #[serde(default)]
     pub shapes: BTreeMap<String, RawShape>,
+    #[serde(default)]
+    pub units: RawUnits,
+}
+
+/// `[units]`: how a scene's light values become scene radiance units.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawUnits {
+    pub photometric_scale: Option<f32>,
 }
 
 /// `[shapes.<id>]`: a shape whose diffuse reflectance the user knows.
@@ -357,6 +366,15 @@ pub struct Config {
     /// The run-config file these settings came from, if any (named in errors).
     #[serde(skip)]
     pub source: Option<PathBuf>,
+    /// glTF scenes: scene radiance units per photometric unit (glTF lights are in candela
+    /// and lux, emission read as nits): every glTF light and emission value is multiplied by
+    /// it at load, and divided by it when `scene.glb` is written. Mitsuba scenes ignore it.
+    #[serde(default = "one")]
+    pub photometric_scale: f32,
+}
+
+fn one() -> f32 {
+    1.0
 }
 
 impl Config {
@@ -395,6 +413,7 @@ impl Config {
             memory_budget_mib: 1024,
             known_shapes: BTreeMap::new(),
             source: None,
+            photometric_scale: 1.0,
         }
     }
 
@@ -487,7 +506,10 @@ impl Config {
         })?;
         let base = path.parent().unwrap_or(Path::new("."));
         let scene = raw.scene.ok_or_else(|| {
-            Error::input(path, "missing `scene = \"...\"` (the Mitsuba XML file)")
+            Error::input(
+                path,
+                "missing `scene = \"...\"` (the Mitsuba XML or glTF file)",
+            )
         })?;
         let file_preset = match raw.preset.as_deref() {
             None => Preset::Default,
@@ -529,6 +551,7 @@ impl Config {
         set(&mut c.atlas.max_texture_size, a.max_texture_size);
         set(&mut c.refine_passes, raw.projection.refine_passes);
         set(&mut c.area_samples, raw.direct.area_samples);
+        set(&mut c.photometric_scale, raw.units.photometric_scale);
         let p = raw.photons;
         set(&mut c.photons, p.per_iteration);
         set(&mut c.batch_size, p.batch_size);
@@ -662,6 +685,13 @@ impl Config {
             return Err(format!(
                 "run.checkpoint_every_seconds = {}: must be a number of seconds >= 0",
                 self.checkpoint_every_seconds
+            ));
+        }
+        if !(self.photometric_scale.is_finite() && self.photometric_scale > 0.0) {
+            return Err(format!(
+                "units.photometric_scale = {}: must be a positive number of scene units per \
+                 photometric unit",
+                self.photometric_scale
             ));
         }
         if self.memory_budget_mib < 16 {

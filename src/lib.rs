@@ -4,7 +4,7 @@
 //! Data flows one way through the stages, and only [`pipeline`] knows their order:
 //!
 //! ```text
-//! scene (XML, meshes) -> atlas (geometry store) -> projection (L_orig)
+//! scene (Mitsuba XML or glTF, meshes) -> atlas (geometry store) -> projection (L_orig)
 //!   -> direct light (E_d) -> E_i (photon tracing) -> per-texel update (K_d) -> outputs / checkpoint
 //! ```
 //!
@@ -22,8 +22,9 @@
 //! L0  error  rng  progress  fsio  interrupt   no kdmap imports but L0
 //! ```
 //!
-//! Within L1 the order is as listed: `report` uses `config`; `scatter` samples `scene`'s known
-//! materials; `image`, `camera`, `accel` use
+//! Within L1 the order is as listed: `report` uses `config`; `scene` uses `config` (the run's
+//! photos and units for glTF scenes); `scatter` samples `scene`'s known materials; `image`,
+//! `camera`, `accel` use
 //! `scene`; `light` uses `accel`; `render` uses `camera`, `accel`, `image`; `atlas` uses all
 //! of them. The L2 stages are independent of each other. A stage's state lives in the tile stores of `atlas`, not in another stage.
 

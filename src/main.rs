@@ -11,7 +11,7 @@ use glam::Vec3;
 use kdmap::config::{Config, Method, Overrides, Preset};
 use kdmap::pipeline::{self, RunStage, Start};
 use kdmap::progress::Mode;
-use kdmap::scene::{luminance, mitsuba, Emitter, Scene, Sides};
+use kdmap::scene::{luminance, Emitter, Scene, Sides};
 use kdmap::{Error, Result};
 use std::fmt::Write as _;
 use std::io::Write as _;
@@ -59,10 +59,10 @@ impl Cli {
 
 #[derive(Subcommand, Debug)]
 enum Command {
-    /// Load a Mitsuba 3 scene and summarize its shapes, emitters and sensors, the texel
+    /// Load a Mitsuba 3 or glTF 2.0 scene and summarize its shapes, emitters and sensors, the texel
     /// density a run would choose per shape, and the disk and memory it would need.
     Inspect {
-        /// The scene file (Mitsuba 3 XML) or a run config (TOML).
+        /// The scene file (Mitsuba 3 XML, or glTF 2.0 `.gltf`/`.glb`) or a run config (TOML).
         scene: PathBuf,
         /// Print a JSON document instead of text.
         #[arg(long)]
@@ -70,7 +70,7 @@ enum Command {
     },
     /// Recover the albedo textures: the whole method, steps 1-9, and every output.
     Reconstruct {
-        /// A Mitsuba 3 scene (photos in `<scene dir>/images/<sensor id>.exr`) or a run config (TOML).
+        /// A Mitsuba 3 or glTF 2.0 scene (photos in `<scene dir>/images/<sensor id>.exr`) or a run config (TOML).
         input: PathBuf,
         /// Output directory.
         #[arg(long)]
@@ -122,7 +122,7 @@ enum Command {
     /// Steps 1-2 of the method on their own: unwrap the atlas, project every photo onto it and
     /// write the luminance and coverage maps to `<out>/maps/` (with PNG previews).
     Project {
-        /// A Mitsuba 3 scene (photos in `<scene dir>/images/<sensor id>.exr`) or a run config (TOML).
+        /// A Mitsuba 3 or glTF 2.0 scene (photos in `<scene dir>/images/<sensor id>.exr`) or a run config (TOML).
         input: PathBuf,
         /// Output directory.
         #[arg(long)]
@@ -488,7 +488,7 @@ fn summary_json(scene: &Scene) -> serde_json::Value {
 /// The human-readable summary printed by `inspect`.
 fn inspect(input: &Path, json: bool) -> Result<()> {
     let cfg = Config::load(input, &Overrides::default())?;
-    let scene = mitsuba::load(&cfg.scene)?;
+    let scene = kdmap::scene::load(&cfg)?;
     let plan = plan_run(&cfg, &scene);
     if json {
         let mut doc = summary_json(&scene);

@@ -20,7 +20,7 @@ use crate::image::{read_sensor_image, Image};
 use crate::light::emitter_power;
 use crate::progress::{note, Mode, Stage};
 use crate::report::ShapeTexels;
-use crate::scene::{mitsuba, KnownBsdf, KnownMaterial, Material, Mesh, Scene, Sides};
+use crate::scene::{KnownBsdf, KnownMaterial, Material, Mesh, Scene, Sides};
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
@@ -86,13 +86,13 @@ pub fn state_dir(out: &Path) -> PathBuf {
 /// What the scene file alone tells (photos against films, no emitter at all) is checked
 /// before the meshes are read.
 pub fn prepare(cfg: &Config, mode: Mode) -> Result<Prepared> {
-    let outline = mitsuba::load_outline(&cfg.scene)?;
+    let outline = crate::scene::load_outline(cfg)?;
     let views = match_views(&outline, cfg, mode)?;
     if outline.emitters.is_empty() {
         check_lit(&outline)?;
     }
     let photos = read_photos(&outline, &views, mode)?;
-    let scene = mitsuba::load(&cfg.scene)?;
+    let scene = crate::scene::load(cfg)?;
     check_lit(&scene)?;
     let p = prepare_scene(cfg, scene, views, mode)?;
     *p.photos.lock().unwrap_or_else(|e| e.into_inner()) = photos.into_iter().map(Some).collect();
@@ -102,7 +102,7 @@ pub fn prepare(cfg: &Config, mode: Mode) -> Result<Prepared> {
 /// [`prepare`] without reading the photos or checking the light: the atlas of a run whose
 /// inputs were checked when it ran (scoring a finished run).
 pub fn prepare_layout(cfg: &Config, mode: Mode) -> Result<Prepared> {
-    let scene = mitsuba::load(&cfg.scene)?;
+    let scene = crate::scene::load(cfg)?;
     let views = match_views(&scene, cfg, mode)?;
     prepare_scene(cfg, scene, views, mode)
 }

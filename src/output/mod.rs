@@ -12,6 +12,7 @@
 //! <out>/renders/<sensor>_compare.png     original | render | relative error
 //! <out>/meshes/<id>.obj (+ .mtl)         world-space meshes with atlas UVs
 //! <out>/scene.xml                        the recovered scene for Mitsuba 3
+//! <out>/scene.glb                        the recovered scene as binary glTF 2.0 (albedo PNGs inside)
 //! <out>/report_convergence.png           RMS and max relative error per iteration
 //! <out>/report.json                      the run's report, with the paper's table; written last
 //! ```
@@ -27,6 +28,7 @@ pub mod maps;
 pub mod obj;
 pub mod plot;
 pub mod renders;
+pub mod scene_glb;
 pub mod scene_xml;
 
 pub use maps::write_map;
@@ -73,6 +75,7 @@ pub fn write_outputs(
         obj::write_shape_mesh(&meshes, shape, p.atlases[si].as_ref())?;
     }
     scene_xml::write_scene_xml(out, &p.scene)?;
+    scene_glb::write_scene_glb(out, &p.scene, &p.atlases, report.settings.photometric_scale)?;
 
     let textures: Vec<Option<Texture>> = radiance
         .iter()

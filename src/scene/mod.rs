@@ -1,10 +1,12 @@
 //! The immutable scene every stage reads: world-space triangle meshes, emitters and sensors,
 //! with units settled at load (scene radiance units per RGB channel, angles in radians).
 //!
-//! `mitsuba.rs` builds it from a Mitsuba 3 XML file, `mesh.rs` loads OBJ/PLY meshes and the
-//! built-in shapes. Nothing downstream knows about XML.
+//! `mitsuba.rs` builds it from a Mitsuba 3 XML file, `gltf.rs` from a glTF 2.0 file, `mesh.rs`
+//! loads OBJ/PLY meshes and the built-in shapes; [`load`] picks the format by the file's
+//! extension. Nothing downstream knows about XML or glTF.
 
 pub mod filter;
+pub mod gltf;
 pub mod material;
 pub mod mesh;
 pub mod mitsuba;
@@ -13,8 +15,38 @@ pub mod truth;
 pub use filter::PixelFilter;
 pub use material::{KnownBsdf, KnownMaterial, Rough};
 
+use crate::config::Config;
+use crate::Result;
 use glam::{Mat4, Vec2, Vec3};
 use std::path::PathBuf;
+
+/// The scene of a run: `cfg.scene` read as glTF 2.0 if it ends in `.gltf` or `.glb`, else as
+/// Mitsuba 3 XML. A glTF scene takes its film sizes from the run's photos and its light units
+/// from `cfg.photometric_scale`.
+pub fn load(cfg: &Config) -> Result<Scene> {
+    load_with(cfg, true)
+}
+
+/// [`load`] without the meshes (see [`mitsuba::load_outline`]): for the checks that come
+/// before the (possibly slow) geometry.
+pub fn load_outline(cfg: &Config) -> Result<Scene> {
+    load_with(cfg, false)
+}
+
+fn load_with(cfg: &Config, meshes: bool) -> Result<Scene> {
+    if self::gltf::is_gltf(&cfg.scene) {
+        let opts = self::gltf::LoadOptions {
+            views: &cfg.views,
+            photometric_scale: cfg.photometric_scale,
+            meshes,
+        };
+        self::gltf::load(&cfg.scene, &opts)
+    } else if meshes {
+        mitsuba::load(&cfg.scene)
+    } else {
+        mitsuba::load_outline(&cfg.scene)
+    }
+}
 
 /// An RGB triple in scene units (radiance, intensity, irradiance or reflectance, per context).
 pub type Rgb = Vec3;
@@ -269,7 +301,7 @@ impl Sensor {
 
 #[derive(Debug, Clone)]
 pub struct Scene {
-    /// The XML file the scene came from.
+    /// The scene file (Mitsuba XML or glTF) the scene came from.
     pub path: PathBuf,
     pub shapes: Vec<Shape>,
     pub emitters: Vec<Emitter>,

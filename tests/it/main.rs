@@ -7,6 +7,7 @@ mod cli;
 mod diskfull;
 mod failfast;
 mod fuzz_regressions;
+mod gltf;
 mod import;
 mod known;
 mod layers;

@@ -556,3 +556,79 @@ fn table_masks_match_the_table_rows() {
         assert_eq!(counts[1..].iter().sum::<u64>(), in_rows, "{view}");
     }
 }
+
+/// `scene.glb` opens with the `gltf` crate (which validates it), holds every shape's world
+/// geometry, and its embedded albedo PNG, looked up at each triangle's centroid UV, is the
+/// recovered K_d (8-bit sRGB: within one code value).
+#[test]
+fn scene_glb_holds_the_geometry_uvs_and_recovered_albedo() {
+    let r = run();
+    let bytes = std::fs::read(r.out.join("scene.glb")).unwrap();
+    let g = gltf::Gltf::from_slice(&bytes).unwrap();
+    let blob = g.blob.clone().unwrap();
+    let srgb = |v: f32| {
+        let v = v.clamp(0.0, 1.0);
+        if v <= 0.003_130_8 {
+            12.92 * v
+        } else {
+            1.055 * v.powf(1.0 / 2.4) - 0.055
+        }
+    };
+    let mut textured = 0;
+    for mesh in g.meshes() {
+        let id = mesh.name().unwrap();
+        let shape = r.p.scene.shapes.iter().find(|s| s.id == id).unwrap();
+        let prim = mesh.primitives().next().unwrap();
+        let rd = prim.reader(|_| Some(&blob[..]));
+        let pos: Vec<Vec3> = rd.read_positions().unwrap().map(Vec3::from).collect();
+        assert_eq!(pos.len(), 3 * shape.mesh.triangles.len(), "{id}");
+        for (t, tri) in shape.mesh.triangles.iter().enumerate() {
+            for c in 0..3 {
+                assert_eq!(
+                    pos[3 * t + c],
+                    shape.mesh.positions[tri[c] as usize],
+                    "{id}"
+                );
+            }
+        }
+        let Some(info) = prim
+            .material()
+            .pbr_metallic_roughness()
+            .base_color_texture()
+        else {
+            assert!(!shape.is_reconstructed(), "{id} has no texture");
+            continue;
+        };
+        textured += 1;
+        let gltf::image::Source::View { view, .. } = info.texture().source().source() else {
+            panic!("{id}: texture not embedded")
+        };
+        let png = &blob[view.offset()..view.offset() + view.length()];
+        let pm = tiny_skia::Pixmap::decode_png(png).unwrap();
+        let uv: Vec<Vec2> = rd
+            .read_tex_coords(0)
+            .unwrap()
+            .into_f32()
+            .map(Vec2::from)
+            .collect();
+        let want = k_d_of(id);
+        for t in 0..shape.mesh.triangles.len() {
+            let c = (uv[3 * t] + uv[3 * t + 1] + uv[3 * t + 2]) / 3.0;
+            let (x, y) = (
+                (c.x * pm.width() as f32) as u32,
+                (c.y * pm.height() as f32) as u32,
+            );
+            let px = pm.pixel(x, y).unwrap();
+            let got = [px.red(), px.green(), px.blue()];
+            for k in 0..3 {
+                let w = srgb(want[k]) * 255.0;
+                assert!(
+                    (got[k] as f32 - w).abs() <= 1.0,
+                    "{id} triangle {t}: {got:?} vs {want}"
+                );
+            }
+        }
+    }
+    assert_eq!(textured, recon_ids(&r.p).len());
+    assert_eq!(g.cameras().count(), r.p.scene.sensors.len());
+}
