@@ -4,15 +4,18 @@
 //! `mitsuba.rs` builds it from a Mitsuba 3 XML file, `mesh.rs` loads OBJ/PLY meshes and the
 //! built-in shapes. Nothing downstream knows about XML.
 
+pub mod envmap;
 pub mod filter;
 pub mod mesh;
 pub mod mitsuba;
 pub mod truth;
 
+pub use envmap::EnvMap;
 pub use filter::PixelFilter;
 
 use glam::{Mat4, Vec2, Vec3};
 use std::path::PathBuf;
+use std::sync::Arc;
 
 /// An RGB triple in scene units (radiance, intensity, irradiance or reflectance, per context).
 pub type Rgb = Vec3;
@@ -187,6 +190,9 @@ pub enum Emitter {
     Directional { direction: Vec3, irradiance: Rgb },
     /// One-sided area emitter on shape `shape` with uniform `radiance`.
     Area { shape: usize, radiance: Rgb },
+    /// Light from infinitely far away in every direction: Mitsuba's `envmap` (a lat-long
+    /// radiance map) or `constant` (one radiance): see [`EnvMap`].
+    Environment(Arc<EnvMap>),
 }
 
 /// Mitsuba's `fov_axis` choices.

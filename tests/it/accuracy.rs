@@ -337,3 +337,18 @@ fn lights_albedo_is_recovered() {
     };
     check_textured("lights", Solver::Gather, b);
 }
+
+/// `envmap` (diffuse objects on a textured ground lit only by a lat-long sky with a sun;
+/// `tools/gen_scene.py --preset envmap` at fixture size), default method: the direct light is
+/// the environment's importance-sampled shadow rays, the same checks against its own
+/// resolution floor (`tests/fixtures/envmap/albedo/`).
+#[test]
+fn envmap_albedo_is_recovered() {
+    let b = TexBounds {
+        uniform: 0.05,
+        uniform_each: 0.08,
+        margin: 0.03,
+        bias: 0.05,
+    };
+    check_textured("envmap", Solver::Gather, b);
+}
