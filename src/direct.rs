@@ -188,8 +188,11 @@ impl<'a> TileCtx<'a> {
             let mut dense = false;
             for k in 0..lights {
                 let (ek, reach) = first[off * lights + k].expect("every covered texel is lit");
-                // an area light's first pass already integrated its penumbra
-                let area = matches!(self.p.scene.emitters[k], Emitter::Area { .. });
+                // an area or environment light's first pass already integrated its penumbra
+                let area = matches!(
+                    self.p.scene.emitters[k],
+                    Emitter::Area { .. } | Emitter::Environment(_)
+                );
                 let redo = (reach == Reach::Partial && !area)
                     || self.near_hard_edge(off, k, &first, lights);
                 if reach == Reach::Partial && area {
@@ -296,7 +299,10 @@ impl<'a> TileCtx<'a> {
         first: &[Option<(Vec3, Reach)>],
         lights: usize,
     ) -> bool {
-        if matches!(self.p.scene.emitters[k], Emitter::Area { .. }) {
+        if matches!(
+            self.p.scene.emitters[k],
+            Emitter::Area { .. } | Emitter::Environment(_)
+        ) {
             return false;
         }
         let (x, y) = (off as i64 % self.ts as i64, off as i64 / self.ts as i64);

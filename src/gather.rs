@@ -461,7 +461,11 @@ fn walk(ctx: &GatherContext, mut o: Vec3, mut d: Vec3, rng: &mut Rng) -> Seen {
     let mut weight = Vec3::ONE;
     for bounce in 0..=MAX_SPECULAR {
         let Some((hit, prim)) = ctx.hits.trace(ctx.accel, o, d, f32::INFINITY) else {
-            return Seen::Nothing;
+            // the sky seen straight is E_d; through glass or in a mirror it is E_i
+            return match bounce {
+                0 => Seen::Nothing,
+                _ => Seen::Light(ctx.hits.environment(d) * weight),
+            };
         };
         let back = d.dot(hit.ns) >= 0.0;
         if prim.slot != NONE {

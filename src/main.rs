@@ -425,6 +425,14 @@ fn emitter_json(scene: &Scene, e: &Emitter) -> serde_json::Value {
             let id = scene.shapes.get(*shape).map(|s| s.id.as_str());
             json!({"type": "area", "shape": id, "radiance": radiance})
         }
+        Emitter::Environment(env) => match &env.file {
+            Some(f) => json!({
+                "type": "envmap", "file": f, "width": env.width, "height": env.height,
+                "scale": env.scale, "mean_radiance": env.mean_radiance(),
+            }),
+            None => json!({"type": "constant", "radiance": env.radiance,
+                "mean_radiance": env.mean_radiance()}),
+        },
     }
 }
 
@@ -641,6 +649,17 @@ fn summary(scene: &Scene) -> String {
                 let id = scene.shapes.get(*shape).map_or("?", |s| s.id.as_str());
                 format!("area on '{id}' radiance {}", v3(*radiance))
             }
+            Emitter::Environment(env) => match &env.file {
+                Some(f) => format!(
+                    "envmap {} ({}x{}, scale {}) mean radiance {}",
+                    f.display(),
+                    env.width,
+                    env.height,
+                    env.scale,
+                    v3(env.mean_radiance())
+                ),
+                None => format!("constant radiance {}", v3(env.radiance)),
+            },
         };
         let _ = writeln!(
             s,

@@ -8,7 +8,7 @@ use crate::camera::Camera;
 use crate::image::Image;
 use crate::rng::Rng;
 use crate::scatter;
-use crate::scene::{PixelFilter, Scene, Sides};
+use crate::scene::{Emitter, PixelFilter, Scene, Sides};
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
@@ -42,9 +42,10 @@ pub enum Film<'a> {
     /// (projection refinement compares only what the maps cover).
     HitsOnly,
     /// Mitsuba's box-filtered film: every sub-pixel ray counts in the mean; a ray that hits
-    /// an emitter shape sees its radiance from the front and black from behind, a miss is
-    /// black. Pixels that lie wholly on emitters take `photo`'s value (the light is not
-    /// reconstructed, so it never shows as error). Always `Some`.
+    /// an emitter shape sees its radiance from the front and black from behind, a miss sees
+    /// the environment emitters (black without one). Pixels that lie wholly on emitters or
+    /// the environment take `photo`'s value (the light is not reconstructed, so it never
+    /// shows as error). Always `Some`.
     Box { scene: &'a Scene, photo: &'a Image },
 }
 
@@ -247,7 +248,12 @@ fn trace(
     let mut rng = None;
     for bounce in 0..=MAX_SPECULAR {
         let Some(hit) = accel.intersect(o, d, f32::INFINITY) else {
-            return Seen::Nothing;
+            return match (bounce, scene.map(|s| environment(s, d))) {
+                (_, None) => Seen::Nothing,
+                (0, Some(seen)) => seen,
+                (_, Some(Seen::Emitter(v))) => Seen::Known(v * weight),
+                (_, Some(_)) => Seen::Known(Vec3::ZERO),
+            };
         };
         let si = hit.shape as usize;
         if let Some(tex) = textures.get(si).and_then(|t| t.as_ref()) {
@@ -295,6 +301,16 @@ fn trace(
     Seen::Known(Vec3::ZERO)
 }
 
+/// What a ray along `d` that leaves the scene sees: the environment emitters' radiance.
+fn environment(scene: &Scene, d: Vec3) -> Seen {
+    let envs = scene.emitters.iter().filter_map(|e| match e {
+        Emitter::Environment(env) => Some(env.eval(d)),
+        _ => None,
+    });
+    envs.reduce(|a, b| a + b)
+        .map_or(Seen::Nothing, Seen::Emitter)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -319,6 +335,66 @@ mod tests {
         let t = apply_pixel_filter(&img, 5, 5, PixelFilter::Tent { radius: 1.0 });
         assert!(t[11].is_none());
         assert!((t[12].unwrap().x - 0.5625 / (1.0 - 0.09375)).abs() < 1e-4);
+    }
+
+    /// A ray that leaves the scene sees the environment (in a box film, through the same
+    /// lookup as the light); without one, nothing.
+    #[test]
+    fn escaping_rays_see_the_environment() {
+        use crate::scene::{EnvMap, FovAxis, Sensor};
+        let px: Vec<Vec3> = (0..8 * 5).map(|i| Vec3::splat(i as f32)).collect();
+        let env = EnvMap::from_pixels(None, 1.0, glam::Mat4::IDENTITY, 8, 5, px);
+        let sensor = Sensor::simple(
+            "c",
+            glam::Mat4::IDENTITY,
+            40.0,
+            FovAxis::X,
+            (4, 4),
+            PixelFilter::Box,
+        );
+        // one triangle behind the camera, out of view
+        let mesh = crate::scene::Mesh {
+            positions: vec![
+                -Vec3::Z * 5.0,
+                Vec3::new(1.0, 0.0, -5.0),
+                Vec3::new(0.0, 1.0, -5.0),
+            ],
+            triangles: vec![[0, 1, 2]],
+            ..Default::default()
+        };
+        let shape = crate::scene::Shape {
+            id: "t".into(),
+            kind: "test".into(),
+            file: None,
+            mesh,
+            sides: crate::scene::Sides::Front,
+            emission: None,
+            reflectance: None,
+            material: Default::default(),
+        };
+        let mut scene = Scene {
+            path: "t.xml".into(),
+            shapes: vec![shape],
+            emitters: vec![Emitter::Environment(std::sync::Arc::new(env.clone()))],
+            sensors: vec![sensor.clone()],
+            files: vec![],
+        };
+        let accel = Accel::build(&scene);
+        let cam = Camera::from_sensor(&sensor);
+        let (_, d) = cam.ray(1.3, 2.6);
+        match trace(&accel, &cam, &[], Some(&scene), (1.3, 2.6), 0) {
+            Seen::Emitter(v) => assert_eq!(v, env.eval(d)),
+            _ => panic!("the sky is not seen"),
+        }
+        assert!(matches!(
+            trace(&accel, &cam, &[], None, (1.3, 2.6), 0),
+            Seen::Nothing
+        ));
+        scene.emitters.clear();
+        assert!(matches!(
+            trace(&accel, &cam, &[], Some(&scene), (1.3, 2.6), 0),
+            Seen::Nothing
+        ));
     }
 
     #[test]

@@ -1178,7 +1178,7 @@ def build_outdoor(b, envmap):
     kinds_l = parse_counts(p["lights"], LIGHT_KINDS + ("envmap",))
     if envmap:
         sun = np.array([0.45, 0.55, -0.7])
-        s.textures["textures/sky.exr"] = ("exr", make_sky(1024, sun, p["seed"]))
+        s.textures["textures/sky.exr"] = ("exr", make_sky(int(p.get("sky_res", 1024)), sun, p["seed"]))
         s.emitters = [dict(type="envmap", file="textures/sky.exr", scale=1.0, rotate_y=0.0)]
         s.relit_emitters = [dict(type="envmap", file="textures/sky.exr", scale=1.0,
                                  rotate_y=round(float(rng.uniform(100, 160)), 1))]
@@ -1410,7 +1410,7 @@ def render_views(mi, xml_path, wanted, out_for, spp, seed, max_samples, aov=Fals
 def effective_params(a):
     p = dict(PRESETS[a.preset])
     for key in ("objects", "tris", "flat_cell", "textures", "textured_objects", "tiling", "texture_res",
-                "train", "test", "lights", "spp", "seed"):
+                "train", "test", "lights", "spp", "seed", "sky_res"):
         v = getattr(a, key)
         if v is not None:
             p[key] = v
@@ -1521,7 +1521,8 @@ def write_scene(s, out, log):
             import mitsuba as mi  # noqa: F401  (a variant is set by the caller)
 
             bmp = mi.Bitmap(np.ascontiguousarray(img[1]), mi.Bitmap.PixelFormat.RGB)
-            bmp.write(os.path.join(out, f))
+            # half float, as every EXR the generator writes (the sky's 900 fits: max 65504)
+            bmp.convert(component_format=mi.Struct.Type.Float16).write(os.path.join(out, f))
         else:
             write_png(os.path.join(out, f), linear_to_srgb8(img))
     t_tex = time.time() - t1
@@ -1553,6 +1554,7 @@ def parse_args(argv):
     ap.add_argument("--test", type=int, help="number of held-out views")
     ap.add_argument("--res", help="view resolution WxH, e.g. 512x384")
     ap.add_argument("--lights", help="light mix, e.g. 'area:1,point:2,spot:1'")
+    ap.add_argument("--sky-res", type=int, help="width of the envmap layout's lat-long sky (height: half; default 1024)")
     ap.add_argument("--spp", type=int, help="samples per pixel of photos and held-out views")
     ap.add_argument("--seed", type=int, help="seed of every random choice")
     ap.add_argument("--albedo", action="store_true", help="also render albedo/cam_train_*.exr (albedo AOV)")

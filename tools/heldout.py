@@ -64,6 +64,16 @@ def _heldout_sensors(xml_path):
     return [s for s in root.findall("sensor") if s.get("id", "").startswith("cam_test_")]
 
 
+def _absolute_files(elem, base):
+    """`elem` with every relative `filename` (an envmap's map, an emitter shape's mesh) made
+    absolute against `base`, the directory of the file it came from."""
+    for f in elem.iter("string"):
+        v = f.get("value")
+        if f.get("name") == "filename" and v and not os.path.isabs(v):
+            f.set("value", os.path.join(base, v))
+    return elem
+
+
 def build_scene(out, sensors_from, emitters_from=None, spp=64):
     """The recovered scene with `sensors_from`'s held-out sensors; with `emitters_from`, its
     emitters (and emitter shapes) replaced by those of that file. Returns the XML text."""
@@ -78,11 +88,12 @@ def build_scene(out, sensors_from, emitters_from=None, spp=64):
             if sh.find("emitter") is not None:
                 root.remove(sh)
         src = ET.parse(emitters_from).getroot()
+        src_dir = os.path.dirname(os.path.abspath(emitters_from))
         for e in src.findall("emitter"):
-            root.append(e)
+            root.append(_absolute_files(e, src_dir))
         for sh in src.findall("shape"):
             if sh.find("emitter") is not None:
-                root.append(sh)
+                root.append(_absolute_files(sh, src_dir))
     # Sensors first, as Mitsuba lists them in file order.
     at = 0
     for i, child in enumerate(list(root)):

@@ -9,7 +9,7 @@ Creates (or reuses) the virtual environment `.venv/` in the repository root with
 tools/requirements.txt, and re-runs itself in it. Then:
 
 1. `cargo build --release`;
-2. per scene of tests/fixtures (cbox, cbox-tex, lights): `target/release/kdmap reconstruct
+2. per scene of tests/fixtures (cbox, cbox-tex, lights, envmap): `target/release/kdmap reconstruct
    <scene>/input.xml --out <out>/<scene>` (kdmap's defaults, 1e7 photons x 6 iterations,
    unless --photons / --iterations / --quick), with its wall time and peak RSS (the child's
    max RSS from wait4); `kdmap accuracy <out>/<scene> <scene>/truth.xml` (albedo error);
@@ -46,7 +46,7 @@ REPO = os.path.dirname(TOOLS)
 VENV = os.path.join(REPO, ".venv")
 VENV_PY = os.path.join(VENV, "bin", "python")
 REQUIREMENTS = os.path.join(TOOLS, "requirements.txt")
-SCENES = ["cbox", "cbox-tex", "lights", "mirror-cbox"]
+SCENES = ["cbox", "cbox-tex", "lights", "mirror-cbox", "envmap"]
 ANCHOR_TIMED_ITERATIONS = 3  # --anchor without --anchor-full: warm-up + this many, extrapolated
 QUICK = {"photons": 200_000, "iterations": 2, "spp": 8}
 DEFAULT_SPP = 64

@@ -9,8 +9,9 @@ use super::charts::Charts;
 use super::prepared::Prepared;
 use super::texels::NONE;
 use crate::accel::{Accel, Hit};
-use crate::scene::{KnownBsdf, Rgb, Sides};
+use crate::scene::{Emitter, EnvMap, KnownBsdf, Rgb, Sides};
 use glam::{Vec2, Vec3};
+use std::sync::Arc;
 
 /// One triangle as light transport sees it.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -49,6 +50,8 @@ pub struct HitTable {
     prims: Vec<Prim>,
     known: Vec<Option<KnownBsdf>>,
     emission: Vec<Option<Rgb>>,
+    /// The environment emitters (a ray that leaves the scene sees their sum).
+    env: Vec<Arc<EnvMap>>,
 }
 
 impl HitTable {
@@ -68,7 +71,22 @@ impl HitTable {
                 .map(|s| s.known().map(|k| k.bsdf.clone()))
                 .collect(),
             emission: shapes.iter().map(|s| s.emission).collect(),
+            env: p
+                .scene
+                .emitters
+                .iter()
+                .filter_map(|e| match e {
+                    Emitter::Environment(m) => Some(m.clone()),
+                    _ => None,
+                })
+                .collect(),
         }
+    }
+
+    /// The radiance a ray leaving the scene along `dir` sees (0 without environment light).
+    #[inline]
+    pub fn environment(&self, dir: Vec3) -> Rgb {
+        self.env.iter().map(|m| m.eval(dir)).sum()
     }
 
     /// The known material of `prim`'s shape (mirrors, glass, ...), if it has one.

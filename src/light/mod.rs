@@ -8,12 +8,15 @@
 //! - `directional`: irradiance `E` on a surface perpendicular to the light; `E cos`.
 //! - `area`: one-sided uniform radiance `L` leaving the front side of each emitter triangle
 //!   (see [`area`] for how the front side is decided and how shadows stay low-noise).
+//! - `envmap`, `constant`: radiance `L(w)` from infinitely far away in every direction
+//!   (`crate::scene::EnvMap`), estimated with importance-sampled shadow rays ([`env`]).
 //!
 //! Every receiver is one-sided: light arriving from behind the shading normal `n` contributes
 //! nothing (`cos` clamped at 0). Shadow rays start from [`offset_origin`] off the geometric
 //! normal and stop just short (relative `1e-4`) of the light so an emitter never shadows itself.
 
 pub mod area;
+pub mod env;
 pub mod sampler;
 #[cfg(test)]
 mod tests;
@@ -35,7 +38,9 @@ pub(crate) const SHADOW_SHORTEN: f32 = 1e-4;
 /// - spot: `I` times the solid-angle integral of Mitsuba's linear falloff (see [`spot_solid_angle`]);
 /// - directional: `irradiance * pi R^2`, `R` the radius of the scene's bounding sphere (Mitsuba's
 ///   convention: the power that crosses the scene; a directional light has no finite power);
-/// - area: `pi L A`, `A` the summed triangle area of the emitting shape (one-sided Lambertian).
+/// - area: `pi L A`, `A` the summed triangle area of the emitting shape (one-sided Lambertian);
+/// - environment: `pi R^2 int L(w) dw` (Mitsuba's: the power crossing a disk of the bounding
+///   sphere's radius `R`, summed over directions; for a constant `L`, `4 pi^2 R^2 L`).
 ///
 /// Cheap and total: degenerate input (missing shape, empty scene) gives zero, never a panic.
 pub fn emitter_power(scene: &Scene, e: &Emitter) -> Vec3 {
@@ -55,6 +60,10 @@ pub fn emitter_power(scene: &Scene, e: &Emitter) -> Vec3 {
             Some(s) => radiance * (PI * s.mesh.area() as f32),
             None => Vec3::ZERO,
         },
+        Emitter::Environment(ref env) => {
+            let r = bounding_sphere(scene).1;
+            env.integral() * (PI * r * r)
+        }
     }
 }
 
@@ -126,6 +135,10 @@ pub struct DirectParams {
     /// Points of the texel a point, spot or directional light is tested from where its first
     /// pass (3 x 3 points) finds a shadow edge (rounded up to a square).
     pub edge_samples: u32,
+    /// Sample pairs (a direction from the map, a cosine-weighted one, a point of the texel) per
+    /// texel for an environment light (rounded up to a square). 0 = no shadow test (the
+    /// unoccluded irradiance).
+    pub env_samples: u32,
 }
 
 impl DirectParams {
@@ -135,6 +148,7 @@ impl DirectParams {
             area_samples: 9,
             penumbra_samples: 256,
             edge_samples: 16,
+            env_samples: 36,
         }
     }
     /// Wide penumbrae or thin occluders: 64 rays per emitter triangle, 4096 in penumbrae.
@@ -143,6 +157,7 @@ impl DirectParams {
             area_samples: 64,
             penumbra_samples: 4096,
             edge_samples: 256,
+            env_samples: 1024,
         }
     }
 }
@@ -150,12 +165,13 @@ impl DirectParams {
 impl Default for DirectParams {
     /// 16 rays (4 x 4 strata) per emitter triangle, 2048 per emitter in penumbrae for a
     /// penumbra noise of about 0.25% (the target is < 0.3%); 8 x 8 texel points across a
-    /// hard shadow edge.
+    /// hard shadow edge; 144 sample pairs per texel under an environment light.
     fn default() -> Self {
         DirectParams {
             area_samples: 16,
             penumbra_samples: 2048,
             edge_samples: 64,
+            env_samples: 144,
         }
     }
 }
@@ -186,7 +202,7 @@ impl Footprint {
         }
     }
 
-    fn is_point(&self) -> bool {
+    pub(crate) fn is_point(&self) -> bool {
         self.dx == Vec3::ZERO && self.dy == Vec3::ZERO
     }
 
@@ -292,6 +308,14 @@ pub fn emitter_irradiance(
         let (f, reach) = area::irradiance_factor(&s.mesh, accel, fp, params, stream, dense);
         return (radiance * f as f32, reach);
     }
+    if let Emitter::Environment(env) = e {
+        let e = match params.env_samples {
+            0 => env::irradiance(env, None, fp, ENV_UNOCCLUDED, (0, k as u64, 0)),
+            n => env::irradiance(env, Some(accel), fp, n, (key.0, k as u64, key.1)),
+        };
+        // always sampled: nothing analytic to stand for a lit texel
+        return (e, Reach::Partial);
+    }
     let mut rng = Rng::new(key.0 ^ HARD_TAG, k as u64, key.1, 0);
     hard_irradiance(accel, fp, params, &mut rng, dense, &|q| {
         hard_light(e, fp.n, q)
@@ -307,9 +331,15 @@ pub fn emitter_unoccluded(scene: &Scene, k: usize, fp: &Footprint) -> Vec3 {
             Some(s) => *radiance * area::unoccluded_factor(&s.mesh, fp.p, fp.n) as f32,
             None => Vec3::ZERO,
         },
+        Some(Emitter::Environment(env)) => {
+            env::irradiance(env, None, fp, ENV_UNOCCLUDED, (0, k as u64, 0))
+        }
         Some(e) => hard_light(e, fp.n, fp.p).map_or(Vec3::ZERO, |(e, _)| e),
     }
 }
+
+/// Sample pairs of the unoccluded irradiance of an environment light (no rays, a fixed key).
+const ENV_UNOCCLUDED: u32 = 1024;
 
 /// A point, spot or directional light at point `q` (receiving normal `n`): its unoccluded
 /// irradiance and where it comes from, or `None` where `q` faces away or is outside the beam.
@@ -344,7 +374,7 @@ fn hard_light(e: &Emitter, n: Vec3, q: Vec3) -> Option<(Vec3, Toward)> {
             let cos = n.dot(dir);
             (cos > 0.0).then(|| (irradiance * cos, Toward::Direction(dir)))
         }
-        Emitter::Area { .. } => None,
+        Emitter::Area { .. } | Emitter::Environment(_) => None,
     }
 }
 

@@ -6,14 +6,19 @@
 //! the falloff; directional, uniform over a disk of the scene's bounding-sphere radius `R`
 //! perpendicular to the light, placed just outside that sphere (so the power is `E pi R^2`, as
 //! in [`super::emitter_power`]); area, a triangle by area, a uniform point on it and a
-//! cosine-weighted direction about its shading normal (Mitsuba's emitting side).
+//! cosine-weighted direction about its shading normal (Mitsuba's emitting side); environment,
+//! as Mitsuba's `envmap` does: a direction `w` from the map by luminance
+//! ([`crate::scene::EnvMap::sample`]), the photon travelling along `-w` from a uniform point of
+//! a disk of radius `R` perpendicular to it, just outside the bounding sphere, with flux
+//! `L(w) pi R^2 / p(w)` (expected: `pi R^2 int L dw`, the power of [`super::emitter_power`]).
 
 use super::{bounding_sphere, emitter_power, spot_falloff};
 use crate::accel::offset_origin;
 use crate::rng::Rng;
-use crate::scene::{luminance, Emitter, Scene};
+use crate::scene::{luminance, Emitter, EnvMap, Scene};
 use glam::Vec3;
 use std::f32::consts::PI;
+use std::sync::Arc;
 
 /// One emitter triangle, copied out of the scene so the sampler owns its data.
 #[derive(Debug, Clone)]
@@ -51,6 +56,11 @@ enum Kind {
         tris: Vec<EmitTri>,
         /// Cumulative triangle areas, normalized (last = 1).
         cdf: Vec<f64>,
+    },
+    Environment {
+        env: Arc<EnvMap>,
+        center: Vec3,
+        radius: f32,
     },
 }
 
@@ -94,6 +104,12 @@ impl Kind {
                 }
             }
             Emitter::Area { shape, .. } => Kind::area(&scene.shapes.get(shape)?.mesh)?,
+            Emitter::Environment(ref env) if !env.is_dark() && radius > 0.0 => Kind::Environment {
+                env: env.clone(),
+                center,
+                radius,
+            },
+            Emitter::Environment(_) => return None,
         })
     }
 
@@ -304,6 +320,21 @@ impl EmitterSampler {
                         .normalize();
                 (offset_origin(y, t.ng, d), d, s.power * inv_prob)
             }
+            Kind::Environment {
+                env,
+                center,
+                radius,
+            } => {
+                let (w, pdf) = env.sample(rng.f64(), rng.f32(), rng.f32())?;
+                let d = -w;
+                let r = radius * rng.f32().sqrt();
+                let phi = 2.0 * PI * rng.f32();
+                let (u, v) = d.any_orthonormal_pair();
+                let back = radius * 1.001 + 1e-4 * center.abs().max_element().max(1.0);
+                let o = *center - d * back + u * (r * phi.cos()) + v * (r * phi.sin());
+                let flux = env.eval(w) * (PI * radius * radius / pdf) * inv_prob;
+                (o, d, flux)
+            }
         };
         Some(EmittedPhoton {
             origin,
@@ -318,6 +349,7 @@ impl EmitterSampler {
 mod tests {
     use super::*;
     use crate::light::tests::{floor, quad, scene, shape};
+    use crate::scene::EnvMap;
 
     /// Mean and standard error per channel of `f` over `n` samples keyed by index.
     fn stats(n: u64, mut f: impl FnMut(&mut Rng) -> Vec3) -> (Vec3, Vec3) {
@@ -498,6 +530,61 @@ mod tests {
         for ch in 0..3 {
             assert!((m[ch] - want[ch]).abs() <= 4.0 * se[ch], "{m} vs {want}");
         }
+    }
+
+    /// Photons from a constant sky that cross an open floor, counted where they first land on
+    /// its central square: their flux per area is the sky's irradiance `pi L` (the estimate a
+    /// photon pass deposits at the first hit).
+    #[test]
+    fn environment_photons_give_pi_l_on_an_open_plane() {
+        let l = Vec3::new(0.5, 1.0, 2.0);
+        let env = EnvMap::constant(l, glam::Mat4::IDENTITY);
+        let sc = scene(vec![floor()], vec![Emitter::Environment(Arc::new(env))]);
+        let es = EmitterSampler::new(&sc);
+        let (c, r) = bounding_sphere(&sc);
+        let half = 2.0f32;
+        let (m, se) = stats(400_000, |rng| {
+            let (o, d, f) = es.sample(rng);
+            assert!(
+                (o - c).length() >= r,
+                "photons start outside the bounding sphere"
+            );
+            if d.z >= 0.0 {
+                return Vec3::ZERO;
+            }
+            let x = o + d * (-o.z / d.z);
+            let inside = x.x.abs() < half && x.y.abs() < half;
+            f * inside as u32 as f32 / (4.0 * half * half)
+        });
+        let want = l * PI;
+        eprintln!("environment photons: E {m} +- {se} vs pi L {want}");
+        for ch in 0..3 {
+            assert!((m[ch] - want[ch]).abs() <= 4.0 * se[ch], "{m} vs {want}");
+        }
+        assert!(se.x < 0.03 * want.x);
+    }
+
+    /// A map's photons come from its bright part, weighted so the flux is the map's power.
+    #[test]
+    fn environment_photons_follow_the_map() {
+        let (w, h) = (32u32, 17u32);
+        let px = (0..h)
+            .flat_map(|y| (0..w).map(move |x| (x, y)))
+            .map(|(x, y)| Vec3::splat(0.1 + 30.0 * (y == 4 && x < 3) as u32 as f32))
+            .collect();
+        let env = EnvMap::from_pixels(None, 2.0, glam::Mat4::IDENTITY, w, h, px);
+        let sc = scene(
+            vec![floor()],
+            vec![Emitter::Environment(Arc::new(env.clone()))],
+        );
+        let es = EmitterSampler::new(&sc);
+        let want = emitter_power(&sc, &sc.emitters[0]);
+        let (m, se) = stats(200_000, |r| es.sample(r).2);
+        for ch in 0..3 {
+            assert!((m[ch] - want[ch]).abs() <= 4.0 * se[ch], "{m} vs {want}");
+        }
+        // every photon's flux is L(w) pi R^2 / p(w): nearly constant under importance sampling
+        assert!(se.x < 0.01 * want.x, "{se} vs {want}");
     }
 
     #[test]

@@ -263,7 +263,8 @@ fn frame_along(dir: Vec3) -> Mat4 {
     Mat4::from_cols(x.extend(0.0), y.extend(0.0), z.extend(0.0), glam::Vec4::W)
 }
 
-/// One punctual light (area lights are written with their shape).
+/// One punctual light (area lights are written with their shape; environment light has no
+/// glTF form and is left out).
 fn add_light(d: &mut Doc, e: &Emitter, scale: f32) {
     let n = d.lights.len();
     let (light, m) = match e {
@@ -303,7 +304,8 @@ fn add_light(d: &mut Doc, e: &Emitter, scale: f32) {
                 gltf_frame(&frame_along(*direction)),
             )
         }
-        Emitter::Area { .. } => return,
+        // glTF has no environment light: the sky stays in scene.xml only
+        Emitter::Area { .. } | Emitter::Environment(_) => return,
     };
     d.lights.push(light);
     d.nodes

@@ -5,13 +5,18 @@
 //! linear values are used as they are), wrapped in `twosided` where the input reflected on
 //! both sides. Emitter shapes keep their area emitter and get a black bsdf; point, spot and
 //! directional lights and the sensors are written with the parameters kdmap read, transforms
-//! as explicit row-major matrices, angles in degrees. Sample count is the `$spp` default.
+//! as explicit row-major matrices, angles in degrees; an `envmap` with its `scale` and
+//! `to_world`, its map copied to `textures/env_<k>.<ext>` (so the output directory stands on
+//! its own), a `constant` with its radiance. Sample count is the `$spp` default.
 //!
 //! Shapes are written in input order, so shape indices (and `shape_<index>` ids) survive a
 //! round trip through `scene::mitsuba::load`.
 
+use crate::error::Error;
 use crate::fsio::write_atomic;
-use crate::scene::{Emitter, FovAxis, KnownBsdf, PixelFilter, Rgb, Scene, Sensor, Shape, Sides};
+use crate::scene::{
+    Emitter, EnvMap, FovAxis, KnownBsdf, PixelFilter, Rgb, Scene, Sensor, Shape, Sides,
+};
 use crate::Result;
 use glam::{Mat4, Vec3};
 use std::fmt::Write as _;
@@ -92,8 +97,8 @@ pub fn scene_xml(scene: &Scene) -> String {
     for sensor in &scene.sensors {
         write_sensor(w, sensor);
     }
-    for e in &scene.emitters {
-        write_emitter(w, e);
+    for (k, e) in scene.emitters.iter().enumerate() {
+        write_emitter(w, k, e);
     }
     for shape in &scene.shapes {
         write_shape(w, shape);
@@ -172,8 +177,43 @@ fn rfilter(f: PixelFilter) -> String {
     }
 }
 
+/// Where `scene.xml` finds the map of environment emitter `k`, relative to it (`None` for a
+/// `constant`).
+pub fn env_map_name(k: usize, env: &EnvMap) -> Option<String> {
+    let ext = env.file.as_ref()?.extension().and_then(|e| e.to_str());
+    Some(format!(
+        "textures/env_{k}.{}",
+        ext.unwrap_or("exr").to_ascii_lowercase()
+    ))
+}
+
+/// One environment emitter (`k`: its index among the scene's emitters).
+fn write_environment(w: &mut String, k: usize, env: &EnvMap) {
+    let Some(name) = env_map_name(k, env) else {
+        let _ = writeln!(
+            w,
+            "  <emitter type=\"constant\"><rgb name=\"radiance\" value=\"{}\"/></emitter>",
+            rgb(env.radiance)
+        );
+        return;
+    };
+    let _ = writeln!(w, "  <emitter type=\"envmap\">");
+    let _ = writeln!(
+        w,
+        "    <string name=\"filename\" value=\"{}\"/><float name=\"scale\" value=\"{}\"/>",
+        esc(&name),
+        env.scale
+    );
+    let _ = writeln!(
+        w,
+        "    <transform name=\"to_world\"><matrix value=\"{}\"/></transform>",
+        matrix(&env.to_world)
+    );
+    let _ = writeln!(w, "  </emitter>");
+}
+
 /// One emitter (area emitters are written with their shape).
-fn write_emitter(w: &mut String, e: &Emitter) {
+fn write_emitter(w: &mut String, k: usize, e: &Emitter) {
     match e {
         Emitter::Point {
             position,
@@ -225,6 +265,7 @@ fn write_emitter(w: &mut String, e: &Emitter) {
         }
         // Written with their shape below.
         Emitter::Area { .. } => {}
+        Emitter::Environment(env) => write_environment(w, k, env),
     }
 }
 
@@ -284,6 +325,18 @@ fn write_shape(w: &mut String, shape: &Shape) {
 /// Write `<out>/scene.xml` for `scene` (the meshes and textures it names are written by the
 /// other parts of `output`).
 pub fn write_scene_xml(out: &Path, scene: &Scene) -> Result<()> {
+    for (k, e) in scene.emitters.iter().enumerate() {
+        if let Emitter::Environment(env) = e {
+            if let (Some(src), Some(name)) = (&env.file, env_map_name(k, env)) {
+                let bytes = std::fs::read(src).map_err(|e| Error::io(src, e))?;
+                let dst = out.join(name);
+                if let Some(d) = dst.parent() {
+                    std::fs::create_dir_all(d).map_err(|e| Error::io(d, e))?;
+                }
+                write_atomic(&dst, &bytes)?;
+            }
+        }
+    }
     write_atomic(&out.join("scene.xml"), scene_xml(scene).as_bytes())
 }
 
@@ -488,6 +541,58 @@ mod tests {
                 _ => panic!("emitters differ: {e:?} vs {f:?}"),
             }
         }
+    }
+
+    /// An envmap (its map copied next to scene.xml, scale and rotation kept) and a constant
+    /// round-trip through the loader to the same radiance in every direction.
+    #[test]
+    fn environment_emitters_round_trip_with_their_map() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::create_dir_all(dir.path().join("in/sky")).unwrap();
+        let px = |x: usize, y: usize| (x as f32 + 0.5, 1.0 + y as f32, 0.25 * (x * y) as f32);
+        exr::prelude::write_rgb_file(dir.path().join("in/sky/map.exr"), 8, 5, px).unwrap();
+        let input = dir.path().join("in/in.xml");
+        std::fs::write(
+            &input,
+            "<scene version=\"3.0.0\">\
+             <emitter type=\"envmap\"><string name=\"filename\" value=\"sky/map.exr\"/>\
+               <float name=\"scale\" value=\"2.5\"/>\
+               <transform name=\"to_world\"><rotate y=\"1\" angle=\"115.6\"/></transform></emitter>\
+             <emitter type=\"constant\"><rgb name=\"radiance\" value=\"0.5, 1, 2\"/></emitter>\
+             </scene>",
+        )
+        .unwrap();
+        let a = mitsuba::load(&input).unwrap();
+        let out = dir.path().join("out");
+        std::fs::create_dir_all(&out).unwrap();
+        write_scene_xml(&out, &a).unwrap();
+        assert!(out.join("textures/env_0.exr").is_file());
+        let b = mitsuba::load(&out.join("scene.xml")).unwrap();
+        assert_eq!(b.emitters.len(), 2);
+        let envs = |s: &Scene| -> Vec<std::sync::Arc<EnvMap>> {
+            s.emitters
+                .iter()
+                .map(|e| match e {
+                    Emitter::Environment(env) => env.clone(),
+                    _ => panic!("{e:?}"),
+                })
+                .collect()
+        };
+        let (ea, eb) = (envs(&a), envs(&b));
+        assert!(ea[0].file.is_some() && eb[1].file.is_none());
+        assert_eq!(eb[0].scale, 2.5);
+        for d in [
+            Vec3::X,
+            Vec3::new(0.3, 0.5, -0.8),
+            Vec3::new(-0.7, -0.1, 0.2),
+        ] {
+            for (x, y) in ea.iter().zip(&eb) {
+                assert!((x.eval(d) - y.eval(d)).abs().max_element() < 1e-4);
+            }
+        }
+        // the rotation moved the map: not the same as the unrotated one
+        let raw = EnvMap::load(&dir.path().join("in/sky/map.exr"), 2.5, Mat4::IDENTITY).unwrap();
+        assert!((raw.eval(Vec3::X) - eb[0].eval(Vec3::X)).length() > 0.1);
     }
 
     #[test]

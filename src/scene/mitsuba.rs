@@ -12,8 +12,8 @@
 //!   any `<texture>`; a diffuse reflectance is read past: it is what kdmap recovers. The
 //!   non-diffuse bsdfs of `mitsuba/bsdf.rs` make a shape a known material; the rest parse and
 //!   are refused when a shape uses them ("not supported yet");
-//! - emitters `point`, `spot`, `directional`, and `area` inside a shape; `envmap` and
-//!   `constant` parse and are refused ("not supported yet");
+//! - emitters `point`, `spot`, `directional`, `area` inside a shape, `envmap` (a lat-long
+//!   `.exr`/`.hdr` map, `scale`, a rotation `to_world`; see [`super::envmap`]) and `constant`;
 //! - sensors `perspective` with an `hdrfilm`, its `rfilter` and `sampler`, and integrators:
 //!   see `mitsuba/sensor.rs`.
 //!
@@ -33,13 +33,14 @@
 
 use crate::error::{Error, Location};
 use crate::scene::{
-    mesh, Emitter, KnownMaterial, Material, Mesh, ReflectanceSpec, Rgb, Scene, Shape, Sides,
+    mesh, Emitter, EnvMap, KnownMaterial, Material, Mesh, ReflectanceSpec, Rgb, Scene, Shape, Sides,
 };
 use crate::Result;
 use glam::{DMat3, DMat4, DVec3, Vec3};
 use roxmltree::{Document, Node};
 use std::collections::{HashMap, HashSet};
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 mod bsdf;
 mod sensor;
@@ -1194,26 +1195,47 @@ impl<'a, 'i> Parser<'a, 'i> {
 
     // ---- emitters ----------------------------------------------------------------------------
 
-    /// The properties of an `envmap` (`filename`, `scale`, `to_world`, `mis_compensation`)
-    /// or a `constant` (`radiance`) emitter, checked as Mitsuba checks them.
-    fn environment(&mut self, props: &mut Props<'a, 'i>, kind: &str, node: Node) -> Result<()> {
+    /// An `envmap` (`filename`, `scale`, `to_world`, `mis_compensation`) or a `constant`
+    /// (`radiance`) emitter, checked as Mitsuba checks them; the map is read here.
+    fn environment(&mut self, mut props: Props<'a, 'i>, kind: &str, node: Node) -> Result<Emitter> {
         if kind == "constant" {
-            self.emission(props, "radiance", 1.0)?;
-            return Ok(());
+            let radiance = self.emission(&mut props, "radiance", 1.0)?;
+            props.finish(self, &["sampling_weight"])?;
+            let env = EnvMap::constant(radiance, glam::Mat4::IDENTITY);
+            return Ok(Emitter::Environment(Arc::new(env)));
         }
         let f = props
             .take("filename")
             .ok_or_else(|| self.err(node, "missing property 'filename'"))?;
-        let name = self.string_of(f)?;
-        self.files.push(self.dir.join(name));
-        if let Some(n) = props.take("scale") {
-            self.float_of(n)?;
-        }
+        let file = self.dir.join(self.string_of(f)?);
+        self.files.push(file.clone());
+        let scale = match props.take("scale") {
+            Some(n) => {
+                let s = self.float_of(n)?;
+                if !(s >= 0.0 && s.is_finite()) {
+                    return Err(self.err(n, "'scale' must be a non-negative number"));
+                }
+                s
+            }
+            None => 1.0,
+        };
         if let Some(n) = props.take("mis_compensation") {
             self.bool_of(n)?;
         }
-        self.to_world(props)?;
-        Ok(())
+        let m = match self.to_world(&mut props)? {
+            Some((m, n)) if !is_rotation(&m) => {
+                return Err(self.err(
+                    n,
+                    "an environment map's to_world must be a rotation (no scale or shear)",
+                ))
+            }
+            Some((m, _)) => m,
+            None => DMat4::IDENTITY,
+        };
+        props.finish(self, &["sampling_weight"])?;
+        let env = EnvMap::load(&file, scale as f32, m.as_mat4())
+            .map_err(|e| self.err(f, e.to_string()))?;
+        Ok(Emitter::Environment(Arc::new(env)))
     }
 
     fn emitter_props(&mut self, node: Node<'a, 'i>) -> Result<(String, Props<'a, 'i>)> {
@@ -1326,18 +1348,11 @@ impl<'a, 'i> Parser<'a, 'i> {
                 }
             }
             "area" => return Err(self.err(node, "an area emitter must be nested inside a shape")),
-            "envmap" | "constant" => {
-                self.environment(&mut props, &kind, node)?;
-                props.finish(self, &["sampling_weight"])?;
-                return Err(self.err(
-                    node,
-                    format!("emitter '{kind}' is not supported yet: environment light is not modelled (point, spot, directional, area)"),
-                ));
-            }
+            "envmap" | "constant" => return self.environment(props, &kind, node),
             k if OTHER_EMITTERS.contains(&k) => {
                 return Err(self.err(
                     node,
-                    format!("emitter '{k}' is not supported yet (point, spot, directional, area)"),
+                    format!("emitter '{k}' is not supported yet (point, spot, directional, area, envmap, constant)"),
                 ))
             }
             other => return Err(self.err(node, format!("unknown emitter plugin '{other}'"))),
@@ -1345,6 +1360,19 @@ impl<'a, 'i> Parser<'a, 'i> {
         props.finish(self, &["sampling_weight"])?;
         Ok(e)
     }
+}
+
+/// Whether the linear part of `m` is a rotation (orthonormal, determinant +1) up to rounding.
+fn is_rotation(m: &DMat4) -> bool {
+    let r = DMat3::from_mat4(*m);
+    let d = r.transpose() * r - DMat3::IDENTITY;
+    let err = d
+        .x_axis
+        .abs()
+        .max_element()
+        .max(d.y_axis.abs().max_element())
+        .max(d.z_axis.abs().max_element());
+    err < 1e-4 && r.determinant() > 0.0
 }
 
 #[cfg(test)]
@@ -1582,9 +1610,15 @@ mod tests {
     fn refusals_name_line_and_element() {
         let cases: &[(&str, &str)] = &[
             ("<shape type=\"foo\"/>", "(line 2, col 1), <shape type=\"foo\">: unknown shape plugin 'foo'"),
-            ("<emitter type=\"envmap\"><string name=\"filename\" value=\"sky.exr\"/></emitter>", "emitter 'envmap' is not supported yet"),
+            ("<emitter type=\"envmap\"><string name=\"filename\" value=\"sky.exr\"/></emitter>", "<string name=\"filename\">: "),
+            ("<emitter type=\"envmap\"><string name=\"filename\" value=\"sky.exr\"/></emitter>", "sky.exr: cannot read environment map"),
+            ("<emitter type=\"envmap\"><string name=\"filename\" value=\"sky.png\"/></emitter>", "must be OpenEXR (.exr) or Radiance (.hdr)"),
             ("<emitter type=\"envmap\"><string name=\"filename\" value=\"sky.exr\"/><float name=\"gamma\" value=\"2\"/></emitter>", "unsupported property 'gamma'"),
-            ("<emitter type=\"constant\"><rgb name=\"radiance\" value=\"1\"/></emitter>", "emitter 'constant' is not supported yet"),
+            ("<emitter type=\"envmap\"><string name=\"filename\" value=\"sky.exr\"/><transform name=\"to_world\"><scale value=\"2\"/></transform></emitter>", "must be a rotation"),
+            ("<emitter type=\"envmap\"/>", "missing property 'filename'"),
+            ("<emitter type=\"constant\"><rgb name=\"radiance\" value=\"-1\"/></emitter>", "'radiance' must not be negative"),
+            ("<emitter type=\"constant\"><texture name=\"radiance\" type=\"bitmap\"/></emitter>", "textured emission"),
+            ("<shape type=\"cube\"><emitter type=\"area\"><texture name=\"radiance\" type=\"bitmap\"/></emitter></shape>", "textured emission"),
             ("<emitter type=\"sky\"/>", "unknown emitter plugin 'sky'"),
             ("<emitter type=\"area\"/>", "nested inside a shape"),
             ("<emitter type=\"point\"><texture name=\"intensity\" type=\"bitmap\"/></emitter>", "not supported"),

@@ -5,6 +5,7 @@
 //! loads OBJ/PLY meshes and the built-in shapes; [`load`] picks the format by the file's
 //! extension. Nothing downstream knows about XML or glTF.
 
+pub mod envmap;
 pub mod filter;
 pub mod gltf;
 pub mod material;
@@ -12,6 +13,7 @@ pub mod mesh;
 pub mod mitsuba;
 pub mod truth;
 
+pub use envmap::EnvMap;
 pub use filter::PixelFilter;
 pub use material::{KnownBsdf, KnownMaterial, Rough};
 
@@ -19,6 +21,7 @@ use crate::config::Config;
 use crate::Result;
 use glam::{Mat4, Vec2, Vec3};
 use std::path::PathBuf;
+use std::sync::Arc;
 
 /// The scene of a run: `cfg.scene` read as glTF 2.0 if it ends in `.gltf` or `.glb`, else as
 /// Mitsuba 3 XML. A glTF scene takes its film sizes from the run's photos and its light units
@@ -236,6 +239,9 @@ pub enum Emitter {
     Directional { direction: Vec3, irradiance: Rgb },
     /// One-sided area emitter on shape `shape` with uniform `radiance`.
     Area { shape: usize, radiance: Rgb },
+    /// Light from infinitely far away in every direction: Mitsuba's `envmap` (a lat-long
+    /// radiance map) or `constant` (one radiance): see [`EnvMap`].
+    Environment(Arc<EnvMap>),
 }
 
 /// Mitsuba's `fov_axis` choices.

@@ -300,12 +300,14 @@ fn bad_inputs_are_refused_with_file_and_line() {
     );
     assert!(e.contains("bad_index.xml"), "{e}");
     bad("nan.xml", "meshes/nan.obj (line 2)", Some(2), "non-finite");
-    bad(
+    // an environment map whose file is missing: the XML line and the map's name
+    let e = bad(
         "envmap.xml",
         "envmap.xml",
-        Some(3),
-        "emitter 'envmap' is not supported yet",
+        Some(4),
+        "cannot read environment map",
     );
+    assert!(e.contains("sky.exr"), "{e}");
     bad("spectrum.xml", "spectrum.xml", Some(4), "wavelength");
     let e = mitsuba::load(&fixture("bad/no_such_scene.xml"))
         .unwrap_err()
