@@ -6,7 +6,7 @@
 //! texel returns its observed radiance `L_orig`, a hit on an unobserved one its current
 //! estimate `K_d (E_d + E_i) / pi`, a hit on an emitter (its light is `E_d`), on nothing, or on
 //! the back of a one-sided surface returns 0; `E_i = pi * mean`. A ray that meets a known
-//! material (mirror, glass) goes on through it (`scatter::sample`, at most [`MAX_SPECULAR`]
+//! material (mirror, glass) goes on through it (`scatter::sample`, at most [`scatter::MAX_SPECULAR`]
 //! times) with its throughput, and there an emitter counts: light by way of a mirror or
 //! through glass is not in `E_d`. Observed surfaces need no
 //! `K_d`, so it converges in one or two passes where photon tracing needs many.
@@ -450,16 +450,12 @@ enum Seen {
     Nothing,
 }
 
-/// Most known-material bounces a gather ray follows (mirror-in-glass chains beyond this add
-/// too little to pay).
-pub const MAX_SPECULAR: u32 = 8;
-
 /// Follows a gather ray from `o` along `d` through known materials (sampled by `scatter`)
 /// to the reconstructed surface or the light it sees. Emitters seen directly, misses and the
 /// back of one-sided surfaces bring nothing.
 fn walk(ctx: &GatherContext, mut o: Vec3, mut d: Vec3, rng: &mut Rng) -> Seen {
     let mut weight = Vec3::ONE;
-    for bounce in 0..=MAX_SPECULAR {
+    for bounce in 0..=scatter::MAX_SPECULAR {
         let Some((hit, prim)) = ctx.hits.trace(ctx.accel, o, d, f32::INFINITY) else {
             // the sky seen straight is E_d; through glass or in a mirror it is E_i
             return match bounce {

@@ -229,9 +229,6 @@ fn pixel(
 /// Mixed into the seed of the re-renders' paths through known materials.
 const RENDER_TAG: u64 = 0x7e4d_e5ca_77e2_0001;
 
-/// Most known-material bounces a re-render ray follows.
-const MAX_SPECULAR: u32 = 8;
-
 /// What the ray through continuous pixel coordinates `(px, py)` sees; emitters and known
 /// materials (mirrors, glass: one path sampled through them, its random numbers a function
 /// of `stream`) only with `scene` (else they are `Nothing`).
@@ -246,7 +243,7 @@ fn trace(
     let (mut o, mut d) = camera.ray(px, py);
     let mut weight = Vec3::ONE;
     let mut rng = None;
-    for bounce in 0..=MAX_SPECULAR {
+    for bounce in 0..=scatter::MAX_SPECULAR {
         let Some(hit) = accel.intersect(o, d, f32::INFINITY) else {
             return match (bounce, scene.map(|s| environment(s, d))) {
                 (_, None) => Seen::Nothing,

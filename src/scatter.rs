@@ -16,6 +16,10 @@ use crate::scene::Rgb;
 use glam::Vec3;
 use std::f32::consts::TAU;
 
+/// Most known-material bounces a gather or re-render ray follows before it gives up
+/// (mirror-in-glass chains beyond this add too little to pay).
+pub const MAX_SPECULAR: u32 = 8;
+
 /// One sampled continuation.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Scatter {

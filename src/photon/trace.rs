@@ -7,8 +7,6 @@ use crate::accel::offset_origin;
 use crate::atlas::texels::NONE;
 use crate::rng::Rng;
 use crate::scatter;
-use glam::Vec3;
-use std::f32::consts::TAU;
 use std::ops::AddAssign;
 
 /// Lowest Russian-roulette survival probability: a dark surface still passes a few photons
@@ -120,7 +118,7 @@ pub fn trace_photon(
         }
         flux *= kd / q;
         let n_in = if cs < 0.0 { ns } else { -ns };
-        let dir = cosine_dir(n_in, &mut rng);
+        let dir = scatter::cosine_dir(n_in, &mut rng);
         // Leaving on the incident side of the geometric surface: dir.ng has cg's opposite sign.
         if positive(-dir.dot(ng) * cg).is_none() {
             break;
@@ -136,14 +134,4 @@ pub fn trace_photon(
 #[inline]
 fn positive(x: f32) -> Option<f32> {
     (x > 0.0).then_some(x)
-}
-
-/// A cosine-weighted unit direction about unit `n` (Malley's method).
-#[inline]
-fn cosine_dir(n: Vec3, rng: &mut Rng) -> Vec3 {
-    let r2 = rng.f32();
-    let phi = TAU * rng.f32();
-    let r = r2.sqrt();
-    let (u, v) = n.any_orthonormal_pair();
-    (u * (r * phi.cos()) + v * (r * phi.sin()) + n * (1.0 - r2).max(0.0).sqrt()).normalize()
 }
