@@ -79,10 +79,11 @@ pub fn sample(b: &KnownBsdf, d: Vec3, n: Vec3, rng: &mut Rng) -> Option<Scatter>
             specular,
             rough,
             nonlinear,
+            fdr_int,
         } => plastic(
             wi,
             ns,
-            (*eta, *diffuse, *specular, *rough, *nonlinear),
+            (*eta, *diffuse, *specular, *rough, *nonlinear, *fdr_int),
             u,
             rng,
         ),
@@ -175,7 +176,7 @@ fn dielectric(
 fn plastic(
     wi: Vec3,
     ns: Vec3,
-    (eta, diffuse, specular, rough, nonlinear): (f32, Rgb, Rgb, Option<Rough>, bool),
+    (eta, diffuse, specular, rough, nonlinear, fdr): (f32, Rgb, Rgb, Option<Rough>, bool, f32),
     u: f32,
     rng: &mut Rng,
 ) -> Option<Scatter> {
@@ -189,7 +190,6 @@ fn plastic(
     }
     let dir = cosine_dir(ns, rng);
     let fo = fresnel_dielectric(dir.dot(ns), eta);
-    let fdr = crate::scene::material::diffuse_fresnel_inside(eta);
     let base = match nonlinear {
         true => diffuse / (Vec3::ONE - diffuse * fdr),
         false => diffuse / (1.0 - fdr),
@@ -390,13 +390,7 @@ mod tests {
     /// `(1 - F_o) / (eta^2 (1 - F_dr))` on average over cosine directions.
     #[test]
     fn plastic_splits_coat_and_base() {
-        let b = KnownBsdf::Plastic {
-            eta: 1.5,
-            diffuse: Vec3::splat(0.5),
-            specular: Vec3::ONE,
-            rough: None,
-            nonlinear: false,
-        };
+        let b = KnownBsdf::plastic(1.5, Vec3::splat(0.5), Vec3::ONE, None, false);
         let d = Vec3::new(0.0, 0.0, -1.0);
         let f0 = fresnel_dielectric(1.0, 1.5);
         let fdr = crate::scene::material::diffuse_fresnel_inside(1.5);

@@ -75,6 +75,7 @@ pub fn bsdf_xml(b: &KnownBsdf) -> String {
             specular,
             rough,
             nonlinear,
+            ..
         } => {
             let (kind, r) = match rough {
                 Some(r) => ("roughplastic", rough_props(r)),

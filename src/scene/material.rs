@@ -29,12 +29,15 @@ pub enum KnownBsdf {
         thin: bool,
     },
     /// A dielectric coat of index `eta` over a diffuse base (`plastic`, `roughplastic`).
+    /// Made by [`KnownBsdf::plastic`], which settles `fdr_int` once.
     Plastic {
         eta: f32,
         diffuse: Rgb,
         specular: Rgb,
         rough: Option<Rough>,
         nonlinear: bool,
+        /// [`diffuse_fresnel_inside`]`(eta)`, kept so sampling does not integrate it per path.
+        fdr_int: f32,
     },
     /// `blendbsdf`: `b` with probability `weight`, else `a`.
     Blend {
@@ -46,6 +49,26 @@ pub enum KnownBsdf {
     Mask { opacity: f32, inner: Box<KnownBsdf> },
     /// `null`: invisible to light.
     Null,
+}
+
+impl KnownBsdf {
+    /// A plastic of coat index `eta` (inside over outside) over a `diffuse` base.
+    pub fn plastic(
+        eta: f32,
+        diffuse: Rgb,
+        specular: Rgb,
+        rough: Option<Rough>,
+        nonlinear: bool,
+    ) -> Self {
+        KnownBsdf::Plastic {
+            eta,
+            diffuse,
+            specular,
+            rough,
+            nonlinear,
+            fdr_int: diffuse_fresnel_inside(eta),
+        }
+    }
 }
 
 /// A microfacet roughness (isotropic: Mitsuba's `alpha`, or the mean of `alpha_u/v`).

@@ -216,17 +216,17 @@ impl<'a, 'i> Parser<'a, 'i> {
             Some(n) => self.bool_of(n)?,
             None => false,
         };
-        Ok(KnownBsdf::Plastic {
-            eta: int / ext,
+        let rough = match rough {
+            true => Some(self.roughness(props)?),
+            false => None,
+        };
+        Ok(KnownBsdf::plastic(
+            int / ext,
             diffuse,
             specular,
-            rough: if rough {
-                Some(self.roughness(props)?)
-            } else {
-                None
-            },
+            rough,
             nonlinear,
-        })
+        ))
     }
 
     /// `principled` / `principledthin` as a blend (see the module doc).
@@ -249,13 +249,7 @@ impl<'a, 'i> Parser<'a, 'i> {
             alpha: (r * r).max(1e-3),
             ggx: true,
         });
-        let plastic = KnownBsdf::Plastic {
-            eta,
-            diffuse: base,
-            specular: Vec3::ONE,
-            rough,
-            nonlinear: false,
-        };
+        let plastic = KnownBsdf::plastic(eta, base, Vec3::ONE, rough, false);
         let glass = KnownBsdf::Dielectric {
             eta,
             reflect: Vec3::ONE,
