@@ -206,6 +206,12 @@ pub fn alpha(alpha0: f32, n: u32) -> f32 {
 /// value from the mean of the observed texels (the shape's mean). `chart[i]` is the texel's
 /// chart (None for gutter); `observed[i]` marks texels with a measured K_d. Returns the mask
 /// of texels that were filled.
+///
+/// Round `k` gives every still-unknown texel that touches a texel known before round `k` the
+/// mean of those neighbours (one wave of a breadth-first fill). Only the neighbours of the
+/// previous round's texels can change in a round, so each round visits just those: the cost
+/// is proportional to the filled area, not to the texture's area times the fill's depth (a
+/// wide unobserved floor used to take thousands of whole-texture sweeps).
 pub fn fill_unobserved(
     kd: &mut [Vec3],
     observed: &[bool],
@@ -216,44 +222,67 @@ pub fn fill_unobserved(
     let (w, h) = (width as i64, height as i64);
     let mut known: Vec<bool> = observed.to_vec();
     let mut filled = vec![false; kd.len()];
+    let neighbours = |i: usize| {
+        let (x, y) = (i as i64 % w, i as i64 / w);
+        (-1..=1i64)
+            .flat_map(move |dy| (-1..=1i64).map(move |dx| (x + dx, y + dy)))
+            .filter(move |&(nx, ny)| nx >= 0 && ny >= 0 && nx < w && ny < h)
+            .map(move |(nx, ny)| (ny * w + nx) as usize)
+    };
+    // Round 0's candidates: unknown surface texels next to an observed one.
+    let mut front: Vec<usize> = (0..kd.len()).filter(|&i| known[i]).collect();
+    let mut queued = vec![false; kd.len()];
     loop {
-        let mut changes = Vec::new();
-        for y in 0..h {
-            for x in 0..w {
-                let i = (y * w + x) as usize;
-                let Some(c) = chart[i] else { continue };
-                if known[i] {
-                    continue;
-                }
-                let (mut sum, mut n) = (Vec3::ZERO, 0u32);
-                for dy in -1..=1 {
-                    for dx in -1..=1 {
-                        let (nx, ny) = (x + dx, y + dy);
-                        if nx < 0 || ny < 0 || nx >= w || ny >= h {
-                            continue;
-                        }
-                        let j = (ny * w + nx) as usize;
-                        if known[j] && chart[j] == Some(c) {
-                            sum += kd[j];
-                            n += 1;
-                        }
-                    }
-                }
-                if n > 0 {
-                    changes.push((i, sum / n as f32));
+        let mut candidates = Vec::new();
+        for &i in &front {
+            for j in neighbours(i) {
+                if !known[j] && !queued[j] && chart[j].is_some() {
+                    queued[j] = true;
+                    candidates.push(j);
                 }
             }
+        }
+        // Row-major order, as a sweep would visit them (the values do not depend on it).
+        candidates.sort_unstable();
+        let changes: Vec<(usize, Vec3)> = candidates
+            .iter()
+            .filter_map(|&i| {
+                let c = chart[i];
+                let (mut sum, mut n) = (Vec3::ZERO, 0u32);
+                for j in neighbours(i) {
+                    if known[j] && chart[j] == c {
+                        sum += kd[j];
+                        n += 1;
+                    }
+                }
+                (n > 0).then(|| (i, sum / n as f32))
+            })
+            .collect();
+        for &i in &candidates {
+            queued[i] = false;
         }
         if changes.is_empty() {
             break;
         }
-        for (i, val) in changes {
+        for &(i, val) in &changes {
             kd[i] = val;
             known[i] = true;
             filled[i] = true;
         }
+        front = changes.into_iter().map(|(i, _)| i).collect();
     }
-    // Charts with no observed texel at all: the shape's mean.
+    fill_with_mean(kd, observed, chart, &known, &mut filled);
+    filled
+}
+
+/// Charts with no observed texel at all: the shape's mean (0.5 if nothing is observed).
+fn fill_with_mean(
+    kd: &mut [Vec3],
+    observed: &[bool],
+    chart: &[Option<u32>],
+    known: &[bool],
+    filled: &mut [bool],
+) {
     let (mut sum, mut n) = (Vec3::ZERO, 0u32);
     for (i, &o) in observed.iter().enumerate() {
         if o {
@@ -272,7 +301,6 @@ pub fn fill_unobserved(
             filled[i] = true;
         }
     }
-    filled
 }
 
 /// Steps 3-5 over every tile, then the fill of unobserved texels: `K_d` from the current
@@ -531,6 +559,80 @@ mod tests {
         );
         assert!((sums.max_rel - f.abs() as f64).abs() < 1e-5);
         assert_eq!(sums.texels, 1);
+    }
+
+    /// The fill as first written: whole-texture sweeps until nothing changes.
+    fn fill_by_sweeps(
+        kd: &mut [Vec3],
+        observed: &[bool],
+        chart: &[Option<u32>],
+        w: i64,
+        h: i64,
+    ) -> Vec<bool> {
+        let mut known: Vec<bool> = observed.to_vec();
+        let mut filled = vec![false; kd.len()];
+        loop {
+            let mut changes = Vec::new();
+            for i in 0..(w * h) as usize {
+                let (x, y) = (i as i64 % w, i as i64 / w);
+                if chart[i].is_none() || known[i] {
+                    continue;
+                }
+                let (mut sum, mut n) = (Vec3::ZERO, 0u32);
+                for (dx, dy) in (-1..=1).flat_map(|dy| (-1..=1).map(move |dx| (dx, dy))) {
+                    let (nx, ny) = (x + dx, y + dy);
+                    let j = (ny * w + nx) as usize;
+                    if nx >= 0 && ny >= 0 && nx < w && ny < h && known[j] && chart[j] == chart[i] {
+                        sum += kd[j];
+                        n += 1;
+                    }
+                }
+                if n > 0 {
+                    changes.push((i, sum / n as f32));
+                }
+            }
+            if changes.is_empty() {
+                break;
+            }
+            for (i, v) in changes {
+                (kd[i], known[i], filled[i]) = (v, true, true);
+            }
+        }
+        fill_with_mean(kd, observed, chart, &known, &mut filled);
+        filled
+    }
+
+    #[test]
+    fn the_wavefront_fill_equals_whole_texture_sweeps_bit_for_bit() {
+        let mut rng = crate::rng::Rng::new(7, 0, 0, 0);
+        for case in 0..40 {
+            let (w, h) = (3 + (case % 7) * 5, 2 + (case % 5) * 7);
+            let n = (w * h) as usize;
+            // blobs of charts, gutter here and there, sparse observations (some charts none)
+            let chart: Vec<Option<u32>> = (0..n)
+                .map(|i| {
+                    let (x, y) = (i as u32 % w, i as u32 / w);
+                    (rng.f32() > 0.1).then_some(x / 6 + 4 * (y / 5))
+                })
+                .collect();
+            let observed: Vec<bool> = (0..n)
+                .map(|i| chart[i].is_some() && rng.f32() < 0.03 * (1 + case % 4) as f32)
+                .collect();
+            let kd0: Vec<Vec3> = (0..n)
+                .map(|_| Vec3::new(rng.f32(), rng.f32(), rng.f32()))
+                .collect();
+            let (mut a, mut b) = (kd0.clone(), kd0.clone());
+            let fa = fill_unobserved(&mut a, &observed, &chart, w, h);
+            let fb = fill_by_sweeps(&mut b, &observed, &chart, w as i64, h as i64);
+            assert_eq!(fa, fb, "case {case}: filled masks differ");
+            let bits = |v: &[Vec3]| {
+                v.iter()
+                    .map(|k| k.to_array().map(f32::to_bits))
+                    .collect::<Vec<_>>()
+            };
+            assert_eq!(bits(&a), bits(&b), "case {case}: values differ");
+            assert!(fa.iter().any(|&f| f), "case {case} fills nothing");
+        }
     }
 
     #[test]
