@@ -33,14 +33,17 @@ use crate::atlas::hits::HitTable;
 use crate::atlas::layout::{flags, Layout, TexelGeom, TexelState};
 use crate::atlas::texels::NONE;
 use crate::atlas::texture;
-use crate::atlas::tiles::{map_tiles, TileStore};
+use crate::atlas::tile_cache::{Reader, TileCache};
+use crate::atlas::tiles::{map_tiles, window_tiles_for_budget, TileStore};
 use crate::atlas::Prepared;
 use crate::error::Result;
 use crate::rng::Rng;
 use crate::scatter;
+use bytemuck::{Pod, Zeroable};
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 use std::f32::consts::{PI, TAU};
+use std::path::Path;
 use std::time::Instant;
 
 /// Mixed into the seed so gather rays never share a stream with photons or shadow rays.
@@ -209,39 +212,69 @@ impl GatherPoints {
 
 /// Every slot's outgoing radiance for a gather pass: `L_orig` where observed, the current
 /// `K_d (E_d + E_i) / pi` elsewhere on the surface, 0 off it; with which texels are observed.
-#[derive(Debug, Clone, PartialEq)]
+/// Held in a tile store beside the run's state and read through a bounded cache, so its memory
+/// is set by the budget, not by the atlas (rays land anywhere, so reads are random).
 pub struct Radiance {
-    slots: Vec<SlotRadiance>,
+    layout: Layout,
+    texels: TileCache<RadianceTexel>,
 }
 
-#[derive(Debug, Clone, PartialEq)]
-struct SlotRadiance {
-    width: u32,
-    height: u32,
-    texels: Vec<Vec3>,
-    observed: Vec<bool>,
+/// One texel of [`Radiance`]: its outgoing radiance and whether it is observed (1) or not (0).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Pod, Zeroable)]
+pub struct RadianceTexel {
+    pub rgb: [f32; 3],
+    pub observed: u32,
 }
 
 impl Radiance {
+    /// Writes the radiance of every texel to a tile store at `path` (one state and geometry
+    /// tile at a time) and opens it for lookups through a cache of `budget_bytes`.
     pub fn from_state(
         layout: &Layout,
         state: &TileStore<TexelState>,
         geom: &TileStore<TexelGeom>,
+        path: &Path,
+        budget_bytes: u64,
     ) -> Result<Radiance> {
-        let mut slots = Vec::with_capacity(layout.slots.len());
-        for (slot, st) in layout.slots.iter().enumerate() {
-            let t = texture::gather(layout, slot, state, geom, |s, g| {
-                (outgoing(s, g), s.flags & flags::OBSERVED != 0)
-            })?;
-            let (texels, observed) = t.into_iter().unzip();
-            slots.push(SlotRadiance {
-                width: st.width,
-                height: st.height,
-                texels,
-                observed,
-            });
-        }
-        Ok(Radiance { slots })
+        let (n, texels) = (layout.tile_count as usize, layout.tile_texels());
+        let mut store = TileStore::create(path, n, texels, RadianceTexel::default())?;
+        let window = window_tiles_for_budget(budget_bytes, store.tile_stride_bytes());
+        map_tiles(&mut store, geom, window, |t, g, out| {
+            let s = state.read_tile(t)?;
+            for ((o, s), g) in out.iter_mut().zip(&s).zip(g) {
+                let observed = g.covered() && s.flags & flags::OBSERVED != 0;
+                *o = RadianceTexel {
+                    rgb: outgoing(s, g).to_array(),
+                    observed: observed as u32,
+                };
+            }
+            Ok::<(), crate::Error>(())
+        })?
+        .into_iter()
+        .collect::<Result<()>>()?;
+        Ok(Radiance {
+            layout: layout.clone(),
+            texels: TileCache::new(store, budget_bytes)?,
+        })
+    }
+
+    /// The first read error of the lookups since the last check (see [`TileCache::check`]).
+    pub fn check(&self) -> Result<()> {
+        self.texels.check()
+    }
+
+    /// Texel `(x, y)` of `slot` (inside the texture), through `reader`.
+    #[inline]
+    fn texel(
+        &self,
+        reader: &mut Reader<RadianceTexel>,
+        slot: usize,
+        x: i64,
+        y: i64,
+    ) -> RadianceTexel {
+        let (t, o) = self.layout.locate(slot, x as u32, y as u32);
+        reader.get(t, o)
     }
 
     /// Radiance of `slot` at continuous texel coordinates `uv` on chart `chart`: bilinear over
@@ -249,13 +282,14 @@ impl Radiance {
     /// chart in the 3 x 3 around `uv`, else 0; and whether every texel it read is observed
     /// (so the value will not change as the solver goes on).
     pub fn lookup(&self, charts: &Charts, slot: usize, uv: Vec2, chart: u32) -> (Vec3, bool) {
-        let r = &self.slots[slot];
-        let (w, h) = (r.width as i64, r.height as i64);
+        let st = &self.layout.slots[slot];
+        let (w, h) = (st.width as i64, st.height as i64);
         let tc = &charts.slots[slot].texel_chart;
         let on = |x: i64, y: i64| {
             (x >= 0 && y >= 0 && x < w && y < h && tc[(y * w + x) as usize] == chart)
-                .then_some((y * w + x) as usize)
+                .then_some((x, y))
         };
+        let mut reader = self.texels.reader();
         let (fx, fy) = (uv.x - 0.5, uv.y - 0.5);
         let (x0, y0) = (fx.floor(), fy.floor());
         let (tx, ty) = (fx - x0, fy - y0);
@@ -267,10 +301,11 @@ impl Radiance {
             (0, 1, (1.0 - tx) * ty),
             (1, 1, tx * ty),
         ] {
-            if let Some(i) = on(x0 + dx, y0 + dy) {
-                sum += r.texels[i] * wt;
+            if let Some((x, y)) = on(x0 + dx, y0 + dy) {
+                let r = self.texel(&mut reader, slot, x, y);
+                sum += Vec3::from_array(r.rgb) * wt;
                 wsum += wt;
-                fixed &= r.observed[i];
+                fixed &= r.observed != 0;
             }
         }
         if wsum > 0.0 {
@@ -280,7 +315,10 @@ impl Radiance {
         (-1..=1)
             .flat_map(|dy| (-1..=1).map(move |dx| (dx, dy)))
             .find_map(|(dx, dy)| on(cx + dx, cy + dy))
-            .map_or((Vec3::ZERO, true), |i| (r.texels[i], r.observed[i]))
+            .map_or((Vec3::ZERO, true), |(x, y)| {
+                let r = self.texel(&mut reader, slot, x, y);
+                (Vec3::from_array(r.rgb), r.observed != 0)
+            })
     }
 }
 

@@ -601,17 +601,23 @@ impl<'a> Run<'a> {
     fn gather_estimate(&self, r: &mut Running) -> Result<Estimate> {
         let p = &self.p;
         let t = Instant::now();
-        let radiance = Radiance::from_state(&p.layout, &r.state, &self.geom)?;
+        let path = self.dir.join("gather-radiance.tiles");
+        let budget = self.cfg.memory_budget_mib << 20;
+        let radiance = Radiance::from_state(&p.layout, &r.state, &self.geom, &path, budget)?;
         let mut rays = 0;
         let cache = match self.gather.get() {
             Some(c) => c,
             None => {
                 let cache = self.trace_gather(&radiance)?;
+                radiance.check()?;
                 rays = cache.stats.rays;
                 self.gather.get_or_init(|| cache)
             }
         };
         let values = cache.evaluate(&radiance, &self.charts);
+        radiance.check()?;
+        drop(radiance);
+        std::fs::remove_file(&path).map_err(|e| crate::Error::io(&path, e))?;
         let (points, layout, charts, geom) =
             (self.gather_points()?, &p.layout, &self.charts, &self.geom);
         write_accum(

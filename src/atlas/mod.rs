@@ -11,6 +11,7 @@ pub mod layout;
 pub mod prepared;
 pub mod texels;
 pub mod texture;
+pub mod tile_cache;
 pub mod tiles;
 pub mod unwrap;
 

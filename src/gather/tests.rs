@@ -65,6 +65,12 @@ impl Fixture {
         }
     }
 
+    /// The radiance of the current state, read through a cache of `budget` bytes.
+    fn radiance(&self, budget: u64) -> Radiance {
+        let path = self._dir.path().join("radiance.tiles");
+        Radiance::from_state(&self.p.layout, &self.state, &self.geom, &path, budget).unwrap()
+    }
+
     /// Sets every covered texel of shape `id` with `f`.
     fn set(&mut self, id: &str, f: impl Fn(&mut TexelState) + Sync + Send) {
         let si = self.p.scene.shapes.iter().position(|s| s.id == id).unwrap();
@@ -95,7 +101,7 @@ impl Fixture {
 
     fn gather(&self, spacing: f32, rays: u32) -> (GatherPoints, Vec<Vec3>) {
         let points = GatherPoints::new(&self.p, &self.geom, &self.charts, spacing).unwrap();
-        let radiance = Radiance::from_state(&self.p.layout, &self.state, &self.geom).unwrap();
+        let radiance = self.radiance(1 << 30);
         let ctx = GatherContext {
             accel: &self.p.accel,
             hits: &self.hits,
@@ -352,15 +358,21 @@ fn interpolation_stays_within_the_chart() {
 fn radiance_lookup_ignores_other_charts() {
     let mut fx = Fixture::new(vec![shape("cube", mesh::cube(), None)], 16.0);
     fx.observe("cube", Vec3::ONE);
-    let mut rad = Radiance::from_state(&fx.p.layout, &fx.state, &fx.geom).unwrap();
     // poison every texel of chart 0
-    let tc = &fx.charts.slots[0].texel_chart;
-    for (v, &c) in rad.slots[0].texels.iter_mut().zip(tc) {
-        if c == 0 {
-            *v = Vec3::splat(1e6);
+    let tc = fx.charts.slots[0].texel_chart.clone();
+    let (w, h) = (fx.p.layout.slots[0].width, fx.p.layout.slots[0].height);
+    let layout = fx.p.layout.clone();
+    map_tiles(&mut fx.state, &fx.geom, 4, |t, _, st| {
+        for (o, s) in st.iter_mut().enumerate() {
+            if let Some((0, x, y)) = layout.texel_of(t as u32, o as u32) {
+                if tc[(y * w + x) as usize] == 0 {
+                    s.l_orig = [1e6; 3];
+                }
+            }
         }
-    }
-    let (w, h) = (rad.slots[0].width, rad.slots[0].height);
+    })
+    .unwrap();
+    let rad = fx.radiance(1 << 30);
     let mut checked = 0;
     for y in 0..h {
         for x in 0..w {
@@ -432,7 +444,7 @@ fn cached_hits_reevaluate_like_a_fresh_trace() {
     });
     let points = GatherPoints::new(&fx.p, &fx.geom, &fx.charts, 0.2).unwrap();
     let trace = |fx: &Fixture| {
-        let radiance = Radiance::from_state(&fx.p.layout, &fx.state, &fx.geom).unwrap();
+        let radiance = fx.radiance(1 << 30);
         let ctx = GatherContext {
             accel: &fx.p.accel,
             hits: &fx.hits,
@@ -459,4 +471,57 @@ fn cached_hits_reevaluate_like_a_fresh_trace() {
             "{a} vs {b}"
         );
     }
+}
+
+/// Through a cache of a few tiles, a lookup at a texel's center returns that texel's own
+/// outgoing radiance, read straight from the state: the store, its tile addressing and the
+/// cache agree with the state for every covered texel.
+#[test]
+fn radiance_through_a_tiny_cache_reads_each_texel() {
+    let mut fx = Fixture::new(vec![shape("cube", mesh::cube(), None)], 24.0);
+    fx.set("cube", |s| s.e_d = [1.0, 2.0, 3.0]);
+    let layout = fx.p.layout.clone();
+    // a different K_d in every texel, observed radiance in every third
+    map_tiles(&mut fx.state, &fx.geom, 4, |t, _, st| {
+        for (o, s) in st.iter_mut().enumerate() {
+            let i = (t * 4096 + o) as f32;
+            s.k_d = [0.1 + (i % 7.0) * 0.1, 0.2, 0.3 + (i % 3.0) * 0.1];
+            if (t + o) % 3 == 0 {
+                s.flags |= flags::OBSERVED;
+                s.l_orig = [i, 0.5, 0.25];
+            }
+        }
+    })
+    .unwrap();
+    let rad = fx.radiance(1);
+    let (st, tc) = (&layout.slots[0], &fx.charts.slots[0].texel_chart);
+    let mut checked = 0;
+    for t in 0..layout.tile_count {
+        let (g, s) = (
+            fx.geom.read_tile(t as usize).unwrap(),
+            fx.state.read_tile(t as usize).unwrap(),
+        );
+        for o in 0..layout.tile_texels() {
+            let Some((slot, x, y)) = layout.texel_of(t, o as u32) else {
+                continue;
+            };
+            let c = tc[(y * st.width + x) as usize];
+            if c == NONE || !g[o].covered() {
+                continue;
+            }
+            let want = if s[o].flags & flags::OBSERVED != 0 {
+                Vec3::from_array(s[o].l_orig)
+            } else {
+                Vec3::from_array(s[o].k_d) / PI * Vec3::new(1.0, 2.0, 3.0)
+            };
+            let uv = Vec2::new(x as f32 + 0.5, y as f32 + 0.5);
+            let (l, fixed) = rad.lookup(&fx.charts, slot, uv, c);
+            assert_eq!(l, want, "texel ({x}, {y})");
+            // zero-weight neighbours count too, so fixed implies only this texel observed
+            assert!(!fixed || s[o].flags & flags::OBSERVED != 0);
+            checked += 1;
+        }
+    }
+    rad.check().unwrap();
+    assert!(checked > 1000, "{checked}");
 }
