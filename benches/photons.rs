@@ -14,6 +14,7 @@ use glam::Vec3;
 use kdmap::atlas::charts::Charts;
 use kdmap::atlas::hits::HitTable;
 use kdmap::atlas::layout::TexelState;
+use kdmap::atlas::slot_texture::Scratch;
 use kdmap::atlas::{build_geometry, prepare};
 use kdmap::config::Config;
 use kdmap::light::EmitterSampler;
@@ -38,7 +39,9 @@ fn bench(c: &mut Criterion) {
         build_geometry(&p, &dir.path().join("geometry.tiles"), Mode::Quiet).expect("geometry");
     let charts = Charts::new(&p.scene, &p.layout, &p.atlases).expect("charts");
     let sampler = EmitterSampler::new(&p.scene);
-    let albedo = AlbedoTextures::uniform(&p.layout, &charts, Vec3::splat(0.5));
+    let scratch = Scratch::new(dir.path(), 1 << 30);
+    let albedo = AlbedoTextures::uniform(&p.layout, &charts, &geom, Vec3::splat(0.5), &scratch)
+        .expect("albedo");
     let window = p.window::<TexelState>(&cfg);
     let hits = HitTable::new(&p, &charts);
     let ctx = PassContext::new(&p, &cfg, (&sampler, &charts, &hits, &albedo), 0);

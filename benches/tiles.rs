@@ -16,7 +16,8 @@ use glam::Vec3;
 use kdmap::atlas::charts::Charts;
 use kdmap::atlas::hits::HitTable;
 use kdmap::atlas::layout::TexelState;
-use kdmap::atlas::prepare;
+use kdmap::atlas::slot_texture::Scratch;
+use kdmap::atlas::{build_geometry, prepare};
 use kdmap::config::Config;
 use kdmap::light::EmitterSampler;
 use kdmap::photon::{add_deposits, trace_batch, AlbedoTextures, Deposit, PassContext, PathCounts};
@@ -34,9 +35,13 @@ fn bench(c: &mut Criterion) {
     (cfg.seed, cfg.photons, cfg.batch_size) = (1, PHOTONS, BATCH);
     let dir = tempfile::tempdir().expect("temp dir");
     let p = prepare(&cfg, Mode::Quiet).expect("prepare");
+    let geom =
+        build_geometry(&p, &dir.path().join("geometry.tiles"), Mode::Quiet).expect("geometry");
     let charts = Charts::new(&p.scene, &p.layout, &p.atlases).expect("charts");
     let sampler = EmitterSampler::new(&p.scene);
-    let albedo = AlbedoTextures::uniform(&p.layout, &charts, Vec3::splat(0.5));
+    let scratch = Scratch::new(dir.path(), 1 << 30);
+    let albedo = AlbedoTextures::uniform(&p.layout, &charts, &geom, Vec3::splat(0.5), &scratch)
+        .expect("albedo");
     let all_tiles = p.window::<TexelState>(&cfg);
     let hits = HitTable::new(&p, &charts);
     let ctx = PassContext::new(&p, &cfg, (&sampler, &charts, &hits, &albedo), 0);

@@ -31,8 +31,8 @@ use crate::accel::{offset_origin, Accel};
 use crate::atlas::charts::Charts;
 use crate::atlas::hits::HitTable;
 use crate::atlas::layout::{flags, Layout, TexelGeom, TexelState};
+use crate::atlas::slot_texture::{Scratch, SlotTexture};
 use crate::atlas::texels::NONE;
-use crate::atlas::texture;
 use crate::atlas::tile_cache::{Reader, TileCache};
 use crate::atlas::tiles::{map_tiles, window_tiles_for_budget, TileStore};
 use crate::atlas::Prepared;
@@ -73,6 +73,14 @@ struct SlotCells {
     start: Vec<u32>,
 }
 
+/// A texel's geometry and its chart, for placing gather points.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, Pod, Zeroable)]
+struct GeomChart {
+    g: TexelGeom,
+    chart: u32,
+}
+
 /// The gather points of every slot.
 #[derive(Debug, Clone, PartialEq)]
 pub struct GatherPoints {
@@ -82,12 +90,14 @@ pub struct GatherPoints {
 
 impl GatherPoints {
     /// Points for every slot of `p`'s layout, `spacing` scene units apart (at least one
-    /// texel: `stride = max(1, round(spacing * texel density))`).
+    /// texel: `stride = max(1, round(spacing * texel density))`). Each texture's geometry is
+    /// read through a [`SlotTexture`] (whole if it fits in `scratch`'s budget).
     pub fn new(
         p: &Prepared,
         geom: &TileStore<TexelGeom>,
         charts: &Charts,
         spacing: f32,
+        scratch: &Scratch,
     ) -> Result<GatherPoints> {
         let mut out = GatherPoints {
             slots: Vec::with_capacity(p.layout.slots.len()),
@@ -98,24 +108,27 @@ impl GatherPoints {
                 .as_ref()
                 .map_or(1.0, |a| a.texel_density);
             let stride = ((spacing * density).round() as u32).max(1);
-            let g = texture::gather(&p.layout, slot, geom, geom, |g, _| *g)?;
-            let cells = out.add_slot(
-                &g,
-                &charts.slots[slot].texel_chart,
-                st.width,
-                st.height,
-                stride,
-            );
+            let sc = &charts.slots[slot];
+            let g = SlotTexture::gather(&p.layout, slot, geom, geom, scratch, "points", |g, _| {
+                GeomChart {
+                    g: *g,
+                    chart: sc.texel(g),
+                }
+            })?;
+            let cells = out.add_slot(&g, stride);
+            g.check()?;
             out.slots.push(cells);
         }
         Ok(out)
     }
 
-    /// Cuts one texture (`geom` and `chart` row-major) into cells and adds their points.
-    fn add_slot(&mut self, geom: &[TexelGeom], chart: &[u32], w: u32, h: u32, s: u32) -> SlotCells {
+    /// Cuts one texture into cells of `s x s` texels and adds their points.
+    fn add_slot(&mut self, tex: &SlotTexture<GeomChart>, s: u32) -> SlotCells {
+        let (w, h) = (tex.grid.width, tex.grid.height);
         let (cells_x, cells_y) = (w.div_ceil(s), h.div_ceil(s));
         let mut start = Vec::with_capacity((cells_x * cells_y + 1) as usize);
         let center = (s as f32) * 0.5;
+        let mut rd = tex.reader();
         for cy in 0..cells_y {
             for cx in 0..cells_x {
                 start.push(self.points.len() as u32);
@@ -123,9 +136,9 @@ impl GatherPoints {
                 let mut best: Vec<(u32, f32, u32, u32)> = Vec::new();
                 for y in cy * s..((cy + 1) * s).min(h) {
                     for x in cx * s..((cx + 1) * s).min(w) {
-                        let i = (y * w + x) as usize;
-                        let c = chart[i];
-                        if c == NONE || !geom[i].covered() {
+                        let t = rd.get(x, y);
+                        let c = t.chart;
+                        if c == NONE || !t.g.covered() {
                             continue;
                         }
                         let dx = (x - cx * s) as f32 + 0.5 - center;
@@ -140,7 +153,7 @@ impl GatherPoints {
                 }
                 best.sort_by_key(|b| b.0);
                 for (c, _, x, y) in best {
-                    let g = &geom[(y * w + x) as usize];
+                    let g = rd.get(x, y).g;
                     self.points.push(Point {
                         x,
                         y,
@@ -219,12 +232,43 @@ pub struct Radiance {
     texels: TileCache<RadianceTexel>,
 }
 
-/// One texel of [`Radiance`]: its outgoing radiance and whether it is observed (1) or not (0).
+/// One texel of [`Radiance`]: its outgoing radiance, and its chart with whether it is
+/// observed packed in one word (bit 31 = observed, the rest the chart; [`NONE`] off the
+/// surface), so a bilinear lookup reads one record per texel.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, Pod, Zeroable)]
 pub struct RadianceTexel {
     pub rgb: [f32; 3],
-    pub observed: u32,
+    pub tag: u32,
+}
+
+const OBSERVED_BIT: u32 = 1 << 31;
+
+impl RadianceTexel {
+    fn new(rgb: Vec3, chart: u32, observed: bool) -> Self {
+        let tag = match chart {
+            NONE => NONE,
+            c => (c & !OBSERVED_BIT) | if observed { OBSERVED_BIT } else { 0 },
+        };
+        RadianceTexel {
+            rgb: rgb.to_array(),
+            tag,
+        }
+    }
+
+    /// The chart under the texel's center, or [`NONE`].
+    #[inline]
+    pub fn chart(&self) -> u32 {
+        match self.tag {
+            NONE => NONE,
+            t => t & !OBSERVED_BIT,
+        }
+    }
+
+    #[inline]
+    pub fn observed(&self) -> bool {
+        self.tag != NONE && self.tag & OBSERVED_BIT != 0
+    }
 }
 
 impl Radiance {
@@ -232,6 +276,7 @@ impl Radiance {
     /// tile at a time) and opens it for lookups through a cache of `budget_bytes`.
     pub fn from_state(
         layout: &Layout,
+        charts: &Charts,
         state: &TileStore<TexelState>,
         geom: &TileStore<TexelGeom>,
         path: &Path,
@@ -242,12 +287,10 @@ impl Radiance {
         let window = window_tiles_for_budget(budget_bytes, store.tile_stride_bytes());
         map_tiles(&mut store, geom, window, |t, g, out| {
             let s = state.read_tile(t)?;
+            let sc = &charts.slots[layout.slot_of_tile(t as u32)];
             for ((o, s), g) in out.iter_mut().zip(&s).zip(g) {
                 let observed = g.covered() && s.flags & flags::OBSERVED != 0;
-                *o = RadianceTexel {
-                    rgb: outgoing(s, g).to_array(),
-                    observed: observed as u32,
-                };
+                *o = RadianceTexel::new(outgoing(s, g), sc.texel(g), observed);
             }
             Ok::<(), crate::Error>(())
         })?
@@ -281,15 +324,17 @@ impl Radiance {
     /// the four nearest texels of that chart (renormalized), else the nearest texel of that
     /// chart in the 3 x 3 around `uv`, else 0; and whether every texel it read is observed
     /// (so the value will not change as the solver goes on).
-    pub fn lookup(&self, charts: &Charts, slot: usize, uv: Vec2, chart: u32) -> (Vec3, bool) {
+    pub fn lookup(&self, slot: usize, uv: Vec2, chart: u32) -> (Vec3, bool) {
         let st = &self.layout.slots[slot];
         let (w, h) = (st.width as i64, st.height as i64);
-        let tc = &charts.slots[slot].texel_chart;
-        let on = |x: i64, y: i64| {
-            (x >= 0 && y >= 0 && x < w && y < h && tc[(y * w + x) as usize] == chart)
-                .then_some((x, y))
-        };
         let mut reader = self.texels.reader();
+        let mut on = |x: i64, y: i64| {
+            if x < 0 || y < 0 || x >= w || y >= h {
+                return None;
+            }
+            let r = self.texel(&mut reader, slot, x, y);
+            (r.chart() == chart).then_some(r)
+        };
         let (fx, fy) = (uv.x - 0.5, uv.y - 0.5);
         let (x0, y0) = (fx.floor(), fy.floor());
         let (tx, ty) = (fx - x0, fy - y0);
@@ -301,11 +346,10 @@ impl Radiance {
             (0, 1, (1.0 - tx) * ty),
             (1, 1, tx * ty),
         ] {
-            if let Some((x, y)) = on(x0 + dx, y0 + dy) {
-                let r = self.texel(&mut reader, slot, x, y);
+            if let Some(r) = on(x0 + dx, y0 + dy) {
                 sum += Vec3::from_array(r.rgb) * wt;
                 wsum += wt;
-                fixed &= r.observed != 0;
+                fixed &= r.observed();
             }
         }
         if wsum > 0.0 {
@@ -315,9 +359,8 @@ impl Radiance {
         (-1..=1)
             .flat_map(|dy| (-1..=1).map(move |dx| (dx, dy)))
             .find_map(|(dx, dy)| on(cx + dx, cy + dy))
-            .map_or((Vec3::ZERO, true), |(x, y)| {
-                let r = self.texel(&mut reader, slot, x, y);
-                (Vec3::from_array(r.rgb), r.observed != 0)
+            .map_or((Vec3::ZERO, true), |r| {
+                (Vec3::from_array(r.rgb), r.observed())
             })
     }
 }
@@ -338,7 +381,6 @@ fn outgoing(s: &TexelState, g: &TexelGeom) -> Vec3 {
 pub struct GatherContext<'a> {
     pub accel: &'a Accel,
     pub hits: &'a HitTable,
-    pub charts: &'a Charts,
     pub radiance: &'a Radiance,
     pub seed: u64,
     /// Rays per point (rounded up to a square: stratified `k x k`).
@@ -420,7 +462,7 @@ pub fn trace_points(ctx: &GatherContext, points: &GatherPoints) -> GatherCache {
 
 impl GatherCache {
     /// `E_i` at every point with the radiance of this iteration for the cached hits.
-    pub fn evaluate(&self, radiance: &Radiance, charts: &Charts) -> Vec<Vec3> {
+    pub fn evaluate(&self, radiance: &Radiance) -> Vec<Vec3> {
         self.fixed
             .par_iter()
             .enumerate()
@@ -428,7 +470,7 @@ impl GatherCache {
                 let hits = &self.hits[self.start[i] as usize..self.start[i + 1] as usize];
                 let sum: Vec3 = hits
                     .iter()
-                    .map(|h| radiance.lookup(charts, h.slot as usize, h.uv, h.chart).0 * h.weight)
+                    .map(|h| radiance.lookup(h.slot as usize, h.uv, h.chart).0 * h.weight)
                     .sum();
                 *f + sum * self.scale
             })
@@ -461,15 +503,10 @@ fn trace_point(ctx: &GatherContext, index: u64, pt: &Point) -> (Vec3, Vec<Cached
                 continue;
             }
             match walk(ctx, offset_origin(pt.p, pt.ng, d), d, &mut rng) {
-                Seen::Surface(h) => {
-                    match ctx
-                        .radiance
-                        .lookup(ctx.charts, h.slot as usize, h.uv, h.chart)
-                    {
-                        (l, true) => sum += l * h.weight,
-                        (_, false) => cached.push(h),
-                    }
-                }
+                Seen::Surface(h) => match ctx.radiance.lookup(h.slot as usize, h.uv, h.chart) {
+                    (l, true) => sum += l * h.weight,
+                    (_, false) => cached.push(h),
+                },
                 Seen::Light(l) => sum += l,
                 Seen::Nothing => {}
             }
@@ -552,12 +589,12 @@ pub fn write_accum(
 ) -> Result<()> {
     map_tiles(state, geom, window, |t, g, st| {
         let span = layout.span(t as u32);
-        let tc = &charts.slots[span.slot].texel_chart;
+        let sc = &charts.slots[span.slot];
         for s in st.iter_mut() {
             s.accum = [0.0; 3];
         }
         for (off, x, y) in span.texels() {
-            let c = tc[(y * span.texture_width + x) as usize];
+            let c = sc.texel(&g[off]);
             if !g[off].covered() || c == NONE {
                 continue;
             }

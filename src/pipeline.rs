@@ -18,6 +18,7 @@ use crate::atlas::charts::Charts;
 use crate::atlas::check::{check_geometry, check_state};
 use crate::atlas::hits::HitTable;
 use crate::atlas::layout::{TexelGeom, TexelState};
+use crate::atlas::slot_texture::Scratch;
 use crate::atlas::tiles::{map_tiles, TileStore};
 use crate::atlas::{build_geometry, prepare, state_dir, Prepared};
 use crate::checkpoint::{self as ck, Manifest, Writer};
@@ -232,6 +233,8 @@ struct Run<'a> {
     points: OnceLock<GatherPoints>,
     gather: OnceLock<GatherCache>,
     window: usize,
+    /// Scratch textures (a quarter of the memory budget each).
+    scratch: Scratch,
     load_s: f64,
     atlas_s: f64,
 }
@@ -309,8 +312,10 @@ impl<'a> Run<'a> {
             check_geometry(&geom)?;
         }
         let charts = Charts::new(&p.scene, &p.layout, &p.atlases)?;
+        let scratch = open_scratch(&dir, cfg.memory_budget_mib << 20)?;
         Ok(Run {
             charts,
+            scratch,
             hits: OnceLock::new(),
             points: OnceLock::new(),
             gather: OnceLock::new(),
@@ -496,6 +501,7 @@ impl<'a> Run<'a> {
                     &mut r.state,
                     window,
                     &p.pinned(),
+                    &self.scratch,
                 )?;
                 PassResume {
                     batches_done: 0,
@@ -580,14 +586,24 @@ impl<'a> Run<'a> {
         let (cfg, p, window, charts) = (self.cfg, &self.p, self.window, &self.charts);
         let t = Instant::now();
         let padding = cfg.atlas.padding + 2;
-        let albedo = AlbedoTextures::gather(&p.layout, charts, &r.state, &self.geom, padding)?;
+        // the textures stay through the pass, beside the pass's own mapped window
+        let keep = self.scratch.with_budget(2 * self.scratch.budget);
+        let albedo =
+            AlbedoTextures::gather(&p.layout, charts, &r.state, &self.geom, padding, &keep)?;
         pass.update_seconds += t.elapsed().as_secs_f64();
         let ctx = PassContext::new(p, cfg, (sampler, charts, self.hits(), &albedo), n as u64);
         let traced = self.photon_pass(r, &ctx, n, pass)?;
         finish_pass(&self.geom, &mut r.state, window)?;
         if cfg.smoothing_radius > 0 {
             let radius = cfg.smoothing_radius;
-            smooth_accum(&p.layout, charts, &self.geom, &mut r.state, radius)?;
+            smooth_accum(
+                &p.layout,
+                charts,
+                &self.geom,
+                &mut r.state,
+                radius,
+                &self.scratch,
+            )?;
         }
         Ok(Estimate {
             photons: ctx.photons_in(pass.batches_done) + traced.photons,
@@ -601,9 +617,10 @@ impl<'a> Run<'a> {
     fn gather_estimate(&self, r: &mut Running) -> Result<Estimate> {
         let p = &self.p;
         let t = Instant::now();
-        let path = self.dir.join("gather-radiance.tiles");
+        let path = self.scratch.dir.join("gather-radiance.tiles");
         let budget = self.cfg.memory_budget_mib << 20;
-        let radiance = Radiance::from_state(&p.layout, &r.state, &self.geom, &path, budget)?;
+        let radiance =
+            Radiance::from_state(&p.layout, &self.charts, &r.state, &self.geom, &path, budget)?;
         let mut rays = 0;
         let cache = match self.gather.get() {
             Some(c) => c,
@@ -614,7 +631,7 @@ impl<'a> Run<'a> {
                 self.gather.get_or_init(|| cache)
             }
         };
-        let values = cache.evaluate(&radiance, &self.charts);
+        let values = cache.evaluate(&radiance);
         radiance.check()?;
         drop(radiance);
         std::fs::remove_file(&path).map_err(|e| crate::Error::io(&path, e))?;
@@ -642,7 +659,6 @@ impl<'a> Run<'a> {
         let ctx = GatherContext {
             accel: &self.p.accel,
             hits: self.hits(),
-            charts: &self.charts,
             radiance,
             seed: self.cfg.seed,
             rays: self.cfg.gather_rays,
@@ -666,7 +682,7 @@ impl<'a> Run<'a> {
         }
         let radius = crate::light::bounding_sphere(&self.p.scene).1;
         let spacing = self.cfg.gather_spacing_for(radius);
-        let pts = GatherPoints::new(&self.p, &self.geom, &self.charts, spacing)?;
+        let pts = GatherPoints::new(&self.p, &self.geom, &self.charts, spacing, &self.scratch)?;
         Ok(self.points.get_or_init(|| pts))
     }
 
@@ -754,6 +770,7 @@ impl<'a> Run<'a> {
             &mut r.state,
             self.window,
             &p.pinned(),
+            &self.scratch,
         )?;
         r.state.flush()?;
         debug_check(&self.geom, &r.state)?;
@@ -802,6 +819,17 @@ impl<'a> Run<'a> {
         );
         Ok(r.report)
     }
+}
+
+/// The scratch directory of a run (`<state dir>/scratch`, emptied of an earlier attempt's
+/// leftovers), its textures a quarter of `budget` each.
+fn open_scratch(state_dir: &Path, budget: u64) -> Result<Scratch> {
+    let dir = state_dir.join("scratch");
+    if dir.exists() {
+        std::fs::remove_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
+    }
+    fsio::create_dir(&dir)?;
+    Ok(Scratch::new(dir, budget / 4))
 }
 
 /// The error of a run stopped by a signal after checkpoint `seq` was written in `dir`.

@@ -6,14 +6,16 @@
 
 use crate::atlas::charts::Charts;
 use crate::atlas::layout::{flags, Layout, TexelGeom, TexelState};
-use crate::atlas::texels::NONE;
-use crate::atlas::texture;
+use crate::atlas::slot_texture::Scratch;
 use crate::atlas::tiles::{map_tiles, TileStore};
 use crate::config::{Config, UpdateRule};
 use crate::error::Result;
 use crate::scene::luminance;
 use glam::Vec3;
 use std::f32::consts::PI;
+
+mod fill;
+pub use fill::{fill_unobserved, fill_unobserved_all};
 
 /// The physical upper bound of K_d used by the correction of eq. (5).
 pub const KD_MAX: f32 = 1.0;
@@ -201,108 +203,6 @@ pub fn alpha(alpha0: f32, n: u32) -> f32 {
     alpha0 / (1.0 + n as f32)
 }
 
-/// Fill the K_d of unobserved surface texels of one texture from observed neighbours of the
-/// same chart (repeated 8-neighbour averaging, chart by chart), and any texel still without a
-/// value from the mean of the observed texels (the shape's mean). `chart[i]` is the texel's
-/// chart (None for gutter); `observed[i]` marks texels with a measured K_d. Returns the mask
-/// of texels that were filled.
-///
-/// Round `k` gives every still-unknown texel that touches a texel known before round `k` the
-/// mean of those neighbours (one wave of a breadth-first fill). Only the neighbours of the
-/// previous round's texels can change in a round, so each round visits just those: the cost
-/// is proportional to the filled area, not to the texture's area times the fill's depth (a
-/// wide unobserved floor used to take thousands of whole-texture sweeps).
-pub fn fill_unobserved(
-    kd: &mut [Vec3],
-    observed: &[bool],
-    chart: &[Option<u32>],
-    width: u32,
-    height: u32,
-) -> Vec<bool> {
-    let (w, h) = (width as i64, height as i64);
-    let mut known: Vec<bool> = observed.to_vec();
-    let mut filled = vec![false; kd.len()];
-    let neighbours = |i: usize| {
-        let (x, y) = (i as i64 % w, i as i64 / w);
-        (-1..=1i64)
-            .flat_map(move |dy| (-1..=1i64).map(move |dx| (x + dx, y + dy)))
-            .filter(move |&(nx, ny)| nx >= 0 && ny >= 0 && nx < w && ny < h)
-            .map(move |(nx, ny)| (ny * w + nx) as usize)
-    };
-    // Round 0's candidates: unknown surface texels next to an observed one.
-    let mut front: Vec<usize> = (0..kd.len()).filter(|&i| known[i]).collect();
-    let mut queued = vec![false; kd.len()];
-    loop {
-        let mut candidates = Vec::new();
-        for &i in &front {
-            for j in neighbours(i) {
-                if !known[j] && !queued[j] && chart[j].is_some() {
-                    queued[j] = true;
-                    candidates.push(j);
-                }
-            }
-        }
-        // Row-major order, as a sweep would visit them (the values do not depend on it).
-        candidates.sort_unstable();
-        let changes: Vec<(usize, Vec3)> = candidates
-            .iter()
-            .filter_map(|&i| {
-                let c = chart[i];
-                let (mut sum, mut n) = (Vec3::ZERO, 0u32);
-                for j in neighbours(i) {
-                    if known[j] && chart[j] == c {
-                        sum += kd[j];
-                        n += 1;
-                    }
-                }
-                (n > 0).then(|| (i, sum / n as f32))
-            })
-            .collect();
-        for &i in &candidates {
-            queued[i] = false;
-        }
-        if changes.is_empty() {
-            break;
-        }
-        for &(i, val) in &changes {
-            kd[i] = val;
-            known[i] = true;
-            filled[i] = true;
-        }
-        front = changes.into_iter().map(|(i, _)| i).collect();
-    }
-    fill_with_mean(kd, observed, chart, &known, &mut filled);
-    filled
-}
-
-/// Charts with no observed texel at all: the shape's mean (0.5 if nothing is observed).
-fn fill_with_mean(
-    kd: &mut [Vec3],
-    observed: &[bool],
-    chart: &[Option<u32>],
-    known: &[bool],
-    filled: &mut [bool],
-) {
-    let (mut sum, mut n) = (Vec3::ZERO, 0u32);
-    for (i, &o) in observed.iter().enumerate() {
-        if o {
-            sum += kd[i];
-            n += 1;
-        }
-    }
-    let mean = if n > 0 {
-        sum / n as f32
-    } else {
-        Vec3::splat(0.5)
-    };
-    for i in 0..kd.len() {
-        if chart[i].is_some() && !known[i] {
-            kd[i] = mean;
-            filled[i] = true;
-        }
-    }
-}
-
 /// Steps 3-5 over every tile, then the fill of unobserved texels: `K_d` from the current
 /// `E_i` everywhere, except in the slots `pinned` gives an albedo (known diffuse shapes),
 /// which keep it. Returns `(clamped texels, filled texels)`.
@@ -313,11 +213,12 @@ pub fn kd_step(
     state: &mut TileStore<TexelState>,
     window: usize,
     pinned: &[Option<Vec3>],
+    scratch: &Scratch,
 ) -> Result<(u64, u64)> {
     let clamped: u64 = map_tiles(state, geom, window, |_, g, s| kd_tile(s, g))?
         .iter()
         .sum();
-    let filled = fill_unobserved_all(layout, charts, geom, state)?;
+    let filled = fill_unobserved_all(layout, charts, geom, state, scratch)?;
     if pinned.iter().any(Option::is_some) {
         map_tiles(state, geom, window, |t, g, s| {
             if let Some(k) = pinned[layout.slot_of_tile(t as u32)] {
@@ -330,48 +231,6 @@ pub fn kd_step(
         })?;
     }
     Ok((clamped, filled))
-}
-
-/// [`fill_unobserved`] over every texture of the layout, one texture at a time: unobserved
-/// covered texels get `K_d` from observed neighbours of their chart (else the shape's mean)
-/// and the `FILLED` flag. Returns how many texels were filled.
-pub fn fill_unobserved_all(
-    layout: &Layout,
-    charts: &Charts,
-    geom: &TileStore<TexelGeom>,
-    state: &mut TileStore<TexelState>,
-) -> Result<u64> {
-    let mut filled_total = 0u64;
-    for slot in 0..layout.slots.len() {
-        let st = layout.slots[slot];
-        let texels = texture::gather(layout, slot, state, geom, |s, g| {
-            let observed = g.covered() && s.flags & flags::OBSERVED != 0;
-            (Vec3::from_array(s.k_d), observed, g.covered())
-        })?;
-        let mut kd: Vec<Vec3> = texels.iter().map(|t| t.0).collect();
-        let observed: Vec<bool> = texels.iter().map(|t| t.1).collect();
-        let chart: Vec<Option<u32>> = charts.slots[slot]
-            .texel_chart
-            .iter()
-            .zip(&texels)
-            .map(|(&c, t)| (t.2 && c != NONE).then_some(c))
-            .collect();
-        let filled = fill_unobserved(&mut kd, &observed, &chart, st.width, st.height);
-        let update: Vec<Option<Vec3>> = filled
-            .iter()
-            .zip(&kd)
-            .map(|(&f, &k)| f.then_some(k))
-            .collect();
-        filled_total += texture::scatter(layout, slot, state, &update, |r, v| match v {
-            Some(k) => {
-                r.k_d = k.to_array();
-                r.flags |= flags::FILLED;
-                true
-            }
-            None => false,
-        })?;
-    }
-    Ok(filled_total)
 }
 
 /// What one update step (steps 7 and 9) did.
@@ -559,102 +418,5 @@ mod tests {
         );
         assert!((sums.max_rel - f.abs() as f64).abs() < 1e-5);
         assert_eq!(sums.texels, 1);
-    }
-
-    /// The fill as first written: whole-texture sweeps until nothing changes.
-    fn fill_by_sweeps(
-        kd: &mut [Vec3],
-        observed: &[bool],
-        chart: &[Option<u32>],
-        w: i64,
-        h: i64,
-    ) -> Vec<bool> {
-        let mut known: Vec<bool> = observed.to_vec();
-        let mut filled = vec![false; kd.len()];
-        loop {
-            let mut changes = Vec::new();
-            for i in 0..(w * h) as usize {
-                let (x, y) = (i as i64 % w, i as i64 / w);
-                if chart[i].is_none() || known[i] {
-                    continue;
-                }
-                let (mut sum, mut n) = (Vec3::ZERO, 0u32);
-                for (dx, dy) in (-1..=1).flat_map(|dy| (-1..=1).map(move |dx| (dx, dy))) {
-                    let (nx, ny) = (x + dx, y + dy);
-                    let j = (ny * w + nx) as usize;
-                    if nx >= 0 && ny >= 0 && nx < w && ny < h && known[j] && chart[j] == chart[i] {
-                        sum += kd[j];
-                        n += 1;
-                    }
-                }
-                if n > 0 {
-                    changes.push((i, sum / n as f32));
-                }
-            }
-            if changes.is_empty() {
-                break;
-            }
-            for (i, v) in changes {
-                (kd[i], known[i], filled[i]) = (v, true, true);
-            }
-        }
-        fill_with_mean(kd, observed, chart, &known, &mut filled);
-        filled
-    }
-
-    #[test]
-    fn the_wavefront_fill_equals_whole_texture_sweeps_bit_for_bit() {
-        let mut rng = crate::rng::Rng::new(7, 0, 0, 0);
-        for case in 0..40 {
-            let (w, h) = (3 + (case % 7) * 5, 2 + (case % 5) * 7);
-            let n = (w * h) as usize;
-            // blobs of charts, gutter here and there, sparse observations (some charts none)
-            let chart: Vec<Option<u32>> = (0..n)
-                .map(|i| {
-                    let (x, y) = (i as u32 % w, i as u32 / w);
-                    (rng.f32() > 0.1).then_some(x / 6 + 4 * (y / 5))
-                })
-                .collect();
-            let observed: Vec<bool> = (0..n)
-                .map(|i| chart[i].is_some() && rng.f32() < 0.03 * (1 + case % 4) as f32)
-                .collect();
-            let kd0: Vec<Vec3> = (0..n)
-                .map(|_| Vec3::new(rng.f32(), rng.f32(), rng.f32()))
-                .collect();
-            let (mut a, mut b) = (kd0.clone(), kd0.clone());
-            let fa = fill_unobserved(&mut a, &observed, &chart, w, h);
-            let fb = fill_by_sweeps(&mut b, &observed, &chart, w as i64, h as i64);
-            assert_eq!(fa, fb, "case {case}: filled masks differ");
-            let bits = |v: &[Vec3]| {
-                v.iter()
-                    .map(|k| k.to_array().map(f32::to_bits))
-                    .collect::<Vec<_>>()
-            };
-            assert_eq!(bits(&a), bits(&b), "case {case}: values differ");
-            assert!(fa.iter().any(|&f| f), "case {case} fills nothing");
-        }
-    }
-
-    #[test]
-    fn unobserved_texels_fill_from_their_own_chart_only() {
-        // 4x1 texture: two charts [0,1] and [2,3]; texel 0 observed red, texel 3 observed blue
-        let mut kd = vec![Vec3::X, Vec3::ZERO, Vec3::ZERO, Vec3::Z];
-        let observed = [true, false, false, true];
-        let chart = [Some(0), Some(0), Some(1), Some(1)];
-        let filled = fill_unobserved(&mut kd, &observed, &chart, 4, 1);
-        assert_eq!(kd, vec![Vec3::X, Vec3::X, Vec3::Z, Vec3::Z]);
-        assert_eq!(filled, vec![false, true, true, false]);
-        // a chart nobody saw takes the shape's mean
-        let mut kd = vec![Vec3::X, Vec3::ZERO, Vec3::ZERO];
-        let filled = fill_unobserved(
-            &mut kd,
-            &[true, false, false],
-            &[Some(0), None, Some(1)],
-            3,
-            1,
-        );
-        assert_eq!(kd[2], Vec3::X);
-        assert_eq!(kd[1], Vec3::ZERO, "gutter untouched");
-        assert_eq!(filled, vec![false, false, true]);
     }
 }

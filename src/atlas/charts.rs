@@ -1,29 +1,40 @@
-//! Which chart (UV island) every texel center and every triangle of each atlas lies on: what
-//! decides whether a light hit on a triangle may be binned into the texel under it (the texel
-//! must be on the same chart), and what texture-space filters (E_i smoothing, the fill of
-//! unobserved texels) must not cross.
+//! Which chart (UV island) every triangle of each atlas lies on, and so every texel: a texel's
+//! chart is the chart of the triangle owning its center (`TexelGeom::tri` of a covered
+//! texel), [`NONE`] in the gutter. It decides whether a light hit on a triangle may be binned
+//! into the texel under it (the texel must be on the same chart), and what texture-space
+//! filters (E_i smoothing, the fill of unobserved texels) must not cross. Only per-triangle
+//! tables are held: the per-texel answer comes from the geometry record at hand, so nothing
+//! here grows with the texel count.
 
-use super::layout::Layout;
+use super::layout::{Layout, TexelGeom};
 use super::texels::{TexelMap, NONE};
 use super::unwrap::ShapeAtlas;
 use crate::error::{Error, Result};
 use crate::scene::Scene;
-use rayon::prelude::*;
 
-/// Per slot, which chart each texel's center and each triangle lie on: what decides whether
-/// a photon hit is deposited (see the module docs) and what smoothing must not cross.
+/// Per slot, which chart each triangle lies on.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SlotCharts {
     pub width: u32,
     pub height: u32,
-    /// Per texel (row-major), the chart owning its center, or [`NONE`] (not covered).
-    pub texel_chart: Vec<u32>,
     /// Per mesh triangle, its chart, or [`NONE`] (no texel-space area).
     pub tri_chart: Vec<u32>,
 }
 
-/// The surfaces light can land on: shape -> slot, and each slot's chart tables. Built once per
-/// run (it rasterizes every atlas's texel centers); 4 bytes per texel and per triangle.
+impl SlotCharts {
+    /// The chart under the center of a texel with geometry record `g`: its triangle's chart
+    /// if the texel is covered, else [`NONE`].
+    #[inline]
+    pub fn texel(&self, g: &TexelGeom) -> u32 {
+        match g.covered() {
+            true => self.tri_chart.get(g.tri as usize).copied().unwrap_or(NONE),
+            false => NONE,
+        }
+    }
+}
+
+/// The surfaces light can land on: shape -> slot, and each slot's chart table. Built once per
+/// run; 4 bytes per triangle.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Charts {
     /// Per scene shape, its layout slot (`None`: emitter or otherwise not reconstructed; a
@@ -64,17 +75,6 @@ impl Charts {
                 )));
             }
             let map = TexelMap::new(&shape.mesh, atlas);
-            let texel_chart = map
-                .owners()
-                .par_iter()
-                .map(|&o| {
-                    if o == NONE {
-                        NONE
-                    } else {
-                        map.chart_of(o).unwrap_or(NONE)
-                    }
-                })
-                .collect();
             let tri_chart = (0..shape.mesh.triangles.len() as u32)
                 .map(|t| map.chart_of(t).unwrap_or(NONE))
                 .collect();
@@ -82,7 +82,6 @@ impl Charts {
             slots.push(SlotCharts {
                 width: st.width,
                 height: st.height,
-                texel_chart,
                 tri_chart,
             });
         }
@@ -96,5 +95,17 @@ impl Charts {
     #[inline]
     pub fn slot_of_shape(&self, shape: usize) -> Option<usize> {
         self.slot_of_shape.get(shape).copied().flatten()
+    }
+
+    /// Every texel's chart of `slot`, row-major, read from the geometry store: a
+    /// whole-texture array, for tests and small checks only.
+    pub fn texel_charts(
+        &self,
+        layout: &Layout,
+        slot: usize,
+        geom: &super::tiles::TileStore<TexelGeom>,
+    ) -> Result<Vec<u32>> {
+        let c = &self.slots[slot];
+        super::texture::gather(layout, slot, geom, geom, |g, _| c.texel(g))
     }
 }

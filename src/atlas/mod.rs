@@ -9,6 +9,7 @@ pub mod geometry;
 pub mod hits;
 pub mod layout;
 pub mod prepared;
+pub mod slot_texture;
 pub mod texels;
 pub mod texture;
 pub mod tile_cache;

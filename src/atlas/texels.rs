@@ -184,23 +184,27 @@ impl Buckets {
     }
 }
 
-/// The texel -> triangle map of one atlas, with what is needed to sample it.
+/// The texel -> triangle map of one atlas, with what is needed to sample it. It holds no
+/// per-texel array: owners are rasterized a band of rows at a time ([`TexelMap::sample_rows`])
+/// or looked up one texel at a time through a per-block triangle index
+/// ([`TexelMap::owner`]), so a map of an 8192 x 8192 atlas costs its triangle lists, not
+/// 256 MB of owners.
 pub struct TexelMap<'a> {
     mesh: &'a Mesh,
     atlas: &'a ShapeAtlas,
-    /// Per texel (row-major), the owning triangle or [`NONE`].
-    owner: Vec<u32>,
-    covered: usize,
-    overlapped: u64,
+    /// Triangles per band of [`BAND`] rows, ascending.
+    by_band: Buckets,
+    /// (covered texels, extra claims), counted over every band on first use.
+    counts: OnceLock<(usize, u64)>,
     /// Per triangle, its chart (UV island) or [`NONE`].
     chart: Vec<u32>,
     charts: u32,
-    /// Triangles per `BLOCK x BLOCK` texel block, built on first sub-sampling.
+    /// Triangles per `BLOCK x BLOCK` texel block, built on first point query.
     blocks: OnceLock<Buckets>,
 }
 
 impl<'a> TexelMap<'a> {
-    /// Rasterizes the texel centers of `atlas` (made for `mesh`).
+    /// Indexes the triangles of `atlas` (made for `mesh`) by row band and finds its charts.
     pub fn new(mesh: &'a Mesh, atlas: &'a ShapeAtlas) -> Self {
         let (w, h) = (atlas.width as usize, atlas.height as usize);
         let ntri = atlas.corner_uv.len().min(mesh.triangles.len());
@@ -211,53 +215,64 @@ impl<'a> TexelMap<'a> {
             let r = f.rows(h)?;
             Some(r.start / BAND..(r.end - 1) / BAND + 1)
         });
-        let mut owner = vec![NONE; w * h];
-        let overlapped: u64 = if w == 0 {
-            0
-        } else {
-            owner
-                .par_chunks_mut(BAND * w)
-                .enumerate()
-                .map(|(b, chunk)| {
-                    let y0 = b * BAND;
-                    let mut extra = 0u64;
-                    for &t in by_band.get(b) {
-                        let Some(f) = footprint(mesh, atlas, t as usize) else {
-                            continue;
-                        };
-                        let (Some(rows), Some(cols)) = (f.rows(h), f.cols(w)) else {
-                            continue;
-                        };
-                        for y in rows.start.max(y0)..rows.end.min(y0 + chunk.len() / w) {
-                            let py = y as f64 + 0.5;
-                            let row = &mut chunk[(y - y0) * w..(y - y0 + 1) * w];
-                            for x in cols.clone() {
-                                if f.contains(DVec2::new(x as f64 + 0.5, py)) {
-                                    if row[x] == NONE {
-                                        row[x] = t;
-                                    } else {
-                                        extra += 1;
-                                    }
-                                }
-                            }
-                        }
-                    }
-                    extra
-                })
-                .sum()
-        };
-        let covered = owner.par_iter().filter(|&&o| o != NONE).count();
         let (chart, charts) = uv_islands(mesh, atlas, ntri);
         TexelMap {
             mesh,
             atlas,
-            owner,
-            covered,
-            overlapped,
+            by_band,
+            counts: OnceLock::new(),
             chart,
             charts,
             blocks: OnceLock::new(),
         }
+    }
+
+    /// The owners of band `b`'s rows (row-major, `BAND` rows or fewer at the bottom) and the
+    /// extra claims of overlapping triangles there. The lowest triangle index wins.
+    fn band_owners(&self, b: usize) -> (Vec<u32>, u64) {
+        let (w, h) = (self.atlas.width as usize, self.atlas.height as usize);
+        let y0 = b * BAND;
+        let rows = BAND.min(h.saturating_sub(y0));
+        let mut chunk = vec![NONE; rows * w];
+        let mut extra = 0u64;
+        for &t in self.by_band.get(b) {
+            let Some(f) = footprint(self.mesh, self.atlas, t as usize) else {
+                continue;
+            };
+            let (Some(rs), Some(cols)) = (f.rows(h), f.cols(w)) else {
+                continue;
+            };
+            for y in rs.start.max(y0)..rs.end.min(y0 + rows) {
+                let py = y as f64 + 0.5;
+                let row = &mut chunk[(y - y0) * w..(y - y0 + 1) * w];
+                for x in cols.clone() {
+                    if f.contains(DVec2::new(x as f64 + 0.5, py)) {
+                        if row[x] == NONE {
+                            row[x] = t;
+                        } else {
+                            extra += 1;
+                        }
+                    }
+                }
+            }
+        }
+        (chunk, extra)
+    }
+
+    fn counts(&self) -> (usize, u64) {
+        *self.counts.get_or_init(|| {
+            let bands = (self.atlas.height as usize).div_ceil(BAND);
+            if self.atlas.width == 0 {
+                return (0, 0);
+            }
+            (0..bands)
+                .into_par_iter()
+                .map(|b| {
+                    let (o, extra) = self.band_owners(b);
+                    (o.iter().filter(|&&t| t != NONE).count(), extra)
+                })
+                .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1))
+        })
     }
 
     pub fn width(&self) -> u32 {
@@ -273,33 +288,39 @@ impl<'a> TexelMap<'a> {
         self.atlas.height
     }
 
-    /// Per texel (row-major), the owning triangle or [`NONE`].
-    pub fn owners(&self) -> &[u32] {
-        &self.owner
-    }
-
-    /// The triangle owning texel `(x, y)`, if any.
+    /// The triangle owning texel `(x, y)`, if any: the lowest-index triangle of its block
+    /// whose footprint contains the texel's center (as the band rasterizer decides).
     pub fn owner(&self, x: u32, y: u32) -> Option<u32> {
         if x >= self.atlas.width || y >= self.atlas.height {
             return None;
         }
-        let o = self.owner[y as usize * self.atlas.width as usize + x as usize];
-        (o != NONE).then_some(o)
+        let bw = (self.atlas.width as usize).div_ceil(BLOCK);
+        let p = DVec2::new(x as f64 + 0.5, y as f64 + 0.5);
+        self.blocks()
+            .get(y as usize / BLOCK * bw + x as usize / BLOCK)
+            .iter()
+            .copied()
+            .find(|&t| footprint(self.mesh, self.atlas, t as usize).is_some_and(|f| f.contains(p)))
     }
 
-    /// Per texel, whether it maps to the surface.
+    /// Per texel (row-major), whether it maps to the surface (a whole-texture array: for
+    /// tests and small atlases).
     pub fn covered_mask(&self) -> Vec<bool> {
-        self.owner.par_iter().map(|&o| o != NONE).collect()
+        let bands = (self.atlas.height as usize).div_ceil(BAND);
+        (0..bands)
+            .into_par_iter()
+            .flat_map_iter(|b| self.band_owners(b).0.into_iter().map(|o| o != NONE))
+            .collect()
     }
 
     /// Number of texels that map to the surface.
     pub fn covered(&self) -> usize {
-        self.covered
+        self.counts().0
     }
 
     /// Extra claims on texel centers by overlapping triangles (0 for a valid atlas).
     pub fn overlapped(&self) -> u64 {
-        self.overlapped
+        self.counts().1
     }
 
     /// Number of UV islands (triangles connected through edges with identical corners).
@@ -331,19 +352,44 @@ impl<'a> TexelMap<'a> {
 
     /// The surface point at the center of texel `(x, y)`, or `None` for a gutter texel.
     pub fn sample(&self, x: u32, y: u32) -> Option<TexelSample> {
-        let t = self.owner(x, y)?;
-        let f = footprint(self.mesh, self.atlas, t as usize)?;
-        let p = DVec2::new(x as f64 + 0.5, y as f64 + 0.5);
-        Some(self.sample_at(t, &f, p, 1.0))
+        self.sample_owned(self.owner(x, y)?, x, y)
     }
 
     /// [`TexelMap::sample`] for every texel of rows `rows` (row-major), in parallel.
+    /// The owners come from rasterizing the bands the rows fall in.
     pub fn sample_rows(&self, rows: Range<u32>) -> Vec<Option<TexelSample>> {
-        let w = self.atlas.width;
-        let rows = rows.start.min(self.atlas.height)..rows.end.min(self.atlas.height);
-        rows.into_par_iter()
-            .flat_map_iter(|y| (0..w).map(move |x| self.sample(x, y)))
+        let w = self.atlas.width as usize;
+        let rows =
+            rows.start.min(self.atlas.height) as usize..rows.end.min(self.atlas.height) as usize;
+        if rows.is_empty() || w == 0 {
+            return Vec::new();
+        }
+        let bands = rows.start / BAND..(rows.end - 1) / BAND + 1;
+        bands
+            .into_par_iter()
+            .flat_map_iter(|b| {
+                let owners = self.band_owners(b).0;
+                let y0 = b * BAND;
+                let ys = y0.max(rows.start)..(y0 + BAND).min(rows.end);
+                let out: Vec<Option<TexelSample>> = ys
+                    .flat_map(|y| (0..w).map(move |x| (x, y)))
+                    .map(|(x, y)| {
+                        let t = owners[(y - y0) * w + x];
+                        (t != NONE)
+                            .then(|| self.sample_owned(t, x as u32, y as u32))
+                            .flatten()
+                    })
+                    .collect();
+                out
+            })
             .collect()
+    }
+
+    /// The sample at the center of texel `(x, y)`, owned by triangle `t`.
+    fn sample_owned(&self, t: u32, x: u32, y: u32) -> Option<TexelSample> {
+        let f = footprint(self.mesh, self.atlas, t as usize)?;
+        let p = DVec2::new(x as f64 + 0.5, y as f64 + 0.5);
+        Some(self.sample_at(t, &f, p, 1.0))
     }
 
     fn blocks(&self) -> &Buckets {

@@ -113,6 +113,16 @@ impl<T: Pod + Send + Sync> TileCache<T> {
         }
     }
 
+    /// Overwrites tile `t` in the store and in the cache (so later reads see it).
+    pub fn write_tile(&mut self, t: u32, data: Vec<T>) -> Result<()> {
+        self.store.write_tile(t as usize, &data)?;
+        match &mut self.resident {
+            Some(all) => all[t as usize] = data,
+            None => self.tiles.insert(t, Arc::new(data)),
+        }
+        Ok(())
+    }
+
     /// The store behind the cache.
     pub fn store(&self) -> &TileStore<T> {
         &self.store

@@ -68,7 +68,27 @@ impl Fixture {
     /// The radiance of the current state, read through a cache of `budget` bytes.
     fn radiance(&self, budget: u64) -> Radiance {
         let path = self._dir.path().join("radiance.tiles");
-        Radiance::from_state(&self.p.layout, &self.state, &self.geom, &path, budget).unwrap()
+        Radiance::from_state(
+            &self.p.layout,
+            &self.charts,
+            &self.state,
+            &self.geom,
+            &path,
+            budget,
+        )
+        .unwrap()
+    }
+
+    /// Scratch textures in the fixture's directory, `budget` bytes each.
+    fn scratch(&self, budget: u64) -> Scratch {
+        Scratch::new(self._dir.path(), budget)
+    }
+
+    /// Every texel's chart of `slot`, row-major.
+    fn texel_charts(&self, slot: usize) -> Vec<u32> {
+        self.charts
+            .texel_charts(&self.p.layout, slot, &self.geom)
+            .unwrap()
     }
 
     /// Sets every covered texel of shape `id` with `f`.
@@ -100,19 +120,25 @@ impl Fixture {
     }
 
     fn gather(&self, spacing: f32, rays: u32) -> (GatherPoints, Vec<Vec3>) {
-        let points = GatherPoints::new(&self.p, &self.geom, &self.charts, spacing).unwrap();
+        let points = GatherPoints::new(
+            &self.p,
+            &self.geom,
+            &self.charts,
+            spacing,
+            &self.scratch(1 << 30),
+        )
+        .unwrap();
         let radiance = self.radiance(1 << 30);
         let ctx = GatherContext {
             accel: &self.p.accel,
             hits: &self.hits,
-            charts: &self.charts,
             radiance: &radiance,
             seed: 5,
             rays,
         };
         let cache = trace_points(&ctx, &points);
         assert_eq!(cache.stats.points as usize, points.points.len());
-        let values = cache.evaluate(&radiance, &self.charts);
+        let values = cache.evaluate(&radiance);
         (points, values)
     }
 
@@ -324,14 +350,14 @@ fn back_faces_emitters_and_unobserved_texels() {
 #[test]
 fn interpolation_stays_within_the_chart() {
     let fx = Fixture::new(vec![shape("cube", mesh::cube(), None)], 16.0);
-    let pts = GatherPoints::new(&fx.p, &fx.geom, &fx.charts, 0.3).unwrap();
+    let pts = GatherPoints::new(&fx.p, &fx.geom, &fx.charts, 0.3, &fx.scratch(1 << 30)).unwrap();
     assert!(pts.stride(0) > 1);
     let vals: Vec<Vec3> = pts
         .points
         .iter()
         .map(|p| Vec3::splat(p.chart as f32 + 1.0))
         .collect();
-    let tc = &fx.charts.slots[0].texel_chart;
+    let tc = &fx.texel_charts(0);
     let st = fx.p.layout.slots[0];
     let mut n = 0;
     for y in 0..st.height {
@@ -359,7 +385,7 @@ fn radiance_lookup_ignores_other_charts() {
     let mut fx = Fixture::new(vec![shape("cube", mesh::cube(), None)], 16.0);
     fx.observe("cube", Vec3::ONE);
     // poison every texel of chart 0
-    let tc = fx.charts.slots[0].texel_chart.clone();
+    let tc = fx.texel_charts(0);
     let (w, h) = (fx.p.layout.slots[0].width, fx.p.layout.slots[0].height);
     let layout = fx.p.layout.clone();
     map_tiles(&mut fx.state, &fx.geom, 4, |t, _, st| {
@@ -382,11 +408,7 @@ fn radiance_lookup_ignores_other_charts() {
             }
             for (dx, dy) in [(0.0, 0.0), (0.9, 0.1), (0.5, 0.99)] {
                 let uv = Vec2::new(x as f32 + dx, y as f32 + dy);
-                assert_eq!(
-                    rad.lookup(&fx.charts, 0, uv, c),
-                    (Vec3::ONE, true),
-                    "({x}, {y})"
-                );
+                assert_eq!(rad.lookup(0, uv, c), (Vec3::ONE, true), "({x}, {y})");
                 checked += 1;
             }
         }
@@ -442,13 +464,12 @@ fn cached_hits_reevaluate_like_a_fresh_trace() {
         s.k_d = [0.4; 3];
         s.e_d = [1.0, 2.0, 3.0];
     });
-    let points = GatherPoints::new(&fx.p, &fx.geom, &fx.charts, 0.2).unwrap();
+    let points = GatherPoints::new(&fx.p, &fx.geom, &fx.charts, 0.2, &fx.scratch(1 << 30)).unwrap();
     let trace = |fx: &Fixture| {
         let radiance = fx.radiance(1 << 30);
         let ctx = GatherContext {
             accel: &fx.p.accel,
             hits: &fx.hits,
-            charts: &fx.charts,
             radiance: &radiance,
             seed: 5,
             rays: 36,
@@ -463,8 +484,8 @@ fn cached_hits_reevaluate_like_a_fresh_trace() {
         s.e_i = [0.5; 3];
     });
     let (fresh, radiance) = trace(&fx);
-    let a = cache.evaluate(&radiance, &fx.charts);
-    let b = fresh.evaluate(&radiance, &fx.charts);
+    let a = cache.evaluate(&radiance);
+    let b = fresh.evaluate(&radiance);
     for (a, b) in a.iter().zip(&b) {
         assert!(
             (*a - *b).abs().max_element() <= 1e-5 * b.max_element().max(1e-3),
@@ -494,7 +515,7 @@ fn radiance_through_a_tiny_cache_reads_each_texel() {
     })
     .unwrap();
     let rad = fx.radiance(1);
-    let (st, tc) = (&layout.slots[0], &fx.charts.slots[0].texel_chart);
+    let (st, tc) = (&layout.slots[0], &fx.texel_charts(0));
     let mut checked = 0;
     for t in 0..layout.tile_count {
         let (g, s) = (
@@ -515,7 +536,7 @@ fn radiance_through_a_tiny_cache_reads_each_texel() {
                 Vec3::from_array(s[o].k_d) / PI * Vec3::new(1.0, 2.0, 3.0)
             };
             let uv = Vec2::new(x as f32 + 0.5, y as f32 + 0.5);
-            let (l, fixed) = rad.lookup(&fx.charts, slot, uv, c);
+            let (l, fixed) = rad.lookup(slot, uv, c);
             assert_eq!(l, want, "texel ({x}, {y})");
             // zero-weight neighbours count too, so fixed implies only this texel observed
             assert!(!fixed || s[o].flags & flags::OBSERVED != 0);

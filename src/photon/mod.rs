@@ -7,7 +7,7 @@
 //!
 //! ```text
 //! Charts::new(..)            once per run (texel/triangle -> chart tables)
-//! AlbedoTextures::gather(..)    per pass: current K_d per slot, gutter dilated
+//! AlbedoTextures::gather(..)    per pass: current K_d per slot, gutter dilated (in tiles when large)
 //! begin_pass(state)             accum := 0
 //! photon_pass(ctx, state, 0, on_group)   accum += photon flux, batch by batch
 //! finish_pass(geom, state)      accum := accum / bin_area  (irradiance, "E_i traced")
@@ -48,8 +48,8 @@ use crate::accel::Accel;
 use crate::atlas::charts::Charts;
 use crate::atlas::hits::HitTable;
 use crate::atlas::layout::{Layout, TexelGeom, TexelState};
-use crate::atlas::texels::{dilate, NONE};
-use crate::atlas::texture;
+use crate::atlas::slot_texture::{Scratch, SlotTexture};
+use crate::atlas::texels::NONE;
 use crate::atlas::tiles::{map_tiles, TileStore};
 use crate::atlas::unwrap::ShapeAtlas;
 use crate::atlas::Prepared;
@@ -63,7 +63,7 @@ use std::time::Instant;
 
 /// What a photon hit reads from the texel under it, in one 16-byte record so that a hit costs
 /// one cache miss, not two (the texel's chart decides the deposit, its `K_d` the bounce).
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, bytemuck::Pod, bytemuck::Zeroable)]
 #[repr(C, align(16))]
 pub struct PathTexel {
     /// Linear RGB `K_d`.
@@ -72,106 +72,114 @@ pub struct PathTexel {
     pub chart: u32,
 }
 
-/// One slot's albedo texture: `width x height` texels, row-major, row 0 = top, in the
-/// slot's atlas texel coordinates. Gutter texels should hold dilated `K_d` values (hits in
-/// the uncovered border texels of a chart read them).
-#[derive(Debug, Clone, PartialEq)]
-pub struct AlbedoTexture {
-    pub width: u32,
-    pub height: u32,
-    pub texels: Vec<PathTexel>,
-}
-
-/// The current `K_d` of every reconstructed shape, in memory, one texture per layout slot.
+/// The current `K_d` of every reconstructed shape, one texture per layout slot (row 0 = top,
+/// in the slot's atlas texel coordinates), each whole in memory when it fits in the scratch
+/// budget, else in tiles behind a cache ([`SlotTexture`]). Gutter texels hold dilated `K_d`
+/// values (hits in the uncovered border texels of a chart read them).
 ///
 /// Photons read the texel under the hit (nearest), not a bilinear blend: the solver's `K_d`
 /// of a texel is the mean albedo over its square (it divides the texel's mean radiance by its
 /// mean irradiance), so a photon reflecting anywhere in that square should see exactly that
 /// value; this keeps each texel's reflected energy consistent with the solver's model, and it
 /// costs one memory access instead of four (the lookups miss the cache on large textures).
-#[derive(Debug, Clone, PartialEq)]
 pub struct AlbedoTextures {
-    pub slots: Vec<AlbedoTexture>,
+    pub slots: Vec<SlotTexture<PathTexel>>,
 }
 
 impl AlbedoTextures {
-    /// Checks that there is one texture per slot of `layout`, of the slot's size.
-    pub fn new(layout: &Layout, slots: Vec<AlbedoTexture>) -> Result<Self> {
-        if slots.len() != layout.slots.len() {
+    /// `kd[slot]` everywhere on each slot (tests, benchmarks, a first pass).
+    pub fn uniform_per_slot(
+        layout: &Layout,
+        charts: &Charts,
+        geom: &TileStore<TexelGeom>,
+        kd: &[Vec3],
+        scratch: &Scratch,
+    ) -> Result<Self> {
+        if kd.len() != layout.slots.len() {
             return Err(Error::internal(format!(
-                "albedo textures: {} given for {} reconstructed shapes",
-                slots.len(),
+                "albedo textures: {} values for {} reconstructed shapes",
+                kd.len(),
                 layout.slots.len()
             )));
         }
-        for (i, (t, s)) in slots.iter().zip(&layout.slots).enumerate() {
-            if (t.width, t.height) != (s.width, s.height)
-                || t.texels.len() != t.width as usize * t.height as usize
-                || t.width == 0
-                || t.height == 0
-            {
-                return Err(Error::internal(format!(
-                    "albedo texture of slot {i}: {}x{} with {} texels, the atlas is {}x{}",
-                    t.width,
-                    t.height,
-                    t.texels.len(),
-                    s.width,
-                    s.height
-                )));
-            }
-        }
+        let total: u64 = layout
+            .slots
+            .iter()
+            .map(|s| s.width as u64 * s.height as u64)
+            .sum();
+        let slots = (0..layout.slots.len())
+            .map(|slot| {
+                let c = &charts.slots[slot];
+                let st = &layout.slots[slot];
+                let keep = scratch.share(st.width as u64 * st.height as u64, total);
+                SlotTexture::gather(layout, slot, geom, geom, &keep, "albedo", |g, _| {
+                    PathTexel {
+                        kd: kd[slot],
+                        chart: c.texel(g),
+                    }
+                })
+            })
+            .collect::<Result<_>>()?;
         Ok(AlbedoTextures { slots })
     }
 
-    /// The same albedo everywhere (tests, benchmarks, a first pass).
-    pub fn uniform(layout: &Layout, charts: &Charts, kd: Vec3) -> Self {
-        AlbedoTextures {
-            slots: (layout.slots.iter().zip(&charts.slots))
-                .map(|(s, c)| AlbedoTexture {
-                    width: s.width,
-                    height: s.height,
-                    texels: (c.texel_chart.iter())
-                        .map(|&chart| PathTexel { kd, chart })
-                        .collect(),
-                })
-                .collect(),
-        }
+    /// The same albedo everywhere.
+    pub fn uniform(
+        layout: &Layout,
+        charts: &Charts,
+        geom: &TileStore<TexelGeom>,
+        kd: Vec3,
+        scratch: &Scratch,
+    ) -> Result<Self> {
+        Self::uniform_per_slot(layout, charts, geom, &vec![kd; layout.slots.len()], scratch)
     }
 
-    /// `K_d` of every slot assembled from `state` (`TexelState::k_d` of covered texels), the
-    /// gutter filled by `dilate_passes` passes of [`dilate`] (use the atlas padding or more).
+    /// `K_d` of every slot assembled from `state` (`TexelState::k_d` of covered texels; the
+    /// textures together within `scratch`'s budget, the temporaries of one slot each within
+    /// it too), the gutter filled by `dilate_passes` passes of [`dilate`](crate::atlas::texels::dilate)
+    /// (use the atlas padding or more).
     pub fn gather(
         layout: &Layout,
         charts: &Charts,
         state: &TileStore<TexelState>,
         geom: &TileStore<TexelGeom>,
         dilate_passes: u32,
+        scratch: &Scratch,
     ) -> Result<Self> {
         let mut out = Vec::with_capacity(layout.slots.len());
+        let total: u64 = layout
+            .slots
+            .iter()
+            .map(|s| s.width as u64 * s.height as u64)
+            .sum();
         for (slot, st) in layout.slots.iter().enumerate() {
-            let mut vals =
-                texture::gather(layout, slot, state, geom, |s, _| Vec3::from_array(s.k_d))?;
-            let covered: Vec<bool> = charts.slots[slot]
-                .texel_chart
-                .iter()
-                .map(|&c| c != NONE)
-                .collect();
-            for (v, &c) in vals.iter_mut().zip(&covered) {
-                if !c {
-                    *v = Vec3::ZERO;
-                }
-            }
-            dilate(&mut vals, &covered, st.width, st.height, dilate_passes)?;
-            let texels = (vals.iter().zip(&charts.slots[slot].texel_chart))
-                .map(|(&kd, &chart)| PathTexel { kd, chart })
-                .collect();
-            out.push(AlbedoTexture {
-                width: st.width,
-                height: st.height,
-                texels,
-            });
+            // every slot's texture is kept through the pass: each gets its share of the budget
+            let keep = scratch.share(st.width as u64 * st.height as u64, total);
+            let c = &charts.slots[slot];
+            let chart = SlotTexture::gather(layout, slot, geom, geom, scratch, "chart", |g, _| {
+                c.texel(g)
+            })?;
+            let mask = SlotTexture::gather(layout, slot, geom, geom, scratch, "mask", |g, _| {
+                (c.texel(g) != NONE) as u8
+            })?;
+            let kd = SlotTexture::gather(layout, slot, state, geom, scratch, "kd", |s, g| match c
+                .texel(g)
+                != NONE
+            {
+                true => Vec3::from_array(s.k_d),
+                false => Vec3::ZERO,
+            })?;
+            let kd = kd.dilated(&mask, dilate_passes, scratch)?;
+            let tex = SlotTexture::build(chart.grid, &keep, "albedo", |t| {
+                let (k, c) = (kd.tile(t)?, chart.tile(t)?);
+                Ok(k.iter()
+                    .zip(&c)
+                    .map(|(&kd, &chart)| PathTexel { kd, chart })
+                    .collect())
+            })?;
+            out.push(tex);
         }
-        AlbedoTextures::new(layout, out)
+        Ok(AlbedoTextures { slots: out })
     }
 
     /// `K_d` of `slot` at continuous texel coordinates `uv`: the texel containing `uv`,
@@ -184,13 +192,19 @@ impl AlbedoTextures {
     /// The texel of `slot` containing `uv` (clamped to the texture) and whether `uv` was
     /// inside the texture.
     #[inline]
-    pub fn texel(&self, slot: usize, uv: Vec2) -> (&PathTexel, bool) {
+    pub fn texel(&self, slot: usize, uv: Vec2) -> (PathTexel, bool) {
         let t = &self.slots[slot];
+        let (w, h) = (t.grid.width, t.grid.height);
         let (fx, fy) = (uv.x.floor(), uv.y.floor());
-        let inside = fx >= 0.0 && fy >= 0.0 && fx < t.width as f32 && fy < t.height as f32;
-        let x = (fx as i64).clamp(0, t.width as i64 - 1) as usize;
-        let y = (fy as i64).clamp(0, t.height as i64 - 1) as usize;
-        (&t.texels[y * t.width as usize + x], inside)
+        let inside = fx >= 0.0 && fy >= 0.0 && fx < w as f32 && fy < h as f32;
+        let x = (fx as i64).clamp(0, w as i64 - 1) as u32;
+        let y = (fy as i64).clamp(0, h as i64 - 1) as u32;
+        (t.get(x, y), inside)
+    }
+
+    /// The first read error of lookups since the last check (textures held in tiles).
+    pub fn check(&self) -> Result<()> {
+        self.slots.iter().try_for_each(|t| t.check())
     }
 }
 

@@ -5,8 +5,8 @@
 
 use crate::atlas::charts::Charts;
 use crate::atlas::layout::{Layout, TexelGeom, TexelState};
+use crate::atlas::slot_texture::{Scratch, SlotTexture};
 use crate::atlas::texels::NONE;
-use crate::atlas::texture;
 use crate::atlas::tiles::TileStore;
 use crate::{Error, Result};
 use glam::{DVec3, Vec3};
@@ -66,30 +66,62 @@ pub fn smooth_within_charts(
     Ok(out)
 }
 
+/// What smoothing reads of a texel.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, bytemuck::Pod, bytemuck::Zeroable)]
+struct SmoothTexel {
+    accum: Vec3,
+    weight: f32,
+    chart: u32,
+}
+
 /// [`smooth_within_charts`] applied to the traced `E_i` in `TexelState::accum` (after
-/// [`super::finish_pass`]), weighted by `TexelGeom::bin_area`, slot by slot (one slot's
-/// texture in memory at a time). `radius = 0` does nothing.
+/// [`super::finish_pass`]), weighted by `TexelGeom::bin_area`, slot by slot: a slot's texture
+/// whole if it fits in `scratch`'s budget, else tile by tile with a halo of `radius` texels
+/// (the same values: a texel's window lies within its tile's halo). `radius = 0` does nothing.
 pub fn smooth_accum(
     layout: &Layout,
     charts: &Charts,
     geom: &TileStore<TexelGeom>,
     state: &mut TileStore<TexelState>,
     radius: u32,
+    scratch: &Scratch,
 ) -> Result<()> {
     if radius == 0 {
         return Ok(());
     }
-    for (slot, st) in layout.slots.iter().enumerate() {
-        let (vals, wts): (Vec<Vec3>, Vec<f32>) =
-            texture::gather(layout, slot, state, geom, |s, g| {
-                let w = if g.covered() { g.bin_area } else { 0.0 };
-                (Vec3::from_array(s.accum), w)
-            })?
-            .into_iter()
-            .unzip();
-        let charts = &charts.slots[slot].texel_chart;
-        let smoothed = smooth_within_charts(&vals, &wts, charts, st.width, st.height, radius)?;
-        texture::scatter(layout, slot, state, &smoothed, |s, v| {
+    for slot in 0..layout.slots.len() {
+        let c = &charts.slots[slot];
+        let tex = SlotTexture::gather(layout, slot, state, geom, scratch, "smooth", |s, g| {
+            SmoothTexel {
+                accum: Vec3::from_array(s.accum),
+                weight: if g.covered() { g.bin_area } else { 0.0 },
+                chart: c.texel(g),
+            }
+        })?;
+        let split = |v: &[SmoothTexel]| -> (Vec<Vec3>, Vec<f32>, Vec<u32>) {
+            (
+                v.iter().map(|t| t.accum).collect(),
+                v.iter().map(|t| t.weight).collect(),
+                v.iter().map(|t| t.chart).collect(),
+            )
+        };
+        let grid = tex.grid;
+        let whole = |v: &[SmoothTexel]| {
+            let (a, w, ch) = split(v);
+            smooth_within_charts(&a, &w, &ch, grid.width, grid.height, radius)
+        };
+        let smoothed = tex.map_blocks(radius, scratch, "smoothed", whole, |b, t| {
+            let (a, w, ch) = split(&b.vals);
+            let sm = smooth_within_charts(&a, &w, &ch, b.width, b.height, radius)?;
+            let mut out = vec![Vec3::ZERO; grid.tile_texels()];
+            for (off, x, y) in grid.texels_of(t) {
+                out[off] = sm[((y - b.y0) * b.width + (x - b.x0)) as usize];
+            }
+            Ok(out)
+        })?;
+        drop(tex);
+        smoothed.scatter(state, |s, v| {
             s.accum = v.to_array();
             true
         })?;

@@ -2,6 +2,7 @@
 //! thread counts, group sizes and resumes, and the smoothing filter.
 
 use super::*;
+use crate::atlas::texture;
 use crate::atlas::unwrap::AtlasSettings;
 use crate::atlas::{build_geometry, Prepared};
 use crate::progress::Mode;
@@ -123,6 +124,24 @@ impl Fixture {
             .collect()
     }
 
+    /// Scratch textures in the fixture's directory, `budget` bytes each.
+    fn scratch(&self, budget: u64) -> Scratch {
+        Scratch::new(self.dir.path(), budget)
+    }
+
+    /// The same albedo `kd` everywhere.
+    fn uniform(&self, kd: Vec3) -> AlbedoTextures {
+        let s = self.scratch(1 << 30);
+        AlbedoTextures::uniform(&self.p.layout, &self.charts, &self.geom, kd, &s).unwrap()
+    }
+
+    /// Every texel's chart of `slot`, row-major.
+    fn texel_charts(&self, slot: usize) -> Vec<u32> {
+        self.charts
+            .texel_charts(&self.p.layout, slot, &self.geom)
+            .unwrap()
+    }
+
     /// Per slot, the texture-space arrays `(E, bin_area)` of `accum`.
     fn slot_arrays(&self, s: &TileStore<TexelState>, slot: usize) -> (Vec<Vec3>, Vec<f32>) {
         texture::gather(&self.p.layout, slot, s, &self.geom, |r, g| {
@@ -171,7 +190,7 @@ fn furnace_sphere_matches_the_closed_form() {
 
     // Grey rho = 0.5: every photon keeps its flux, so texel counts are (nearly) Poisson.
     let rho = 0.5;
-    let albedo = AlbedoTextures::uniform(&fx.p.layout, &fx.charts, Vec3::splat(rho));
+    let albedo = fx.uniform(Vec3::splat(rho));
     let ctx = fx.ctx(&albedo, n, 8192);
     let (s, stats) = fx.pass(&ctx, "grey.tiles");
     let texels = fx.texels(&s);
@@ -225,7 +244,7 @@ fn furnace_sphere_matches_the_closed_form() {
 fn check_smoothing(fx: &Fixture, s: TileStore<TexelState>, want: f64) {
     // E_i is uniform here, so this is pure noise reduction.
     let (e, wts) = fx.slot_arrays(&s, 0);
-    let charts = &fx.charts.slots[0].texel_chart;
+    let charts = &fx.texel_charts(0);
     let st = fx.p.layout.slots[0];
     let mut rms0 = 0.0;
     for r in 0..=3u32 {
@@ -256,14 +275,24 @@ fn check_smoothing(fx: &Fixture, s: TileStore<TexelState>, want: f64) {
             );
         }
     }
-    // The store-level filter is the same function.
-    let mut s = s;
-    smooth_accum(&fx.p.layout, &fx.charts, &fx.geom, &mut s, 2).unwrap();
-    let (e2, _) = fx.slot_arrays(&s, 0);
+    // The store-level filter is the same function, whole or tile by tile (a budget of one
+    // byte keeps every texture in tiles), bit for bit.
     let sm = smooth_within_charts(&e, &wts, charts, st.width, st.height, 2).unwrap();
-    for j in 0..e2.len() {
-        if charts[j] != NONE {
-            assert_eq!(e2[j], sm[j]);
+    for budget in [1u64 << 30, 1] {
+        let mut s2 = fx.state(&format!("smooth-{budget}.tiles"));
+        for t in 0..s.tile_count() {
+            s2.write_tile(t, &s.read_tile(t).unwrap()).unwrap();
+        }
+        let scratch = fx.scratch(budget);
+        smooth_accum(&fx.p.layout, &fx.charts, &fx.geom, &mut s2, 2, &scratch).unwrap();
+        let (e2, _) = fx.slot_arrays(&s2, 0);
+        for j in 0..e2.len() {
+            if charts[j] != NONE {
+                assert_eq!(
+                    e2[j].to_array().map(f32::to_bits),
+                    sm[j].to_array().map(f32::to_bits)
+                );
+            }
         }
     }
 }
@@ -273,7 +302,7 @@ fn check_smoothing(fx: &Fixture, s: TileStore<TexelState>, want: f64) {
 fn check_colored_and_one_bounce(fx: &Fixture, ed: DVec3, n: u64) {
     // Colored albedo: per channel E_i = E_d rho_c / (1 - rho_c) (Russian roulette on max K_d).
     let rho = Vec3::new(0.5, 0.25, 0.8);
-    let albedo = AlbedoTextures::uniform(&fx.p.layout, &fx.charts, rho);
+    let albedo = fx.uniform(rho);
     let (s, stats) = fx.pass(&fx.ctx(&albedo, n, 8192), "color.tiles");
     let want = ed * (rho.as_dvec3() / (1.0 - rho.as_dvec3()));
     let got = area_mean(&fx.texels(&s)).as_dvec3();
@@ -282,7 +311,7 @@ fn check_colored_and_one_bounce(fx: &Fixture, ed: DVec3, n: u64) {
     assert!(rel.max_element() < 0.01, "{got} vs {want}");
 
     // One bounce only: E_i = E_d rho.
-    let albedo = AlbedoTextures::uniform(&fx.p.layout, &fx.charts, Vec3::splat(0.5));
+    let albedo = fx.uniform(Vec3::splat(0.5));
     let mut ctx = fx.ctx(&albedo, 200_000, 8192);
     ctx.max_depth = 1;
     let (s, _) = fx.pass(&ctx, "depth1.tiles");
@@ -299,13 +328,13 @@ fn check_colored_and_one_bounce(fx: &Fixture, ed: DVec3, n: u64) {
 #[test]
 fn black_surfaces_absorb_everything() {
     let fx = furnace(Vec3::ONE, 8.0);
-    let albedo = AlbedoTextures::uniform(&fx.p.layout, &fx.charts, Vec3::ZERO);
+    let albedo = fx.uniform(Vec3::ZERO);
     let (s, stats) = fx.pass(&fx.ctx(&albedo, 20_000, 4096), "black.tiles");
     assert_eq!((stats.deposits, stats.dropped), (0, 0));
     assert_eq!(stats.rays, 20_000);
     assert!(fx.texels(&s).iter().all(|(_, e)| *e == Vec3::ZERO));
     // max_depth = 0: no bounce, so nothing either, even with a white surface.
-    let albedo = AlbedoTextures::uniform(&fx.p.layout, &fx.charts, Vec3::ONE);
+    let albedo = fx.uniform(Vec3::ONE);
     let mut ctx = fx.ctx(&albedo, 20_000, 4096);
     ctx.max_depth = 0;
     let (_, stats) = fx.pass(&ctx, "depth0.tiles");
@@ -328,10 +357,10 @@ fn open_floor_and_backside_receiver_get_nothing() {
     let light = || vec![point(Vec3::Z, Vec3::splat(3.0))];
     let run_with = |shapes: Vec<Shape>, name: &str, kd: &[f32]| {
         let fx = Fixture::new(shapes, light(), 8.0);
-        let mut albedo = AlbedoTextures::uniform(&fx.p.layout, &fx.charts, Vec3::ZERO);
-        for (t, k) in albedo.slots.iter_mut().zip(kd) {
-            t.texels.iter_mut().for_each(|v| v.kd = Vec3::splat(*k));
-        }
+        let slots = fx.p.layout.slots.len();
+        let kd: Vec<Vec3> = kd.iter().take(slots).map(|&k| Vec3::splat(k)).collect();
+        let (l, c, g, s) = (&fx.p.layout, &fx.charts, &fx.geom, fx.scratch(1 << 30));
+        let albedo = AlbedoTextures::uniform_per_slot(l, c, g, &kd, &s).unwrap();
         let (s, stats) = fx.pass(&fx.ctx(&albedo, 50_000, 4096), name);
         let per_slot: Vec<Vec3> = (0..fx.p.layout.slots.len())
             .map(|slot| {
@@ -397,32 +426,42 @@ fn albedo_lookup_is_the_texel_under_the_point_and_gather_dilates() {
         }
     })
     .unwrap();
-    let alb = AlbedoTextures::gather(&fx.p.layout, &fx.charts, &s, &fx.geom, 2).unwrap();
-    let charts = &fx.charts.slots[0].texel_chart;
-    let (mut covered, mut filled) = (0, 0);
-    for y in 0..st.height {
-        for x in 0..st.width {
-            let i = (y * st.width + x) as usize;
-            let v = alb.lookup(0, Vec2::new(x as f32 + 0.9, y as f32 + 0.1));
-            if charts[i] != NONE {
-                assert_eq!(v, Vec3::new(x as f32, y as f32, 1.0));
-                covered += 1;
-            } else if v.z == 1.0 {
-                filled += 1; // gutter next to a chart: dilated from covered neighbours
-            } else {
-                assert_eq!(v, Vec3::ZERO);
+    // whole, and in tiles (a budget of one byte): the same texels
+    for budget in [1u64 << 30, 1] {
+        let scratch = fx.scratch(budget);
+        let alb =
+            AlbedoTextures::gather(&fx.p.layout, &fx.charts, &s, &fx.geom, 2, &scratch).unwrap();
+        assert_eq!(alb.slots[0].is_whole(), budget > 1);
+        let charts = &fx.texel_charts(0);
+        let (mut covered, mut filled) = (0, 0);
+        for y in 0..st.height {
+            for x in 0..st.width {
+                let i = (y * st.width + x) as usize;
+                let v = alb.lookup(0, Vec2::new(x as f32 + 0.9, y as f32 + 0.1));
+                assert_eq!(
+                    alb.texel(0, Vec2::new(x as f32 + 0.5, y as f32 + 0.5))
+                        .0
+                        .chart,
+                    charts[i]
+                );
+                if charts[i] != NONE {
+                    assert_eq!(v, Vec3::new(x as f32, y as f32, 1.0));
+                    covered += 1;
+                } else if v.z == 1.0 {
+                    filled += 1; // gutter next to a chart: dilated from covered neighbours
+                } else {
+                    assert_eq!(v, Vec3::ZERO);
+                }
             }
         }
+        assert!(covered > 100 && filled > 10, "{covered} {filled}");
+        // Clamped outside the texture.
+        assert_eq!(
+            alb.lookup(0, Vec2::new(-3.0, -1.0)),
+            alb.slots[0].get(0, 0).kd
+        );
+        alb.check().unwrap();
     }
-    assert!(covered > 100 && filled > 10, "{covered} {filled}");
-    // Clamped outside the texture; wrong sizes refused.
-    assert_eq!(
-        alb.lookup(0, Vec2::new(-3.0, -1.0)),
-        alb.slots[0].texels[0].kd
-    );
-    let mut bad = alb.slots.clone();
-    bad[0].texels.pop();
-    assert!(AlbedoTextures::new(&fx.p.layout, bad).is_err());
 }
 
 /// Bit-identical accum for 1 and 2 threads, any group size, a partial last batch, and a pass
@@ -430,7 +469,7 @@ fn albedo_lookup_is_the_texel_under_the_point_and_gather_dilates() {
 #[test]
 fn passes_are_bit_identical_across_threads_groups_and_resume() {
     let fx = furnace(Vec3::new(1.0, 0.5, 2.0), 8.0);
-    let albedo = AlbedoTextures::uniform(&fx.p.layout, &fx.charts, Vec3::new(0.6, 0.3, 0.7));
+    let albedo = fx.uniform(Vec3::new(0.6, 0.3, 0.7));
     let base = fx.ctx(&albedo, 20_500, 1000); // 21 batches, the last one of 500
     let bits = |s: &TileStore<TexelState>| -> Vec<u32> {
         (0..s.tile_count())
@@ -555,14 +594,14 @@ fn smoothing_tradeoff_on_a_gradient() {
         vec![point(Vec3::new(0.5, 0.0, 0.5), Vec3::ONE)],
         8.0,
     );
-    let albedo = AlbedoTextures::uniform(&fx.p.layout, &fx.charts, Vec3::splat(0.7));
+    let albedo = fx.uniform(Vec3::splat(0.7));
     let (n, k) = (100_000u64, 40u64);
     let (reference, _) = fx.pass(&fx.ctx(&albedo, k * n, 16384), "ref.tiles");
     let (s, _) = fx.pass(&fx.ctx(&albedo, n, 16384), "n.tiles");
     let st = fx.p.layout.slots[0];
     let (e_ref, _) = fx.slot_arrays(&reference, 0);
     let (e, w) = fx.slot_arrays(&s, 0);
-    let charts = &fx.charts.slots[0].texel_chart;
+    let charts = &fx.texel_charts(0);
     let mut ref_var = 0.0;
     for r in 0..=4u32 {
         let sm = smooth_within_charts(&e, &w, charts, st.width, st.height, r).unwrap();
