@@ -27,11 +27,12 @@ fn bench(c: &mut Criterion) {
         build_geometry(&p, &dir.path().join("geometry.tiles"), Mode::Quiet).expect("geometry");
     let charts = Charts::new(&p.scene, &p.layout, &p.atlases).expect("charts");
     let hits = HitTable::new(&p, &charts);
+    let scratch = kdmap::atlas::slot_texture::Scratch::new(dir.path(), 1 << 30);
     let covered: u64 = {
         let mut st = p
             .create_store(dir.path().join("probe.tiles"), TexelState::default())
             .expect("store");
-        kdmap::project::run(&p, &cfg, &hits, &geom, &mut st, Mode::Quiet)
+        kdmap::project::run(&p, &cfg, &hits, &geom, &mut st, Mode::Quiet, &scratch)
             .expect("project")
             .covered_texels
     };
@@ -57,8 +58,16 @@ fn bench(c: &mut Criterion) {
                             let mut st = p
                                 .create_store(dir.path().join("state.tiles"), TexelState::default())
                                 .expect("store");
-                            kdmap::project::run(&p, &cfg, &hits, &geom, &mut st, Mode::Quiet)
-                                .expect("project")
+                            kdmap::project::run(
+                                &p,
+                                &cfg,
+                                &hits,
+                                &geom,
+                                &mut st,
+                                Mode::Quiet,
+                                &scratch,
+                            )
+                            .expect("project")
                         })
                     })
                 },

@@ -304,9 +304,30 @@ pub fn write_exr_rgb(
 ) -> Result<()> {
     let path = path.as_ref();
     check_len(path, width, height, pixels)?;
-    let size = (width as usize, height as usize);
     let w = width as usize;
-    let at = move |p: x::Vec2<usize>| pixels[p.y() * w + p.x()];
+    write_exr_rgb_fn(path, width, height, half, |x, y| {
+        pixels[y as usize * w + x as usize]
+    })
+}
+
+/// [`write_exr_rgb`] from a pixel function `at(x, y)`, for images too large to hold whole
+/// (the encoder pulls pixels a block of rows at a time).
+pub fn write_exr_rgb_fn(
+    path: impl AsRef<Path>,
+    width: u32,
+    height: u32,
+    half: bool,
+    at: impl Fn(u32, u32) -> Vec3 + Sync,
+) -> Result<()> {
+    let path = path.as_ref();
+    if width == 0 || height == 0 {
+        return Err(Error::internal(format!(
+            "{}: cannot write a {width}x{height} image",
+            path.display()
+        )));
+    }
+    let size = (width as usize, height as usize);
+    let at = |p: x::Vec2<usize>| at(p.x() as u32, p.y() as u32);
     let attrs = LayerAttributes::default();
     fsio::write_atomic_with(path, |tmp| {
         if half {
@@ -341,19 +362,53 @@ pub fn write_exr_rgb(
 /// Exposure (stops) that maps the 99th percentile luminance of `vals` (where `mask`) to 0.9:
 /// the automatic exposure of every preview that is not an albedo.
 pub fn auto_exposure(vals: &[Vec3], mask: &[bool]) -> f32 {
-    let mut ys: Vec<f32> = vals
-        .iter()
-        .zip(mask)
-        .filter(|(_, &m)| m)
-        .map(|(v, _)| crate::scene::luminance(*v))
-        .filter(|y| y.is_finite() && *y > 0.0)
-        .collect();
-    if ys.is_empty() {
+    auto_exposure_with(|f| {
+        for (v, _) in vals.iter().zip(mask).filter(|(_, &m)| m) {
+            f(*v);
+        }
+    })
+}
+
+/// [`auto_exposure`] over the values `visit` hands to its callback (called twice), without
+/// holding them: the exact 99th percentile by a two-level radix select on the luminance's
+/// bits (positive finite floats order as their bit patterns), the same value as sorting.
+pub fn auto_exposure_with(visit: impl Fn(&mut dyn FnMut(Vec3))) -> f32 {
+    let lum = |v: Vec3| Some(crate::scene::luminance(v)).filter(|y| y.is_finite() && *y > 0.0);
+    let mut high = vec![0u64; 1 << 16];
+    visit(&mut |v| {
+        if let Some(y) = lum(v) {
+            high[(y.to_bits() >> 16) as usize] += 1;
+        }
+    });
+    let n: u64 = high.iter().sum();
+    if n == 0 {
         return 0.0;
     }
-    let k = ((ys.len() as f64 * 0.99) as usize).min(ys.len() - 1);
-    let (_, v, _) = ys.select_nth_unstable_by(k, |a, b| a.total_cmp(b));
-    (0.9 / *v).log2()
+    let k = ((n as f64 * 0.99) as u64).min(n - 1);
+    let (bin, before) = nth_bin(&high, k);
+    let mut low = vec![0u64; 1 << 16];
+    visit(&mut |v| {
+        if let Some(y) = lum(v) {
+            if (y.to_bits() >> 16) as usize == bin {
+                low[(y.to_bits() & 0xffff) as usize] += 1;
+            }
+        }
+    });
+    let (lo, _) = nth_bin(&low, k - before);
+    let v = f32::from_bits(((bin as u32) << 16) | lo as u32);
+    (0.9 / v).log2()
+}
+
+/// The bin holding the `k`-th (0-based) counted item, and how many items lie before it.
+fn nth_bin(counts: &[u64], k: u64) -> (usize, u64) {
+    let mut before = 0u64;
+    for (i, &c) in counts.iter().enumerate() {
+        if before + c > k {
+            return (i, before);
+        }
+        before += c;
+    }
+    (counts.len() - 1, before)
 }
 
 /// The sRGB transfer function, for a linear value in [0, 1].
@@ -376,26 +431,83 @@ pub fn write_png_srgb(
 ) -> Result<()> {
     let path = path.as_ref();
     check_len(path, width, height, pixels)?;
+    let w = width as usize;
+    write_png_srgb_fn(path, width, height, exposure, |x, y| {
+        pixels[y as usize * w + x as usize]
+    })
+}
+
+/// [`write_png_srgb`] from a pixel function `at(x, y)`, a row at a time.
+pub fn write_png_srgb_fn(
+    path: impl AsRef<Path>,
+    width: u32,
+    height: u32,
+    exposure: f32,
+    at: impl Fn(u32, u32) -> Vec3,
+) -> Result<()> {
     let scale = exposure.exp2();
-    let mut pm = tiny_skia::Pixmap::new(width, height).ok_or_else(|| {
-        Error::internal(format!(
+    write_png_rows(path.as_ref(), width, height, |y| {
+        Ok((0..width).flat_map(|x| srgb8(at(x, y), scale)).collect())
+    })
+}
+
+/// One pixel of an sRGB preview: `c * scale` clamped to [0, 1], encoded, opaque.
+pub fn srgb8(c: Vec3, scale: f32) -> [u8; 4] {
+    let mut px = [0, 0, 0, 255];
+    for k in 0..3 {
+        let v = c[k] * scale;
+        let v = if v.is_finite() {
+            v.clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        px[k] = (srgb_encode(v) * 255.0 + 0.5) as u8;
+    }
+    px
+}
+
+/// Write an 8-bit RGBA PNG whose row `y` is `row(y)` (4 bytes per pixel), streamed to the file
+/// (no image is held whole); atomically.
+pub fn write_png_rows(
+    path: &Path,
+    width: u32,
+    height: u32,
+    mut row: impl FnMut(u32) -> Result<Vec<u8>>,
+) -> Result<()> {
+    if width == 0 || height == 0 {
+        return Err(Error::internal(format!(
             "{}: cannot make a {width}x{height} PNG",
             path.display()
-        ))
-    })?;
-    for (px, c) in pm.data_mut().chunks_exact_mut(4).zip(pixels) {
-        for k in 0..3 {
-            let v = c[k] * scale;
-            let v = if v.is_finite() {
-                v.clamp(0.0, 1.0)
-            } else {
-                0.0
-            };
-            px[k] = (srgb_encode(v) * 255.0 + 0.5) as u8;
-        }
-        px[3] = 255;
+        )));
     }
-    write_pixmap_png(path, &pm)
+    let bad = |e: png::EncodingError| {
+        Error::internal(format!(
+            "{}: cannot encode PNG: {}",
+            path.display(),
+            one_line(&e.to_string())
+        ))
+    };
+    fsio::write_atomic_with(path, |tmp| {
+        let f = std::fs::File::create(tmp).map_err(|e| Error::io(path, e))?;
+        let mut enc = png::Encoder::new(std::io::BufWriter::new(f), width, height);
+        enc.set_color(png::ColorType::Rgba);
+        enc.set_depth(png::BitDepth::Eight);
+        let mut w = enc.write_header().map_err(bad)?;
+        let mut sw = w.stream_writer().map_err(bad)?;
+        for y in 0..height {
+            let r = row(y)?;
+            if r.len() != 4 * width as usize {
+                return Err(Error::internal(format!(
+                    "{}: row {y} has {} bytes for {width} pixels",
+                    path.display(),
+                    r.len()
+                )));
+            }
+            std::io::Write::write_all(&mut sw, &r).map_err(|e| Error::io(path, e))?;
+        }
+        sw.finish().map_err(bad)?;
+        Ok(())
+    })
 }
 
 /// Encode `pm` as PNG and write it atomically.

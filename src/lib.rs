@@ -19,7 +19,7 @@
 //! L2  project/  direct  gather  photon/  solve   the stages, plain functions over tiles
 //! L1  config  report  scene/  scatter  image  camera  accel  light/  render  atlas/
 //!                                    settings, the scene and its physics, tiles
-//! L0  error  rng  progress  fsio  interrupt   no kdmap imports but L0
+//! L0  error  rng  progress  fsio  interrupt  mem   no kdmap imports but L0
 //! ```
 //!
 //! Within L1 the order is as listed: `report` uses `config`; `scene` uses `config` (the run's
@@ -31,6 +31,7 @@
 pub mod error;
 pub mod fsio;
 pub mod interrupt;
+pub mod mem;
 pub mod progress;
 pub mod rng;
 

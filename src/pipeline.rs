@@ -18,7 +18,7 @@ use crate::atlas::charts::Charts;
 use crate::atlas::check::{check_geometry, check_state};
 use crate::atlas::hits::HitTable;
 use crate::atlas::layout::{TexelGeom, TexelState};
-use crate::atlas::slot_texture::Scratch;
+use crate::atlas::slot_texture::{Scratch, SlotTexture};
 use crate::atlas::tiles::{map_tiles, TileStore};
 use crate::atlas::{build_geometry, prepare, state_dir, Prepared};
 use crate::checkpoint::{self as ck, Manifest, Writer};
@@ -178,32 +178,25 @@ pub fn run_projection(cfg: &Config, out: &Path, mode: Mode) -> Result<(Prepared,
     let mut state = p.create_store(dir.join("state.tiles"), TexelState::default())?;
     let charts = Charts::new(&p.scene, &p.layout, &p.atlases)?;
     let hits = HitTable::new(&p, &charts);
-    let stats = project::run(&p, cfg, &hits, &geom, &mut state, mode)?;
+    let scratch = open_scratch(&dir, cfg.memory_budget_mib << 20)?;
+    let stats = project::run(&p, cfg, &hits, &geom, &mut state, mode, &scratch)?;
     debug_check(&geom, &state)?;
     let maps = out.join("maps");
     for slot in 0..p.layout.slots.len() {
-        let st = p.layout.slots[slot];
-        let dims = (st.width, st.height);
-        let recs = crate::atlas::texture::gather(&p.layout, slot, &state, &geom, |s, g| {
-            (*s, g.covered())
+        let (l, id) = (&p.layout, p.slot_id(slot));
+        let g = |name: &str, f: &(dyn Fn(&TexelState) -> glam::Vec3 + Sync)| {
+            SlotTexture::gather(l, slot, &state, &geom, &scratch, name, |s, _| f(s))
+        };
+        let lum = g("lum", &|s| glam::Vec3::from_array(s.l_orig))?;
+        let wt = g("weight", &|s| glam::Vec3::splat(s.weight))?;
+        let obs = SlotTexture::gather(l, slot, &state, &geom, &scratch, "obs", |s, _| {
+            (s.weight > 0.0) as u8
         })?;
-        let lum = recs
-            .iter()
-            .map(|r| glam::Vec3::from_array(r.0.l_orig))
-            .collect();
-        let wt: Vec<glam::Vec3> = recs.iter().map(|r| glam::Vec3::splat(r.0.weight)).collect();
-        let observed: Vec<bool> = wt.iter().map(|v| v.x > 0.0).collect();
-        let cov: Vec<bool> = recs.iter().map(|r| r.1).collect();
-        write_map(
-            &maps,
-            p.slot_id(slot),
-            "luminance",
-            dims,
-            lum,
-            &observed,
-            true,
-        )?;
-        write_map(&maps, p.slot_id(slot), "coverage", dims, wt, &cov, true)?;
+        let cov = SlotTexture::gather(l, slot, &state, &geom, &scratch, "cov", |_, g| {
+            g.covered() as u8
+        })?;
+        write_map(&maps, id, "luminance", &lum, &obs, true, &scratch)?;
+        write_map(&maps, id, "coverage", &wt, &cov, true, &scratch)?;
     }
     Ok((p, stats))
 }
@@ -367,10 +360,21 @@ impl<'a> Run<'a> {
         report.timings.load = self.load_s;
         report.timings.atlas = self.atlas_s;
         report.atlas = p.texel_report(&self.geom, p.window::<TexelGeom>(cfg))?;
+        report.resources.memory_budget_mib = cfg.memory_budget_mib;
+        report.resources.after("load + atlas");
         let mut state = p.create_store(&self.state_path, TexelState::default())?;
         let t = Instant::now();
-        let ps = project::run(p, cfg, self.hits(), &self.geom, &mut state, mode)?;
+        let ps = project::run(
+            p,
+            cfg,
+            self.hits(),
+            &self.geom,
+            &mut state,
+            mode,
+            &self.scratch,
+        )?;
         report.timings.projection = t.elapsed().as_secs_f64();
+        report.resources.after("projection");
         debug_check(&self.geom, &state)?;
         let proj = ProjCounts {
             views: ps.views,
@@ -381,6 +385,7 @@ impl<'a> Run<'a> {
         let t = Instant::now();
         let direct = direct::run(p, cfg, &self.charts, &self.geom, &mut state, mode)?;
         report.timings.direct = t.elapsed().as_secs_f64();
+        report.resources.after("direct");
         report.counts.dense_direct_texels = direct.dense;
         report.counts.direct_first_pass_texels = direct.first_pass;
         report.counts.dense_direct_texels_per_emitter = direct.dense_per_emitter.clone();
@@ -560,6 +565,7 @@ impl<'a> Run<'a> {
         progress::report(self.mode, &text, json);
         let done = it.rms_rel_error < cfg.tolerance as f64;
         r.report.iterations.push(it);
+        r.report.resources.after(&format!("iteration {}", n + 1));
         if done {
             r.report.stopped_by = "tolerance".into();
         }
@@ -800,6 +806,10 @@ impl<'a> Run<'a> {
                 .clone(),
         };
         r.report.timings.total = r.elapsed();
+        let res = &mut r.report.resources;
+        res.memory_budget_mib = self.cfg.memory_budget_mib;
+        res.store_bytes = self.geom.data_bytes() + r.state.data_bytes();
+        res.checkpoint_bytes = r.writer.bytes_written;
         write_outputs(
             p,
             self.hits(),
@@ -807,14 +817,19 @@ impl<'a> Run<'a> {
             &r.state,
             &mut r.report,
             self.out,
+            &self.scratch,
         )?;
         r.checkpoint(&self.state_path, RunStage::Finished)?;
         note(
             self.mode,
             &format!(
-                "checkpoints: {:.1} MB written in {:.2} s",
+                "checkpoints: {:.1} MB written in {:.2} s; peak memory {:.0} MiB (budget {} MiB \
+                 for per-texel data); working state on disk {:.1} GB",
                 r.writer.bytes_written as f64 / 1e6,
-                r.writer.seconds
+                r.writer.seconds,
+                crate::mem::peak_mib(),
+                self.cfg.memory_budget_mib,
+                r.report.resources.store_bytes as f64 / 1e9
             ),
         );
         Ok(r.report)

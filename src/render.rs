@@ -12,24 +12,65 @@ use crate::scene::{Emitter, PixelFilter, Scene, Sides};
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
-/// A per-shape texture: `width x height` linear RGB, row-major, row 0 = top.
-pub struct Texture<'a> {
+/// Texels a renderer can look up: `width x height` linear RGB, row 0 = top. Implemented by
+/// the atlas's slot textures (whole or tiled) and by a plain row-major slice ([`RowMajor`]).
+pub trait Texels: Sync {
+    fn width(&self) -> u32;
+    fn height(&self) -> u32;
+    /// Texel `(x, y)`, inside the texture.
+    fn texel(&self, x: u32, y: u32) -> Vec3;
+}
+
+/// A row-major `width x height` slice as [`Texels`].
+pub struct RowMajor<'a> {
     pub width: u32,
     pub height: u32,
     pub texels: &'a [Vec3],
+}
+
+impl Texels for RowMajor<'_> {
+    fn width(&self) -> u32 {
+        self.width
+    }
+    fn height(&self) -> u32 {
+        self.height
+    }
+    #[inline]
+    fn texel(&self, x: u32, y: u32) -> Vec3 {
+        self.texels[(y * self.width + x) as usize]
+    }
+}
+
+impl Texels for Image {
+    fn width(&self) -> u32 {
+        self.width
+    }
+    fn height(&self) -> u32 {
+        self.height
+    }
+    #[inline]
+    fn texel(&self, x: u32, y: u32) -> Vec3 {
+        self.pixels[(y * self.width + x) as usize]
+    }
+}
+
+/// A per-shape texture and the shape's atlas coordinates.
+pub struct Texture<'a> {
+    pub texels: &'a dyn Texels,
     /// Per-triangle corner coordinates in texel units (the shape's atlas).
     pub corner_uv: &'a [[Vec2; 3]],
 }
 
 /// Bilinear lookup at continuous texel coordinates (texel (i, j) has its center at
 /// (i + 0.5, j + 0.5)), clamped to the texture.
-pub fn bilinear(texels: &[Vec3], width: u32, height: u32, uv: Vec2) -> Vec3 {
+pub fn bilinear(texels: &dyn Texels, uv: Vec2) -> Vec3 {
+    let (width, height) = (texels.width(), texels.height());
     let fx = (uv.x - 0.5).clamp(0.0, (width - 1) as f32);
     let fy = (uv.y - 0.5).clamp(0.0, (height - 1) as f32);
     let (x0, y0) = (fx.floor() as u32, fy.floor() as u32);
     let (x1, y1) = ((x0 + 1).min(width - 1), (y0 + 1).min(height - 1));
     let (tx, ty) = (fx - x0 as f32, fy - y0 as f32);
-    let g = |x: u32, y: u32| texels[(y * width + x) as usize];
+    let g = |x: u32, y: u32| texels.texel(x, y);
     let top = g(x0, y0) * (1.0 - tx) + g(x1, y0) * tx;
     let bot = g(x0, y1) * (1.0 - tx) + g(x1, y1) * tx;
     top * (1.0 - ty) + bot * ty
@@ -131,7 +172,7 @@ fn flat_pixel(textures: &[Option<Texture>], k: u32, f: &FlatPixel) -> Option<Vec
         let (l, r) = (a.lerp(c, ty), b.lerp(d, ty));
         for i in 0..k {
             let tx = (i as f32 + 0.5) / k as f32;
-            sum += bilinear(tex.texels, tex.width, tex.height, l.lerp(r, tx));
+            sum += bilinear(tex.texels, l.lerp(r, tx));
         }
     }
     Some(sum / (k * k) as f32)
@@ -256,7 +297,7 @@ fn trace(
         if let Some(tex) = textures.get(si).and_then(|t| t.as_ref()) {
             let c = tex.corner_uv[hit.tri as usize];
             let uv = c[0] * (1.0 - hit.b1 - hit.b2) + c[1] * hit.b1 + c[2] * hit.b2;
-            let v = bilinear(tex.texels, tex.width, tex.height, uv) * weight;
+            let v = bilinear(tex.texels, uv) * weight;
             return match bounce {
                 0 => Seen::Texture(v),
                 _ => Seen::Known(v),
@@ -396,12 +437,18 @@ mod tests {
 
     #[test]
     fn bilinear_is_exact_at_centers_and_linear_between() {
-        let t = vec![
+        let v = vec![
             Vec3::splat(0.0),
             Vec3::splat(1.0),
             Vec3::splat(2.0),
             Vec3::splat(3.0),
         ];
+        let t = RowMajor {
+            width: 2,
+            height: 2,
+            texels: &v,
+        };
+        let bilinear = |_: &RowMajor, _w: u32, _h: u32, uv: Vec2| bilinear(&t, uv);
         assert_eq!(bilinear(&t, 2, 2, Vec2::new(0.5, 0.5)), Vec3::splat(0.0));
         assert_eq!(bilinear(&t, 2, 2, Vec2::new(1.5, 1.5)), Vec3::splat(3.0));
         assert_eq!(bilinear(&t, 2, 2, Vec2::new(1.0, 0.5)), Vec3::splat(0.5));

@@ -118,6 +118,33 @@ pub struct Report {
     /// Per reconstructed shape, its texel density and how it was chosen.
     pub atlas: Vec<ShapeTexels>,
     pub table: Vec<ViewShapeRow>,
+    /// Memory and disk the run used.
+    #[serde(default)]
+    pub resources: Resources,
+}
+
+/// What a run used besides time: the peak resident set after each stage (the process's peak
+/// so far, `VmHWM`, so it only grows; the stage where it jumps is the one that needed it), and
+/// the bytes it wrote.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct Resources {
+    /// The configured `memory_budget_mib`.
+    pub memory_budget_mib: u64,
+    /// `(stage, peak RSS so far in MiB)`, in the order the stages ended (this attempt's: a
+    /// resumed run starts its own peak).
+    pub peak_rss_mib: Vec<(String, f64)>,
+    /// Bytes of the geometry and state tile stores (the working state on disk).
+    pub store_bytes: u64,
+    /// Bytes written to checkpoints.
+    pub checkpoint_bytes: u64,
+}
+
+impl Resources {
+    /// Records the peak RSS so far after `stage`.
+    pub fn after(&mut self, stage: &str) {
+        self.peak_rss_mib
+            .push((stage.to_string(), crate::mem::peak_mib()));
+    }
 }
 
 /// One reconstructed shape's texture: its density and size.
@@ -147,6 +174,7 @@ impl Report {
             counts: Counts::default(),
             atlas: Vec::new(),
             table: Vec::new(),
+            resources: Resources::default(),
         }
     }
 }

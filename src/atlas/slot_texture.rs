@@ -427,6 +427,19 @@ where
     }
 }
 
+impl crate::render::Texels for SlotTexture<glam::Vec3> {
+    fn width(&self) -> u32 {
+        self.grid.width
+    }
+    fn height(&self) -> u32 {
+        self.grid.height
+    }
+    #[inline]
+    fn texel(&self, x: u32, y: u32) -> glam::Vec3 {
+        self.get(x, y)
+    }
+}
+
 /// See [`SlotTexture::reader`].
 pub struct TexReader<'a, V: Pod + Send + Sync> {
     tex: &'a SlotTexture<V>,

@@ -1,15 +1,15 @@
-//! Per-shape textures and maps (`textures/<id>_albedo.*`, `maps/<id>_*.exr|png`), from one
-//! gather of each shape's texel records. Also builds each shape's re-render texture
-//! `L_render = K_d / pi (E_d + E_i)`.
+//! Per-shape textures and maps (`textures/<id>_albedo.*`, `maps/<id>_*.exr|png`), each made
+//! from the stores as a [`SlotTexture`] (whole when it fits the memory budget, else in tiles)
+//! and written a row at a time, so no texture needs to fit in memory. Also builds each shape's
+//! re-render texture `L_render = K_d / pi (E_d + E_i)`.
 
 use super::plot::{draw_legend, fill, legend_height, ErrorScale, NO_DATA};
 use crate::atlas::layout::{flags, TexelGeom, TexelState};
-use crate::atlas::texels::dilate;
-use crate::atlas::texture::gather;
+use crate::atlas::slot_texture::{Scratch, SlotTexture};
 use crate::atlas::tiles::TileStore;
 use crate::atlas::Prepared;
 use crate::fsio;
-use crate::image::{auto_exposure, write_exr_rgb, write_pixmap_png, write_png_srgb};
+use crate::image::{auto_exposure_with, srgb8, write_exr_rgb_fn, write_png_rows};
 use crate::{Error, Result};
 use glam::Vec3;
 use std::f32::consts::PI;
@@ -64,51 +64,75 @@ pub fn error_scale(p: &Prepared, state: &TileStore<TexelState>) -> Result<ErrorS
 fn write_texture(
     dir: &Path,
     name: &str,
-    (w, h): (u32, u32),
-    mut vals: Vec<Vec3>,
-    cov: &[bool],
+    vals: &SlotTexture<Vec3>,
+    cov: &SlotTexture<u8>,
     exposure: f32,
+    scratch: &Scratch,
 ) -> Result<()> {
-    dilate(&mut vals, cov, w, h, TEXTURE_DILATE_PASSES)?;
-    write_exr_rgb(dir.join(format!("{name}.exr")), w, h, &vals, false)?;
-    write_png_srgb(dir.join(format!("{name}.png")), w, h, &vals, exposure)
+    let vals = vals.dilated(cov, TEXTURE_DILATE_PASSES, scratch)?;
+    write_exr(&dir.join(format!("{name}.exr")), &vals)?;
+    write_png(&dir.join(format!("{name}.png")), &vals, exposure)
+}
+
+/// `tex` as a float OpenEXR image, read a row band at a time.
+fn write_exr(path: &Path, tex: &SlotTexture<Vec3>) -> Result<()> {
+    let g = tex.grid;
+    write_exr_rgb_fn(path, g.width, g.height, false, |x, y| tex.get(x, y))?;
+    tex.check()
+}
+
+/// `tex` as an sRGB PNG preview at `exposure` stops, a row at a time.
+fn write_png(path: &Path, tex: &SlotTexture<Vec3>, exposure: f32) -> Result<()> {
+    let g = tex.grid;
+    let scale = exposure.exp2();
+    write_png_rows(path, g.width, g.height, |y| {
+        Ok(tex
+            .row(y)
+            .into_iter()
+            .flat_map(|c| srgb8(c, scale))
+            .collect())
+    })?;
+    tex.check()
+}
+
+/// The automatic exposure of `vals` over the texels of `mask` (see [`auto_exposure_with`]).
+fn exposure_of(vals: &SlotTexture<Vec3>, mask: &SlotTexture<u8>) -> f32 {
+    auto_exposure_with(|f| {
+        for y in 0..vals.grid.height {
+            for (v, m) in vals.row(y).into_iter().zip(mask.row(y)) {
+                if m != 0 {
+                    f(v);
+                }
+            }
+        }
+    })
 }
 
 /// Write a per-shape map `<dir>/<id>_<name>.exr` (gutter dilated) and, if asked, a PNG
-/// preview at the automatic exposure.
+/// preview at the automatic exposure over `cov`.
 pub fn write_map(
     dir: &Path,
     id: &str,
     name: &str,
-    (width, height): (u32, u32),
-    mut vals: Vec<Vec3>,
-    cov: &[bool],
+    vals: &SlotTexture<Vec3>,
+    cov: &SlotTexture<u8>,
     png: bool,
+    scratch: &Scratch,
 ) -> Result<()> {
     fsio::create_dir(dir)?;
-    let exposure = auto_exposure(&vals, cov);
-    dilate(&mut vals, cov, width, height, 4)?;
-    write_exr_rgb(
-        dir.join(format!("{id}_{name}.exr")),
-        width,
-        height,
-        &vals,
-        false,
-    )?;
+    let exposure = exposure_of(vals, cov);
+    let vals = vals.dilated(cov, 4, scratch)?;
+    write_exr(&dir.join(format!("{id}_{name}.exr")), &vals)?;
     if png {
-        write_png_srgb(
-            dir.join(format!("{id}_{name}.png")),
-            width,
-            height,
-            &vals,
-            exposure,
-        )?;
+        write_png(&dir.join(format!("{id}_{name}.png")), &vals, exposure)?;
     }
     Ok(())
 }
 
 /// Everything for one slot: albedo texture, the error / colorless / coverage / direct /
-/// indirect / luminance maps. Returns the slot's dilated `L_render` texture for re-rendering.
+/// indirect / luminance maps, each made from the stores (whole or in tiles, within
+/// `scratch`'s budget). Returns the slot's dilated `L_render` texture for re-rendering, made
+/// within `keep` (it is kept while every view is re-rendered).
 pub fn write_slot(
     p: &Prepared,
     geom: &TileStore<TexelGeom>,
@@ -116,129 +140,130 @@ pub fn write_slot(
     slot: usize,
     out: &Path,
     scale: &ErrorScale,
-) -> Result<Vec<Vec3>> {
-    let st = p.layout.slots[slot];
+    (scratch, keep): (&Scratch, &Scratch),
+) -> Result<SlotTexture<Vec3>> {
     let id = p.slot_id(slot);
-    let dims = (st.width, st.height);
     let textures = out.join("textures");
     let maps = out.join("maps");
     for d in [&textures, &maps] {
         fsio::create_dir(d)?;
     }
-    let recs = gather(&p.layout, slot, state, geom, |s, g| (*s, g.covered()))?;
-    let cov: Vec<bool> = recs.iter().map(|r| r.1).collect();
-    let map =
-        |f: &dyn Fn(&TexelState) -> Vec3| -> Vec<Vec3> { recs.iter().map(|r| f(&r.0)).collect() };
+    let l = &p.layout;
+    let tex = |name: &str, f: &(dyn Fn(&TexelState) -> Vec3 + Sync)| {
+        SlotTexture::gather(l, slot, state, geom, scratch, name, |s, _| f(s))
+    };
+    let cov = SlotTexture::gather(l, slot, state, geom, scratch, "cov", |_, g| {
+        g.covered() as u8
+    })?;
+    let obs = SlotTexture::gather(l, slot, state, geom, scratch, "obs", |s, _| {
+        observed(s) as u8
+    })?;
 
+    let albedo = tex("albedo", &|s| arr(s.k_d))?;
     write_texture(
         &textures,
         &format!("{id}_albedo"),
-        dims,
-        map(&|s| arr(s.k_d)),
+        &albedo,
         &cov,
         0.0,
+        scratch,
     )?;
-    let obs: Vec<bool> = recs.iter().map(|r| observed(&r.0)).collect();
+    drop(albedo);
 
     // Relative error: defined on observed texels only; 0 elsewhere (see the coverage map).
-    let err = map(&|s| {
+    let err = tex("error", &|s| {
         Vec3::splat(if observed(s) && s.error.is_finite() {
             s.error
         } else {
             0.0
         })
-    });
+    })?;
     write_error_png(
         &maps.join(format!("{id}_error.png")),
-        dims,
         &err,
         &cov,
         &obs,
         scale,
     )?;
-    let mut err_d = err;
-    dilate(&mut err_d, &cov, st.width, st.height, 4)?;
-    write_exr_rgb(
-        maps.join(format!("{id}_error.exr")),
-        st.width,
-        st.height,
-        &err_d,
-        false,
+    write_exr(
+        &maps.join(format!("{id}_error.exr")),
+        &err.dilated(&cov, 4, scratch)?,
     )?;
+    drop(err);
 
-    write_map(&maps, id, "colorless", dims, map(&colorless), &cov, true)?;
-    write_map(
-        &maps,
-        id,
-        "coverage",
-        dims,
-        map(&|s| Vec3::splat(s.weight)),
-        &cov,
-        true,
-    )?;
-    write_map(&maps, id, "direct", dims, map(&|s| arr(s.e_d)), &cov, true)?;
-    write_map(
-        &maps,
-        id,
-        "indirect",
-        dims,
-        map(&|s| arr(s.e_i)),
-        &cov,
-        true,
-    )?;
-    write_map(
-        &maps,
-        id,
-        "luminance",
-        dims,
-        map(&|s| arr(s.l_orig)),
-        &obs,
-        true,
-    )?;
-
-    let mut lr = map(&l_render);
-    dilate(&mut lr, &cov, st.width, st.height, TEXTURE_DILATE_PASSES)?;
-    Ok(lr)
+    let each: [(
+        &str,
+        &(dyn Fn(&TexelState) -> Vec3 + Sync),
+        &SlotTexture<u8>,
+    ); 5] = [
+        ("colorless", &colorless, &cov),
+        ("coverage", &|s| Vec3::splat(s.weight), &cov),
+        ("direct", &|s| arr(s.e_d), &cov),
+        ("indirect", &|s| arr(s.e_i), &cov),
+        ("luminance", &|s| arr(s.l_orig), &obs),
+    ];
+    for (name, f, mask) in each {
+        write_map(&maps, id, name, &tex(name, f)?, mask, true, scratch)?;
+    }
+    SlotTexture::gather(l, slot, state, geom, scratch, "l_render", |s, _| {
+        l_render(s)
+    })?
+    .dilated(&cov, TEXTURE_DILATE_PASSES, keep)
 }
 
 /// The error map preview: observed texels coloured by `scale`, covered but unobserved ones
 /// grey, gutter black; small maps magnified (nearest texel) to at least 256 pixels a side;
-/// a legend bar underneath.
+/// a legend bar underneath. Streamed a row at a time.
 fn write_error_png(
     path: &Path,
-    (w, h): (u32, u32),
-    err: &[Vec3],
-    cov: &[bool],
-    obs: &[bool],
+    err: &SlotTexture<Vec3>,
+    cov: &SlotTexture<u8>,
+    obs: &SlotTexture<u8>,
     scale: &ErrorScale,
 ) -> Result<()> {
+    let (w, h) = (err.grid.width, err.grid.height);
     let f = (256 / w.max(h).max(1)).clamp(1, 8);
     let (iw, ih) = (w * f, h * f);
     let cw = iw.max(240);
     let font = if cw >= 600 { 2 } else { 1 };
-    let ch = ih + legend_height(font) + 4;
-    let mut pm = Pixmap::new(cw, ch).ok_or_else(|| {
-        Error::internal(format!("{}: cannot make a {cw}x{ch} PNG", path.display()))
+    let lh = legend_height(font) + 4;
+    let mut legend = Pixmap::new(cw, lh).ok_or_else(|| {
+        Error::internal(format!(
+            "{}: cannot make a {cw}x{lh} legend",
+            path.display()
+        ))
     })?;
-    pm.fill(tiny_skia::Color::BLACK);
-    let data = pm.data_mut();
-    for y in 0..ih {
-        for x in 0..iw {
-            let i = ((y / f) * w + x / f) as usize;
-            let c = if !cov[i] {
+    legend.fill(tiny_skia::Color::BLACK);
+    fill(&mut legend, 0.0, 0.0, cw as f32, 1.0, [0, 0, 0]);
+    draw_legend(&mut legend, 0, 2, cw, scale, font, [255, 255, 255]);
+    let (mut last, mut rows) = (u32::MAX, (Vec::new(), Vec::new(), Vec::new()));
+    write_png_rows(path, cw, ih + lh, |y| {
+        if y >= ih {
+            let o = ((y - ih) * cw * 4) as usize;
+            return Ok(legend.data()[o..o + 4 * cw as usize].to_vec());
+        }
+        if y / f != last {
+            last = y / f;
+            rows = (err.row(last), cov.row(last), obs.row(last));
+        }
+        let mut row = vec![0u8; 4 * cw as usize];
+        for x in 0..cw {
+            let i = (x / f) as usize;
+            let c = if x >= iw || rows.1[i] == 0 {
                 [0, 0, 0]
-            } else if !obs[i] {
+            } else if rows.2[i] == 0 {
                 NO_DATA
             } else {
-                scale.color(err[i].x)
+                scale.color(rows.0[i].x)
             };
-            let o = 4 * (y * cw + x) as usize;
-            data[o..o + 4].copy_from_slice(&[c[0], c[1], c[2], 255]);
+            row[4 * x as usize..4 * x as usize + 4].copy_from_slice(&[c[0], c[1], c[2], 255]);
         }
+        Ok(row)
+    })?;
+    for t in [err.check(), cov.check(), obs.check()] {
+        t?;
     }
-    fill(&mut pm, 0.0, ih as f32, cw as f32, 1.0, [0, 0, 0]);
-    draw_legend(&mut pm, 0, ih as i32 + 2, cw, scale, font, [255, 255, 255]);
-    write_pixmap_png(path, &pm)
+    Ok(())
 }
 
 #[cfg(test)]

@@ -35,6 +35,7 @@ pub use maps::write_map;
 
 use crate::atlas::hits::HitTable;
 use crate::atlas::layout::{TexelGeom, TexelState};
+use crate::atlas::slot_texture::{Scratch, SlotTexture};
 use crate::atlas::tiles::TileStore;
 use crate::atlas::Prepared;
 use crate::error::{Error, Result};
@@ -57,6 +58,7 @@ pub fn write_outputs(
     state: &TileStore<TexelState>,
     report: &mut Report,
     out: &Path,
+    scratch: &Scratch,
 ) -> Result<()> {
     let t0 = Instant::now();
     fsio::create_dir(out)?;
@@ -64,10 +66,20 @@ pub fn write_outputs(
     // One error scale for every map and comparison image of the run.
     let scale = maps::error_scale(p, state)?;
 
-    let mut radiance: Vec<Option<Vec<Vec3>>> = vec![None; p.scene.shapes.len()];
-    for slot in 0..p.layout.slots.len() {
-        let lr = maps::write_slot(p, geom, state, slot, out, &scale)?;
-        radiance[p.layout.slots[slot].shape] = Some(lr);
+    // Each shape's re-render texture is kept through the renders: each gets its share of a
+    // scratch budget, the temporaries of one shape at a time another.
+    let total: u64 = p
+        .layout
+        .slots
+        .iter()
+        .map(|s| s.width as u64 * s.height as u64)
+        .sum();
+    let mut radiance: Vec<Option<SlotTexture<Vec3>>> =
+        (0..p.scene.shapes.len()).map(|_| None).collect();
+    for (slot, st) in p.layout.slots.iter().enumerate() {
+        let keep = scratch.share(st.width as u64 * st.height as u64, total);
+        let lr = maps::write_slot(p, geom, state, slot, out, &scale, (scratch, &keep))?;
+        radiance[st.shape] = Some(lr);
     }
 
     let meshes = out.join("meshes");
@@ -83,8 +95,6 @@ pub fn write_outputs(
         .map(|(si, r)| {
             let (r, a) = (r.as_ref()?, p.atlases[si].as_ref()?);
             Some(Texture {
-                width: a.width,
-                height: a.height,
                 texels: r,
                 corner_uv: &a.corner_uv,
             })
@@ -103,11 +113,15 @@ pub fn write_outputs(
         )?);
     }
     report.table = table;
+    for r in radiance.iter().flatten() {
+        r.check()?;
+    }
 
     let plot = plot::convergence_plot(&report.iterations);
     write_pixmap_png(&out.join("report_convergence.png"), &plot)?;
 
     report.timings.output = t0.elapsed().as_secs_f64();
+    report.resources.after("output");
     report.timings.total += report.timings.output;
     let json_path = out.join("report.json");
     let json = serde_json::to_string_pretty(report)

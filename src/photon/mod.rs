@@ -266,7 +266,8 @@ impl<'a> PassContext<'a> {
             photons: cfg.photons,
             batch_size: cfg.batch_size,
             max_depth: cfg.max_depth,
-            window: p.window::<TexelState>(cfg),
+            // half the budget: the albedo textures hold the other half through the pass
+            window: (p.window::<TexelState>(cfg) / 2).max(1),
             group_batches: 0,
         }
     }

@@ -40,6 +40,7 @@ pub use view::{classify_pixels, PixelInfo, View};
 
 use crate::atlas::hits::HitTable;
 use crate::atlas::layout::{flags, TexelGeom, TexelState};
+use crate::atlas::slot_texture::Scratch;
 use crate::atlas::tiles::{map_tiles, TileStore};
 use crate::atlas::{read_photos as read_photos_checked, Prepared, ShapeRef};
 use crate::camera::Camera;
@@ -83,6 +84,7 @@ pub fn run(
     geom: &TileStore<TexelGeom>,
     state: &mut TileStore<TexelState>,
     mode: Mode,
+    scratch: &Scratch,
 ) -> Result<ProjectionStats> {
     let mut stats = ProjectionStats {
         views: p.views.len(),
@@ -121,6 +123,7 @@ pub fn run(
         views: &views,
         bounds: &bounds,
         window,
+        scratch,
     };
     ctx.run(state, cfg.refine_passes, mode)?;
     stage.finish();

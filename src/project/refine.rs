@@ -6,16 +6,15 @@ use super::view::{PixelInfo, View};
 use super::{apply_refinement, backproject_tile, RESIDUAL_SHRINK};
 use crate::atlas::hits::HitTable;
 use crate::atlas::layout::{TexelGeom, TexelState};
-use crate::atlas::texels::dilate;
-use crate::atlas::texture::gather;
-use crate::atlas::tiles::TileStore;
+use crate::atlas::slot_texture::{Scratch, SlotTexture};
+use crate::atlas::tiles::{map_tiles, TileStore};
 use crate::atlas::Prepared;
 use crate::error::{Error, Result};
 use crate::image::Image;
 use crate::progress::{Mode, Stage};
 use crate::render::{apply_pixel_filter, render_view_with, Film, Plan, Texture};
 use glam::Vec3;
-use rayon::prelude::*;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Mutex;
 
 /// Sub-pixel rays per side when a view is re-rendered for refinement (pixel means, then the
@@ -61,22 +60,32 @@ pub fn shrink_residual(residual: &mut [Vec3], photo: &[Vec3], pixels: &[PixelInf
 }
 
 /// Every reconstructed shape's current luminance map (unobserved and gutter texels filled by
-/// dilation, as written maps are), indexed by shape.
+/// dilation, as written maps are), indexed by shape; together within `scratch`'s budget
+/// (each its share), the rest in tiles.
 fn current_maps(
     p: &Prepared,
     geom: &TileStore<TexelGeom>,
     state: &TileStore<TexelState>,
-) -> Result<Vec<Option<Vec<Vec3>>>> {
-    let mut maps: Vec<Option<Vec<Vec3>>> = (0..p.scene.shapes.len()).map(|_| None).collect();
+    scratch: &Scratch,
+) -> Result<Vec<Option<SlotTexture<Vec3>>>> {
+    let mut maps: Vec<Option<SlotTexture<Vec3>>> =
+        (0..p.scene.shapes.len()).map(|_| None).collect();
+    let total: u64 = p
+        .layout
+        .slots
+        .iter()
+        .map(|s| s.width as u64 * s.height as u64)
+        .sum();
     for (slot, st) in p.layout.slots.iter().enumerate() {
-        let (mut vals, observed): (Vec<Vec3>, Vec<bool>) =
-            gather(&p.layout, slot, state, geom, |s, _| {
-                (Vec3::from_array(s.l_orig), s.weight > 0.0)
-            })?
-            .into_iter()
-            .unzip();
-        dilate(&mut vals, &observed, st.width, st.height, REFINE_DILATE)?;
-        maps[st.shape] = Some(vals);
+        let l = &p.layout;
+        let vals = SlotTexture::gather(l, slot, state, geom, scratch, "lum", |s, _| {
+            Vec3::from_array(s.l_orig)
+        })?;
+        let mask = SlotTexture::gather(l, slot, state, geom, scratch, "obs", |s, _| {
+            (s.weight > 0.0) as u8
+        })?;
+        let keep = scratch.share(st.width as u64 * st.height as u64, total);
+        maps[st.shape] = Some(vals.dilated(&mask, REFINE_DILATE, &keep)?);
     }
     Ok(maps)
 }
@@ -91,51 +100,66 @@ pub struct Refine<'a> {
     /// Per tile, the bounds of its texels (see [`super::tile_bounds`]).
     pub bounds: &'a [Option<(Vec3, Vec3)>],
     pub window: usize,
+    /// Where the maps and the residual store live, and their memory.
+    pub scratch: &'a Scratch,
+}
+
+/// The residuals of a pass, per texel, summed over the views: a scratch tile store (mapped a
+/// window at a time), and which tiles some view could see.
+struct Delta {
+    store: TileStore<Vec3>,
+    touched: Vec<AtomicBool>,
 }
 
 impl Refine<'_> {
     /// `passes` times: re-render every view from the current maps, back-project the
     /// residuals `photo - render` (clean pixels only) and add their weighted mean to `l_orig`
-    /// (see the module notes). Holds the maps and one residual per texel in memory while it
-    /// runs; casts rays only for clean pixels that straddle a chart seam.
+    /// (see the module notes). The maps and the residuals live in scratch textures and tiles
+    /// within the memory budget; casts rays only for clean pixels that straddle a chart seam.
     pub fn run(&self, state: &mut TileStore<TexelState>, passes: u32, mode: Mode) -> Result<()> {
         if passes == 0 {
             return Ok(());
         }
         let total = passes as u64 * self.views.len() as u64;
         let stage = Stage::new(mode, "refinement", total, "views");
+        let path = self.scratch.dir.join("refine-delta.tiles");
         for _ in 0..passes {
-            let maps = current_maps(self.p, self.geom, state)?;
+            let maps = current_maps(self.p, self.geom, state, self.scratch)?;
             let textures = self.textures(&maps);
-            let mut delta: Vec<Vec<Vec3>> = vec![Vec::new(); self.p.layout.tile_count as usize];
+            let n = self.p.layout.tile_count as usize;
+            let mut delta = Delta {
+                store: TileStore::create(&path, n, self.p.layout.tile_texels(), Vec3::ZERO)?,
+                touched: (0..n).map(|_| AtomicBool::new(false)).collect(),
+            };
             for view in self.views {
                 self.backproject(view, &textures, &mut delta)?;
                 stage.inc(1);
                 crate::interrupt::check(crate::interrupt::NOTHING_SAVED)?;
             }
-            state.for_each_tile_mut(self.window, |t, st| {
-                if !delta[t].is_empty() {
-                    apply_refinement(st, &delta[t]);
+            for m in maps.iter().flatten() {
+                m.check()?;
+            }
+            drop(textures);
+            drop(maps);
+            map_tiles(state, &delta.store, self.window, |t, d, st| {
+                if delta.touched[t].load(Ordering::Relaxed) {
+                    apply_refinement(st, d);
                 }
             })?;
         }
+        std::fs::remove_file(&path).map_err(|e| Error::io(&path, e))?;
         stage.finish();
         Ok(())
     }
 
     /// The maps as textures by shape.
-    fn textures<'m>(&'m self, maps: &'m [Option<Vec<Vec3>>]) -> Vec<Option<Texture<'m>>> {
+    fn textures<'m>(&'m self, maps: &'m [Option<SlotTexture<Vec3>>]) -> Vec<Option<Texture<'m>>> {
         let p = self.p;
         maps.iter()
             .enumerate()
             .map(|(i, m)| {
-                let m = m.as_ref()?;
-                let slot = p.layout.slot_of_shape(i)?;
-                let st = &p.layout.slots[slot];
                 Some(Texture {
-                    width: st.width,
-                    height: st.height,
-                    texels: m,
+                    texels: m.as_ref()?,
                     corner_uv: &p.atlases[i].as_ref()?.corner_uv,
                 })
             })
@@ -147,7 +171,7 @@ impl Refine<'_> {
         &self,
         view: &View,
         textures: &[Option<Texture>],
-        delta: &mut [Vec<Vec3>],
+        delta: &mut Delta,
     ) -> Result<()> {
         let (p, photo) = (self.p, view.image);
         let w = photo.width;
@@ -184,9 +208,9 @@ impl Refine<'_> {
             masked: photo.masked,
         };
         let rview = view.with_image(&residual);
-        let tile_texels = p.layout.tile_texels();
         let err: Mutex<Option<Error>> = Mutex::new(None);
-        delta.par_iter_mut().enumerate().for_each(|(t, d)| {
+        let touched = &delta.touched;
+        delta.store.for_each_tile_mut(self.window, |t, d| {
             if !self.bounds[t].is_some_and(|(lo, hi)| view.camera.may_see(lo, hi)) {
                 return;
             }
@@ -197,12 +221,10 @@ impl Refine<'_> {
                     return;
                 }
             };
-            if d.is_empty() {
-                *d = vec![Vec3::ZERO; tile_texels];
-            }
+            touched[t].store(true, Ordering::Relaxed);
             let slot = p.layout.slot_of_tile(t as u32);
             backproject_tile(&rview, &p.shape_ref(slot), &g, d);
-        });
+        })?;
         match err.into_inner().unwrap_or_else(|e| e.into_inner()) {
             Some(e) => Err(e),
             None => Ok(()),

@@ -5,6 +5,7 @@
 
 use glam::{Vec2, Vec3};
 use kdmap::atlas::layout::{flags, TexelGeom, TexelState};
+use kdmap::atlas::slot_texture::Scratch;
 use kdmap::atlas::texture::gather;
 use kdmap::atlas::tiles::TileStore;
 use kdmap::atlas::{state_dir, Prepared};
@@ -102,7 +103,8 @@ fn run() -> &'static Run {
             .unwrap_or_else(|| dir.path().join("out"));
         let charts = kdmap::atlas::charts::Charts::new(&p.scene, &p.layout, &p.atlases).unwrap();
         let hits = kdmap::atlas::hits::HitTable::new(&p, &charts);
-        write_outputs(&p, &hits, &geom, &state, &mut report, &out).unwrap();
+        let scratch = Scratch::new(dir.path(), 1 << 28);
+        write_outputs(&p, &hits, &geom, &state, &mut report, &out, &scratch).unwrap();
         Run {
             _dir: dir,
             out,

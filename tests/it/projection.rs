@@ -10,7 +10,7 @@ use glam::{Vec2, Vec3};
 use kdmap::atlas::charts::Charts;
 use kdmap::atlas::hits::HitTable;
 use kdmap::atlas::layout::{TexelGeom, TexelState};
-use kdmap::atlas::texture::gather;
+use kdmap::atlas::slot_texture::{Scratch, SlotTexture};
 use kdmap::atlas::tiles::TileStore;
 use kdmap::atlas::{build_geometry, prepare, state_dir, Prepared};
 use kdmap::camera::Camera;
@@ -66,7 +66,9 @@ fn project(cfg: &Config, out: &Path, passes: u32) -> (Prepared, Vec<Option<Image
         .unwrap();
     let charts = Charts::new(&p.scene, &p.layout, &p.atlases).unwrap();
     let hits = HitTable::new(&p, &charts);
-    let stats = kdmap::project::run(&p, &cfg, &hits, &geom, &mut state, Mode::Quiet).unwrap();
+    let scratch = Scratch::new(&dir, 1 << 30);
+    let stats =
+        kdmap::project::run(&p, &cfg, &hits, &geom, &mut state, Mode::Quiet, &scratch).unwrap();
     assert!(stats.views >= 1);
     assert!(
         stats.observed_texels > stats.covered_texels / 2,
@@ -76,15 +78,17 @@ fn project(cfg: &Config, out: &Path, passes: u32) -> (Prepared, Vec<Option<Image
     let mut maps: Vec<Option<Image>> = (0..p.scene.shapes.len()).map(|_| None).collect();
     for (slot, st) in p.layout.slots.iter().enumerate() {
         let id = &p.scene.shapes[st.shape].id;
-        let (lum, observed): (Vec<Vec3>, Vec<bool>) =
-            gather(&p.layout, slot, &state, &geom, |s, _| {
-                (Vec3::from_array(s.l_orig), s.weight > 0.0)
-            })
-            .unwrap()
-            .into_iter()
-            .unzip();
+        let (l, sc) = (&p.layout, &scratch);
+        let lum = SlotTexture::gather(l, slot, &state, &geom, sc, "lum", |s, _| {
+            Vec3::from_array(s.l_orig)
+        })
+        .unwrap();
+        let observed = SlotTexture::gather(l, slot, &state, &geom, sc, "obs", |s, _| {
+            (s.weight > 0.0) as u8
+        })
+        .unwrap();
         let size = (st.width, st.height);
-        write_map(&maps_dir, id, "luminance", size, lum, &observed, false).unwrap();
+        write_map(&maps_dir, id, "luminance", &lum, &observed, false, sc).unwrap();
         let img = read_exr(maps_dir.join(format!("{id}_luminance.exr"))).unwrap();
         assert_eq!((img.width, img.height), size);
         assert_eq!(img.masked, 0, "{id}: negative or non-finite texels");
@@ -99,9 +103,7 @@ fn textures<'a>(p: &'a Prepared, maps: &'a [Option<Image>]) -> Vec<Option<Textur
         .map(|(i, m)| {
             let m = m.as_ref()?;
             Some(Texture {
-                width: m.width,
-                height: m.height,
-                texels: &m.pixels,
+                texels: m,
                 corner_uv: &p.atlases[i].as_ref()?.corner_uv,
             })
         })
@@ -249,7 +251,7 @@ struct Field {
 }
 
 /// `(width, height, texels, per-triangle corner coordinates in texels)`.
-type FieldTexture = (u32, u32, Vec<Vec3>, Vec<[Vec2; 3]>);
+type FieldTexture = (Image, Vec<[Vec2; 3]>);
 
 impl Field {
     fn cbox_tex(p: &Prepared, root: &Path) -> Field {
@@ -283,7 +285,15 @@ impl Field {
                         })
                     })
                     .collect();
-                (w, h, px, corner)
+                let n = px.len();
+                let img = Image {
+                    width: w,
+                    height: h,
+                    pixels: px,
+                    valid: vec![true; n],
+                    masked: 0,
+                };
+                (img, corner)
             })
             .collect();
         Field { tex }
@@ -292,11 +302,9 @@ impl Field {
     fn textures(&self) -> Vec<Option<Texture<'_>>> {
         self.tex
             .iter()
-            .map(|(w, h, px, c)| {
+            .map(|(img, c)| {
                 Some(Texture {
-                    width: *w,
-                    height: *h,
-                    texels: px,
+                    texels: img,
                     corner_uv: c,
                 })
             })
@@ -312,14 +320,9 @@ impl Field {
         let det = d11 * d22 - d12 * d12;
         let b1 = (r1 * d22 - r2 * d12) / det;
         let b2 = (r2 * d11 - r1 * d12) / det;
-        let (w, h, px, corner) = &self.tex[shape];
+        let (img, corner) = &self.tex[shape];
         let cc = corner[tri];
-        bilinear(
-            px,
-            *w,
-            *h,
-            cc[0] * (1.0 - b1 - b2) + cc[1] * b1 + cc[2] * b2,
-        )
+        bilinear(img, cc[0] * (1.0 - b1 - b2) + cc[1] * b1 + cc[2] * b2)
     }
 }
 
