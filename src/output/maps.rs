@@ -59,6 +59,9 @@ pub fn error_scale(p: &Prepared, state: &TileStore<TexelState>) -> Result<ErrorS
     Ok(ErrorScale::from_exceedance(&exceed, total))
 }
 
+/// A per-texel value of a map.
+type TexelFn = dyn Fn(&TexelState) -> Vec3 + Sync;
+
 /// Write a texture `<dir>/<name>.exr` (dilated from `cov`) and its sRGB preview at
 /// `exposure` stops.
 fn write_texture(
@@ -149,7 +152,7 @@ pub fn write_slot(
         fsio::create_dir(d)?;
     }
     let l = &p.layout;
-    let tex = |name: &str, f: &(dyn Fn(&TexelState) -> Vec3 + Sync)| {
+    let tex = |name: &str, f: &TexelFn| {
         SlotTexture::gather(l, slot, state, geom, scratch, name, |s, _| f(s))
     };
     let cov = SlotTexture::gather(l, slot, state, geom, scratch, "cov", |_, g| {
@@ -191,11 +194,7 @@ pub fn write_slot(
     )?;
     drop(err);
 
-    let each: [(
-        &str,
-        &(dyn Fn(&TexelState) -> Vec3 + Sync),
-        &SlotTexture<u8>,
-    ); 5] = [
+    let each: [(&str, &TexelFn, &SlotTexture<u8>); 5] = [
         ("colorless", &colorless, &cov),
         ("coverage", &|s| Vec3::splat(s.weight), &cov),
         ("direct", &|s| arr(s.e_d), &cov),
