@@ -90,6 +90,7 @@ pub struct RawDirect {
 #[serde(deny_unknown_fields)]
 pub struct RawPhotons {
     pub per_iteration: Option<u64>,
+    pub per_texel: Option<f64>,
     pub batch_size: Option<u32>,
     pub max_depth: Option<u32>,
     pub smoothing_radius: Option<u32>,
@@ -244,6 +245,9 @@ pub const MAX_REFINE_PASSES: u32 = 64;
 /// 8x8-block re-projection error goes from 2.1/1.1/1.5% (no pass) to 1.0/0.7/0.9% (one) and
 /// 0.7/0.6/0.6% (three); each pass costs about one projection.
 pub const REFINE_PASSES: u32 = 3;
+/// Default photons per covered texel and iteration (method "photons"): about the 1e7 photons
+/// per iteration of the paper-sized runs on the 64-texels-per-unit Cornell box.
+pub const PHOTONS_PER_TEXEL: f64 = 100.0;
 
 /// Named starting points for the settings.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -328,8 +332,15 @@ pub struct Config {
     /// Distance between gather points, scene units; 0 = automatic (see
     /// [`Config::gather_spacing_for`]).
     pub gather_spacing: f32,
-    /// Light paths (photons) traced per iteration.
+    /// Light paths (photons) traced per iteration: fixed, or, while `photons_per_texel` is set,
+    /// resolved at the start of a run to that many per covered texel
+    /// ([`Config::with_photon_budget_for`]).
     pub photons: u64,
+    /// Photons per covered texel and iteration (the default, so that E_i's noise per texel does
+    /// not grow with the atlas); `None` when a fixed count was given (`per_iteration`,
+    /// `--photons`).
+    #[serde(default)]
+    pub photons_per_texel: Option<f64>,
     /// Photons per batch: the unit of parallel work, determinism and mid-pass checkpoints.
     pub batch_size: u32,
     /// Longest photon path in bounces (Russian roulette usually ends paths earlier).
@@ -397,6 +408,7 @@ impl Config {
             gather_rays: 1024,
             gather_spacing: 0.0,
             photons: 10_000_000,
+            photons_per_texel: Some(PHOTONS_PER_TEXEL),
             batch_size: 65_536,
             max_depth: 64,
             smoothing_radius: 1,
@@ -417,6 +429,22 @@ impl Config {
         }
     }
 
+    /// A fixed number of photons per iteration (no longer per texel).
+    pub fn set_photons(&mut self, n: u64) {
+        self.photons = n;
+        self.photons_per_texel = None;
+    }
+
+    /// These settings with the photon budget of a run over `covered` texels: the per-texel
+    /// budget times `covered` (at least one batch), or the fixed count.
+    pub fn with_photon_budget_for(&self, covered: u64) -> Config {
+        let mut c = self.clone();
+        if let Some(k) = self.photons_per_texel {
+            c.photons = ((k * covered as f64).ceil() as u64).max(u64::from(self.batch_size));
+        }
+        c
+    }
+
     /// The [`Preset::Fast`] settings for `scene`.
     pub fn fast(scene: PathBuf) -> Config {
         Config::for_scene(scene).with_preset(Preset::Fast)
@@ -433,7 +461,7 @@ impl Config {
             Preset::Default => {}
             Preset::Fast => {
                 self.gather_rays = 256;
-                self.photons = 2_000_000;
+                self.photons_per_texel = Some(PHOTONS_PER_TEXEL / 5.0);
                 self.iterations = 2;
                 self.refine_passes = 1;
                 self.area_samples = 9;
@@ -468,7 +496,7 @@ impl Config {
             }
         }
         if let Some(v) = ov.photons {
-            cfg.photons = v;
+            cfg.set_photons(v);
         }
         if let Some(v) = ov.iterations {
             cfg.iterations = v;
@@ -553,7 +581,18 @@ impl Config {
         set(&mut c.area_samples, raw.direct.area_samples);
         set(&mut c.photometric_scale, raw.units.photometric_scale);
         let p = raw.photons;
-        set(&mut c.photons, p.per_iteration);
+        if let Some(n) = p.per_iteration {
+            c.set_photons(n);
+        }
+        if p.per_iteration.is_some() && p.per_texel.is_some() {
+            return Err(Error::config(format!(
+                "{}: photons.per_iteration and photons.per_texel both given: use one",
+                path.display()
+            )));
+        }
+        if let Some(k) = p.per_texel {
+            c.photons_per_texel = Some(k);
+        }
         set(&mut c.batch_size, p.batch_size);
         set(&mut c.max_depth, p.max_depth);
         set(&mut c.smoothing_radius, p.smoothing_radius);
@@ -635,6 +674,14 @@ impl Config {
         }
         if self.photons == 0 {
             return Err("photons = 0: need at least one light path per iteration".into());
+        }
+        if let Some(k) = self.photons_per_texel {
+            if !(k.is_finite() && k > 0.0 && k <= 1e6) {
+                return Err(format!(
+                    "photons.per_texel = {k}: must be a number of photons per covered texel in \
+                     (0, 1e6]"
+                ));
+            }
         }
         if self.gather_rays == 0 {
             return Err("gather.rays = 0: need at least one ray per gather point".into());
@@ -818,7 +865,8 @@ mod tests {
     fn presets_set_their_values_and_file_keys_win_over_them() {
         let d = Config::for_scene("s.xml".into());
         let f = Config::fast("s.xml".into());
-        assert!(f.photons < d.photons && f.iterations < d.iterations);
+        let budget = |c: &Config| c.with_photon_budget_for(1_000_000).photons;
+        assert!(budget(&f) < budget(&d) && f.iterations < d.iterations);
         assert!(f.refine_passes < d.refine_passes && f.validate().is_ok());
         let p = Config::paper("s.xml".into());
         assert_eq!(
@@ -841,6 +889,40 @@ mod tests {
             "{e}"
         );
         assert_eq!(e.exit_code(), crate::error::exit::CONFIG);
+    }
+
+    #[test]
+    fn photon_budgets_per_texel_resolve_with_the_atlas_and_fixed_counts_win() {
+        let d = Config::for_scene("s.xml".into());
+        // the default: PHOTONS_PER_TEXEL per covered texel, at least one batch
+        assert_eq!(d.with_photon_budget_for(200_000).photons, 20_000_000);
+        assert_eq!(d.with_photon_budget_for(10).photons, d.batch_size as u64);
+        let r = Path::new("r.toml");
+        let c = Config::from_toml(r, "scene = \"s.xml\"\n[photons]\nper_texel = 2.5\n").unwrap();
+        assert_eq!(c.with_photon_budget_for(1_000_000).photons, 2_500_000);
+        // a fixed count is kept whatever the atlas
+        let c = Config::from_toml(r, "scene = \"s.xml\"\n[photons]\nper_iteration = 9\n").unwrap();
+        assert_eq!(
+            (
+                c.photons_per_texel,
+                c.with_photon_budget_for(5_000_000).photons
+            ),
+            (None, 9)
+        );
+        let both = "scene = \"s.xml\"\n[photons]\nper_iteration = 9\nper_texel = 3\n";
+        let e = Config::from_toml(r, both).unwrap_err();
+        assert!(e.to_string().contains("per_texel"), "{e}");
+        for bad in ["0", "-1", "nan", "1e9"] {
+            let t = format!("scene = \"s.xml\"\n[photons]\nper_texel = {bad}\n");
+            let e = Config::from_toml(r, &t).and_then(|c| {
+                c.validate().map_err(Error::config)?;
+                Ok(c)
+            });
+            assert!(e.is_err(), "per_texel = {bad} accepted");
+        }
+        let mut c = d.clone();
+        c.set_photons(42);
+        assert_eq!(c.with_photon_budget_for(1 << 30).photons, 42);
     }
 
     #[test]

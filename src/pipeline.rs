@@ -212,7 +212,10 @@ fn debug_check(geom: &TileStore<TexelGeom>, state: &TileStore<TexelState>) -> Re
 /// What is fixed about one reconstruction: the prepared scene, where its state lives, the
 /// fingerprint of its inputs, the geometry store.
 struct Run<'a> {
-    cfg: &'a Config,
+    /// The run's settings, the photon budget resolved for this atlas.
+    cfg: Config,
+    /// Per reconstructed shape, its texel density and covered texels.
+    atlas: Vec<crate::report::ShapeTexels>,
     out: &'a Path,
     mode: Mode,
     p: Prepared,
@@ -292,7 +295,7 @@ impl Running {
 
 impl<'a> Run<'a> {
     /// Load and prepare the scene, fingerprint the inputs and build the geometry store.
-    fn open(cfg: &'a Config, out: &'a Path, mode: Mode) -> Result<Run<'a>> {
+    fn open(cfg: &Config, out: &'a Path, mode: Mode) -> Result<Run<'a>> {
         let t = Instant::now();
         let p = prepare(cfg, mode)?;
         let load_s = t.elapsed().as_secs_f64();
@@ -306,13 +309,17 @@ impl<'a> Run<'a> {
         }
         let charts = Charts::new(&p.scene, &p.layout, &p.atlases)?;
         let scratch = open_scratch(&dir, cfg.memory_budget_mib << 20)?;
+        let atlas = p.texel_report(&geom, p.window::<TexelGeom>(cfg))?;
+        let covered = atlas.iter().map(|a| a.covered_texels).sum();
+        let cfg = cfg.with_photon_budget_for(covered);
         Ok(Run {
             charts,
             scratch,
+            atlas,
             hits: OnceLock::new(),
             points: OnceLock::new(),
             gather: OnceLock::new(),
-            window: p.window::<TexelState>(cfg),
+            window: p.window::<TexelState>(&cfg),
             state_path: dir.join("state.tiles"),
             cfg,
             out,
@@ -354,12 +361,12 @@ impl<'a> Run<'a> {
 
     /// A fresh start: projection, direct light, the initial E_i, and the first checkpoint.
     fn start(&self, clock: Instant) -> Result<Running> {
-        let (cfg, p, mode) = (self.cfg, &self.p, self.mode);
+        let (cfg, p, mode) = (&self.cfg, &self.p, self.mode);
         Writer::clear(&self.dir)?;
         let mut report = Report::new(cfg.clone());
         report.timings.load = self.load_s;
         report.timings.atlas = self.atlas_s;
-        report.atlas = p.texel_report(&self.geom, p.window::<TexelGeom>(cfg))?;
+        report.atlas = self.atlas.clone();
         report.resources.memory_budget_mib = cfg.memory_budget_mib;
         report.resources.after("load + atlas");
         let mut state = p.create_store(&self.state_path, TexelState::default())?;
@@ -412,7 +419,7 @@ impl<'a> Run<'a> {
 
     /// Continue from checkpoint `m`: its state snapshot restored, its report and stage.
     fn resume(&self, m: Manifest<Progress>, clock: Instant) -> Result<Running> {
-        check_stage(&m.payload.stage, self.cfg, &self.dir.join(ck::MANIFEST))?;
+        check_stage(&m.payload.stage, &self.cfg, &self.dir.join(ck::MANIFEST))?;
         // no projection: the photos `prepare` checked are not needed
         self.p.release_photos();
         ck::restore(&self.dir, &m, &self.state_path)?;
@@ -494,7 +501,7 @@ impl<'a> Run<'a> {
         resume: Option<PassResume>,
         sampler: &EmitterSampler,
     ) -> Result<bool> {
-        let (cfg, p, window, charts) = (self.cfg, &self.p, self.window, &self.charts);
+        let (cfg, p, window, charts) = (&self.cfg, &self.p, self.window, &self.charts);
         let t = Instant::now();
         let mut pass = match resume {
             Some(r) => r,
@@ -589,7 +596,7 @@ impl<'a> Run<'a> {
         pass: &mut PassResume,
         sampler: &EmitterSampler,
     ) -> Result<Estimate> {
-        let (cfg, p, window, charts) = (self.cfg, &self.p, self.window, &self.charts);
+        let (cfg, p, window, charts) = (&self.cfg, &self.p, self.window, &self.charts);
         let t = Instant::now();
         let padding = cfg.atlas.padding + 2;
         // the textures stay through the pass, beside the pass's own mapped window
@@ -624,7 +631,8 @@ impl<'a> Run<'a> {
         let p = &self.p;
         let t = Instant::now();
         let path = self.scratch.dir.join("gather-radiance.tiles");
-        let budget = self.cfg.memory_budget_mib << 20;
+        // half the budget: the state's window takes the other half when E_i is written
+        let budget = (self.cfg.memory_budget_mib << 20) / 2;
         let radiance =
             Radiance::from_state(&p.layout, &self.charts, &r.state, &self.geom, &path, budget)?;
         let mut rays = 0;
@@ -707,7 +715,7 @@ impl<'a> Run<'a> {
         n: u32,
         pass: &PassResume,
     ) -> Result<crate::photon::PassStats> {
-        let cfg = self.cfg;
+        let cfg = &self.cfg;
         if pass.batches_done == 0 {
             begin_pass(&mut r.state, self.window)?;
         }

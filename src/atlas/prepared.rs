@@ -446,10 +446,11 @@ impl Prepared {
         Ok(store)
     }
 
-    /// Tiles per mapped window for a store of `T` under the configured memory budget.
+    /// Tiles per mapped window for a store of `T`: half the configured memory budget (the
+    /// other half is for what a stage keeps beside its window: caches, scratch textures).
     pub fn window<T>(&self, cfg: &Config) -> usize {
         let tile_bytes = (self.layout.tile_texels() * std::mem::size_of::<T>()) as u64;
-        window_tiles_for_budget(cfg.memory_budget_mib << 20, tile_bytes).max(1)
+        window_tiles_for_budget((cfg.memory_budget_mib << 20) / 2, tile_bytes).max(1)
     }
 
     /// Hash of everything that changes a run's result: the settings without `threads`,

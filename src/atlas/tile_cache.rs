@@ -22,8 +22,10 @@ pub struct TileCache<T: Pod + Send + Sync> {
     zero: Arc<Vec<T>>,
     error: Mutex<Option<Error>>,
     capacity: usize,
-    /// Every tile, when they all fit in the budget (no cache in the way then).
-    resident: Option<Vec<Vec<T>>>,
+    /// Every tile back to back (tile `t` at `t * tile_texels`), when they all fit in the
+    /// budget (no cache in the way then). One allocation, so it goes back to the system
+    /// whole when the cache is dropped.
+    resident: Option<Vec<T>>,
 }
 
 impl<T: Pod + Send + Sync> TileCache<T> {
@@ -39,11 +41,14 @@ impl<T: Pod + Send + Sync> TileCache<T> {
         let zero = Arc::new(vec![T::zeroed(); store.tile_texels()]);
         let all_fit = store.tile_count() as u64 * tile_bytes <= budget_bytes;
         let resident = match all_fit {
-            true => Some(
-                (0..store.tile_count())
-                    .map(|t| store.read_tile(t))
-                    .collect::<Result<Vec<_>>>()?,
-            ),
+            true => {
+                let n = store.tile_texels();
+                let mut all = vec![T::zeroed(); store.tile_count() * n];
+                for (t, chunk) in all.chunks_mut(n.max(1)).enumerate() {
+                    chunk.copy_from_slice(&store.read_tile(t)?);
+                }
+                Some(all)
+            }
             false => None,
         };
         Ok(TileCache {
@@ -74,6 +79,22 @@ impl<T: Pod + Send + Sync> TileCache<T> {
     /// Tile `t`, read from the file if it is not cached. A read error is kept for
     /// [`TileCache::check`] and a tile of zeros is returned.
     pub fn tile(&self, t: u32) -> Arc<Vec<T>> {
+        if let Some(all) = &self.resident {
+            let n = self.store.tile_texels();
+            return match all.get(t as usize * n..(t as usize + 1) * n) {
+                Some(tile) => Arc::new(tile.to_vec()),
+                None => {
+                    let e = crate::Error::internal(format!(
+                        "{}: tile {t} of {}",
+                        self.store.path().display(),
+                        self.store.tile_count()
+                    ));
+                    let mut first = self.error.lock().unwrap_or_else(|e| e.into_inner());
+                    first.get_or_insert(e);
+                    self.zero.clone()
+                }
+            };
+        }
         let got = self
             .tiles
             .get_or_insert_with(&t, || self.store.read_tile(t as usize).map(Arc::new));
@@ -91,7 +112,7 @@ impl<T: Pod + Send + Sync> TileCache<T> {
     #[inline]
     pub fn get(&self, t: u32, off: u32) -> T {
         match &self.resident {
-            Some(all) => all[t as usize][off as usize],
+            Some(all) => all[t as usize * self.store.tile_texels() + off as usize],
             None => self.tile(t)[off as usize],
         }
     }
@@ -117,7 +138,10 @@ impl<T: Pod + Send + Sync> TileCache<T> {
     pub fn write_tile(&mut self, t: u32, data: Vec<T>) -> Result<()> {
         self.store.write_tile(t as usize, &data)?;
         match &mut self.resident {
-            Some(all) => all[t as usize] = data,
+            Some(all) => {
+                let n = self.store.tile_texels();
+                all[t as usize * n..(t as usize + 1) * n].copy_from_slice(&data);
+            }
             None => self.tiles.insert(t, Arc::new(data)),
         }
         Ok(())
@@ -140,7 +164,7 @@ impl<T: Pod + Send + Sync> Reader<'_, T> {
     #[inline]
     pub fn get(&mut self, t: u32, off: u32) -> T {
         if let Some(all) = &self.cache.resident {
-            return all[t as usize][off as usize];
+            return all[t as usize * self.cache.store.tile_texels() + off as usize];
         }
         match &self.last {
             Some((lt, tile)) if *lt == t => tile[off as usize],

@@ -266,8 +266,8 @@ impl<'a> PassContext<'a> {
             photons: cfg.photons,
             batch_size: cfg.batch_size,
             max_depth: cfg.max_depth,
-            // half the budget: the albedo textures hold the other half through the pass
-            window: (p.window::<TexelState>(cfg) / 2).max(1),
+            // the albedo textures hold the other half of the budget through the pass
+            window: p.window::<TexelState>(cfg),
             group_batches: 0,
         }
     }

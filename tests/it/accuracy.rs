@@ -35,14 +35,14 @@ fn run(scene: &str, solver: Solver) -> (Config, Vec<ShapeAccuracy>) {
     let mut cfg = Config::for_scene(root.join("input.xml"));
     if let Solver::Photons(photons, iterations) = solver {
         cfg.method = Method::Photons;
-        cfg.photons = photons;
+        cfg.set_photons(photons);
         cfg.iterations = iterations;
         // the photon counts here were sized for 64 texels per unit: a finer automatic atlas
         // spreads them over more texels (more noise per texel)
         cfg.atlas.texels_per_unit = kdmap::config::Density::PerUnit(64.0);
     }
     if let Ok(v) = std::env::var("KDMAP_PHOTONS") {
-        cfg.photons = v.parse().unwrap();
+        cfg.set_photons(v.parse().unwrap());
     }
     if let Ok(v) = std::env::var("KDMAP_ITERATIONS") {
         cfg.iterations = v.parse().unwrap();
