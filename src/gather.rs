@@ -37,6 +37,7 @@ use crate::atlas::tile_cache::{Reader, TileCache};
 use crate::atlas::tiles::{map_tiles, window_tiles_for_budget, TileStore};
 use crate::atlas::Prepared;
 use crate::error::Result;
+use crate::progress::Tick;
 use crate::rng::Rng;
 use crate::scatter;
 use bytemuck::{Pod, Zeroable};
@@ -91,13 +92,15 @@ pub struct GatherPoints {
 impl GatherPoints {
     /// Points for every slot of `p`'s layout, `spacing` scene units apart (at least one
     /// texel: `stride = max(1, round(spacing * texel density))`). Each texture's geometry is
-    /// read through a [`SlotTexture`] (whole if it fits in `scratch`'s budget).
+    /// read through a [`SlotTexture`] (whole if it fits in `scratch`'s budget); `tick` gets
+    /// each texture's texels once its points are placed.
     pub fn new(
         p: &Prepared,
         geom: &TileStore<TexelGeom>,
         charts: &Charts,
         spacing: f32,
         scratch: &Scratch,
+        tick: Tick,
     ) -> Result<GatherPoints> {
         let mut out = GatherPoints {
             slots: Vec::with_capacity(p.layout.slots.len()),
@@ -118,6 +121,7 @@ impl GatherPoints {
             let cells = out.add_slot(&g, stride);
             g.check()?;
             out.slots.push(cells);
+            tick(st.width as u64 * st.height as u64);
         }
         Ok(out)
     }
@@ -281,6 +285,7 @@ impl Radiance {
         geom: &TileStore<TexelGeom>,
         path: &Path,
         budget_bytes: u64,
+        tick: Tick,
     ) -> Result<Radiance> {
         let (n, texels) = (layout.tile_count as usize, layout.tile_texels());
         let mut store = TileStore::create(path, n, texels, RadianceTexel::default())?;
@@ -292,6 +297,7 @@ impl Radiance {
                 let observed = g.covered() && s.flags & flags::OBSERVED != 0;
                 *o = RadianceTexel::new(outgoing(s, g), sc.texel(g), observed);
             }
+            tick(1);
             Ok::<(), crate::Error>(())
         })?
         .into_iter()
@@ -426,13 +432,17 @@ pub struct GatherCache {
 
 /// Cast every point's rays (see [`GatherCache`]). A pure function of the scene, the
 /// observed radiance and `ctx.seed`: a resumed run recomputes it bit for bit.
-pub fn trace_points(ctx: &GatherContext, points: &GatherPoints) -> GatherCache {
+pub fn trace_points(ctx: &GatherContext, points: &GatherPoints, tick: Tick) -> GatherCache {
     let t0 = Instant::now();
     let per_point: Vec<(Vec3, Vec<CachedHit>)> = points
         .points
         .par_iter()
         .enumerate()
-        .map(|(i, pt)| trace_point(ctx, i as u64, pt))
+        .map(|(i, pt)| {
+            let r = trace_point(ctx, i as u64, pt);
+            tick(1);
+            r
+        })
         .collect();
     let k = strata(ctx.rays);
     let scale = PI / (k * k) as f32;
@@ -584,8 +594,8 @@ pub fn write_accum(
     values: &[Vec3],
     charts: &Charts,
     geom: &TileStore<TexelGeom>,
-    state: &mut TileStore<TexelState>,
-    window: usize,
+    (state, window): (&mut TileStore<TexelState>, usize),
+    tick: Tick,
 ) -> Result<()> {
     map_tiles(state, geom, window, |t, g, st| {
         let span = layout.span(t as u32);
@@ -600,6 +610,7 @@ pub fn write_accum(
             }
             st[off].accum = points.interpolate(values, span.slot, x, y, c).to_array();
         }
+        tick(1);
     })?;
     Ok(())
 }

@@ -30,7 +30,7 @@ use crate::gather::{
 };
 use crate::interrupt;
 use crate::light::EmitterSampler;
-use crate::output::{write_map, write_outputs};
+use crate::output::{output_units, write_map, write_outputs};
 use crate::photon::{
     begin_pass, finish_pass, photon_pass, smooth_accum, AlbedoTextures, PassContext,
 };
@@ -232,6 +232,8 @@ struct Run<'a> {
     /// Scratch textures (a quarter of the memory budget each).
     scratch: Scratch,
     load_s: f64,
+    /// Peak RSS after loading the scene (MiB).
+    load_rss: f64,
     atlas_s: f64,
 }
 
@@ -299,6 +301,8 @@ impl<'a> Run<'a> {
         let t = Instant::now();
         let p = prepare(cfg, mode)?;
         let load_s = t.elapsed().as_secs_f64();
+        // the scene itself (meshes, BVH, photos): what a run needs beside the budget
+        let load_rss = crate::mem::peak_mib();
         let dir = state_dir(out);
         fsio::create_dir(&dir)?;
         let hash = p.fingerprint(cfg)?;
@@ -329,6 +333,7 @@ impl<'a> Run<'a> {
             hash,
             geom,
             load_s,
+            load_rss,
             atlas_s: t.elapsed().as_secs_f64(),
         })
     }
@@ -368,7 +373,9 @@ impl<'a> Run<'a> {
         report.timings.atlas = self.atlas_s;
         report.atlas = self.atlas.clone();
         report.resources.memory_budget_mib = cfg.memory_budget_mib;
-        report.resources.after("load + atlas");
+        let res = &mut report.resources;
+        res.peak_rss_mib.push(("load".into(), self.load_rss));
+        res.after("load + atlas");
         let mut state = p.create_store(&self.state_path, TexelState::default())?;
         let t = Instant::now();
         let ps = project::run(
@@ -501,20 +508,12 @@ impl<'a> Run<'a> {
         resume: Option<PassResume>,
         sampler: &EmitterSampler,
     ) -> Result<bool> {
-        let (cfg, p, window, charts) = (&self.cfg, &self.p, self.window, &self.charts);
+        let (cfg, window) = (&self.cfg, self.window);
         let t = Instant::now();
         let mut pass = match resume {
             Some(r) => r,
             None => {
-                let (clamped, _) = kd_step(
-                    &p.layout,
-                    charts,
-                    &self.geom,
-                    &mut r.state,
-                    window,
-                    &p.pinned(),
-                    &self.scratch,
-                )?;
+                let (clamped, _) = self.kd_step(r, &format!("K_d {}/{}", n + 1, cfg.iterations))?;
                 PassResume {
                     batches_done: 0,
                     clamped,
@@ -533,7 +532,18 @@ impl<'a> Run<'a> {
             .iterations
             .last()
             .map(|it| (it.sum_e_i, it.sum_traced));
-        let u = update_step(cfg, rule, n, prev, &self.geom, &mut r.state, window)?;
+        let stage = self.tile_stage(&format!("update {}/{}", n + 1, cfg.iterations), 1);
+        let tick = |k| stage.inc(k);
+        let u = update_step(
+            cfg,
+            rule,
+            n,
+            prev,
+            &self.geom,
+            (&mut r.state, window),
+            &tick,
+        )?;
+        stage.finish();
         pass.update_seconds += t.elapsed().as_secs_f64();
         let it = IterationStats {
             iteration: n,
@@ -633,8 +643,18 @@ impl<'a> Run<'a> {
         let path = self.scratch.dir.join("gather-radiance.tiles");
         // half the budget: the state's window takes the other half when E_i is written
         let budget = (self.cfg.memory_budget_mib << 20) / 2;
-        let radiance =
-            Radiance::from_state(&p.layout, &self.charts, &r.state, &self.geom, &path, budget)?;
+        let stage = self.tile_stage("radiance", 1);
+        let tick = |k| stage.inc(k);
+        let radiance = Radiance::from_state(
+            &p.layout,
+            &self.charts,
+            &r.state,
+            &self.geom,
+            &path,
+            budget,
+            &tick,
+        )?;
+        stage.finish();
         let mut rays = 0;
         let cache = match self.gather.get() {
             Some(c) => c,
@@ -651,15 +671,18 @@ impl<'a> Run<'a> {
         std::fs::remove_file(&path).map_err(|e| crate::Error::io(&path, e))?;
         let (points, layout, charts, geom) =
             (self.gather_points()?, &p.layout, &self.charts, &self.geom);
+        let stage = self.tile_stage("E_i", 1);
+        let tick = |k| stage.inc(k);
         write_accum(
             layout,
             points,
             &values,
             charts,
             geom,
-            &mut r.state,
-            self.window,
+            (&mut r.state, self.window),
+            &tick,
         )?;
+        stage.finish();
         Ok(Estimate {
             gather_rays: rays,
             gather_seconds: t.elapsed().as_secs_f64(),
@@ -683,10 +706,39 @@ impl<'a> Run<'a> {
             points.points.len() as u64,
             "points",
         );
-        let cache = trace_points(&ctx, points);
-        stage.inc(points.points.len() as u64);
+        let cache = trace_points(&ctx, points, &|k| stage.inc(k));
         stage.finish();
         Ok(cache)
+    }
+
+    /// Steps 3-5 (`solve::kd_step`) with a progress stage `name` over the tiles: `(clamped
+    /// texels, filled texels)`.
+    fn kd_step(&self, r: &mut Running, name: &str) -> Result<(u64, u64)> {
+        let stage = self.tile_stage(name, 1);
+        let p = &self.p;
+        let got = kd_step(
+            &p.layout,
+            &self.charts,
+            &self.geom,
+            (&mut r.state, self.window),
+            &p.pinned(),
+            &self.scratch,
+            &|k| stage.inc(k),
+        )?;
+        stage.finish();
+        Ok(got)
+    }
+
+    /// A stage of `passes` passes over every tile, shown once it runs for a while.
+    fn tile_stage(&self, name: &str, passes: u64) -> Stage {
+        let tiles = self.p.layout.tile_count as u64;
+        Stage::after(
+            self.mode,
+            name,
+            passes * tiles,
+            "tiles",
+            progress::SHOW_AFTER,
+        )
     }
 
     /// The gather points of this run (made on first use).
@@ -696,7 +748,25 @@ impl<'a> Run<'a> {
         }
         let radius = crate::light::bounding_sphere(&self.p.scene).1;
         let spacing = self.cfg.gather_spacing_for(radius);
-        let pts = GatherPoints::new(&self.p, &self.geom, &self.charts, spacing, &self.scratch)?;
+        let texels = self.p.layout.slots.iter();
+        let total = texels.map(|s| s.width as u64 * s.height as u64).sum();
+        let stage = Stage::after(
+            self.mode,
+            "gather points",
+            total,
+            "texels",
+            progress::SHOW_AFTER,
+        );
+        let tick = |k| stage.inc(k);
+        let pts = GatherPoints::new(
+            &self.p,
+            &self.geom,
+            &self.charts,
+            spacing,
+            &self.scratch,
+            &tick,
+        )?;
+        stage.finish();
         Ok(self.points.get_or_init(|| pts))
     }
 
@@ -776,16 +846,7 @@ impl<'a> Run<'a> {
             return Err(r.interrupted(&self.state_path, r.stage, false)?);
         }
         let p = &self.p;
-        let charts = &self.charts;
-        let (_, filled) = kd_step(
-            &p.layout,
-            charts,
-            &self.geom,
-            &mut r.state,
-            self.window,
-            &p.pinned(),
-            &self.scratch,
-        )?;
+        let (_, filled) = self.kd_step(&mut r, "final K_d")?;
         r.state.flush()?;
         debug_check(&self.geom, &r.state)?;
         let proj = r.proj;
@@ -818,15 +879,23 @@ impl<'a> Run<'a> {
         res.memory_budget_mib = self.cfg.memory_budget_mib;
         res.store_bytes = self.geom.data_bytes() + r.state.data_bytes();
         res.checkpoint_bytes = r.writer.bytes_written;
+        let stage = Stage::after(
+            self.mode,
+            "outputs",
+            output_units(p),
+            "texels+pixels",
+            progress::SHOW_AFTER,
+        );
         write_outputs(
             p,
             self.hits(),
-            &self.geom,
-            &r.state,
+            (&self.geom, &r.state),
             &mut r.report,
             self.out,
             &self.scratch,
+            &|k| stage.inc(k),
         )?;
+        stage.finish();
         r.checkpoint(&self.state_path, RunStage::Finished)?;
         note(
             self.mode,

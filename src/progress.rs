@@ -6,7 +6,7 @@
 
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle, TermLike};
 use std::io::{IsTerminal, Write};
-use std::sync::Mutex;
+use std::sync::{Mutex, OnceLock};
 use std::time::{Duration, Instant};
 
 /// How progress and notes are printed on stderr.
@@ -31,14 +31,27 @@ impl Mode {
     }
 }
 
+/// How long a pass that is quick on small scenes runs before its progress is shown
+/// ([`Stage::after`]).
+pub const SHOW_AFTER: Duration = Duration::from_secs(2);
+
+/// A stage function's report of `n` more units done (a [`Stage::inc`], or nothing).
+pub type Tick<'a> = &'a (dyn Fn(u64) + Sync);
+
+/// A [`Tick`] that reports nowhere (tests, benches).
+pub fn no_tick(_: u64) {}
+
 /// One stage's progress.
 pub struct Stage {
     name: String,
     total: u64,
     unit: &'static str,
-    bar: Option<ProgressBar>,
-    lines: Option<Mutex<Lines>>,
-    json: bool,
+    mode: Mode,
+    /// Shown from the start, or once it has run this long (short passes stay silent).
+    delay: Duration,
+    /// Set when the stage is first shown: its bar, if it draws one.
+    shown: OnceLock<Option<ProgressBar>>,
+    lines: Mutex<Lines>,
     start: Instant,
 }
 
@@ -146,58 +159,100 @@ pub fn json_event(
 }
 
 impl Stage {
-    /// Start a stage of `total` units (`unit` names them, e.g. "texels", "photons").
+    /// Start a stage of `total` units (`unit` names them, e.g. "texels", "photons"), shown
+    /// at once.
     pub fn new(mode: Mode, name: &str, total: u64, unit: &'static str) -> Stage {
+        let s = Stage::after(mode, name, total, unit, Duration::ZERO);
+        s.show_if_due(0);
+        s
+    }
+
+    /// A stage shown only once it has run for `delay`: a pass that is quick on small scenes
+    /// and long on large ones says nothing in the first case and gets its bar, rate and ETA
+    /// in the second.
+    pub fn after(mode: Mode, name: &str, total: u64, unit: &'static str, delay: Duration) -> Stage {
         let start = Instant::now();
-        let lines = || {
-            Some(Mutex::new(Lines {
-                done: 0,
-                last_print: start,
-                last_frac: 0.0,
-            }))
-        };
-        let terminal = std::io::stderr().is_terminal();
-        let (bar, lines) = match mode {
-            Mode::Quiet | Mode::Never => (None, None),
-            Mode::Auto if terminal => (Some(bar(name, total, ProgressDrawTarget::stderr())), None),
-            Mode::Always => {
-                let target = ProgressDrawTarget::term_like(Box::new(AnsiStderr));
-                (Some(bar(name, total, target)), None)
-            }
-            Mode::Auto => {
-                line(&format!("[{name}] start: {total} {unit}"));
-                (None, lines())
-            }
-            Mode::Json => {
-                line(&json_event(name, "start", 0, total, unit, 0.0));
-                (None, lines())
-            }
-        };
         Stage {
             name: name.to_string(),
             total,
             unit,
-            bar,
-            lines,
-            json: mode == Mode::Json,
+            mode,
+            delay,
+            shown: OnceLock::new(),
+            lines: Mutex::new(Lines {
+                done: 0,
+                last_print: start,
+                last_frac: 0.0,
+            }),
             start,
+        }
+    }
+
+    /// Show the stage (its start line or bar, `done` units in) if it is not shown yet and its
+    /// delay has passed. Returns whether it is shown.
+    fn show_if_due(&self, done: u64) -> bool {
+        if self.shown.get().is_some() {
+            return true;
+        }
+        if self.start.elapsed() < self.delay {
+            return false;
+        }
+        self.shown.get_or_init(|| {
+            let terminal = std::io::stderr().is_terminal();
+            let (name, total, unit) = (&self.name, self.total, self.unit);
+            let b = match self.mode {
+                Mode::Quiet | Mode::Never => None,
+                Mode::Auto if terminal => Some(bar(name, total, ProgressDrawTarget::stderr())),
+                Mode::Always => {
+                    let target = ProgressDrawTarget::term_like(Box::new(AnsiStderr));
+                    Some(bar(name, total, target))
+                }
+                Mode::Auto => {
+                    line(&format!("[{name}] start: {total} {unit}"));
+                    None
+                }
+                Mode::Json => {
+                    let secs = self.start.elapsed().as_secs_f64();
+                    line(&json_event(name, "start", done, total, unit, secs));
+                    None
+                }
+            };
+            if let Some(b) = &b {
+                b.set_position(done);
+            }
+            b
+        });
+        true
+    }
+
+    /// Whether progress goes out as lines (plain or JSON) in this mode.
+    fn prints_lines(&self) -> bool {
+        match self.mode {
+            Mode::Json => true,
+            Mode::Auto => !std::io::stderr().is_terminal(),
+            _ => false,
         }
     }
 
     /// Record `n` more units done.
     pub fn inc(&self, n: u64) {
-        if let Some(b) = &self.bar {
+        let mut p = self.lines.lock().unwrap_or_else(|e| e.into_inner());
+        p.done += n;
+        if !self.show_if_due(p.done - n) {
+            return;
+        }
+        if let Some(Some(b)) = self.shown.get() {
             b.inc(n);
         }
-        let Some(p) = &self.lines else { return };
-        let mut p = p.lock().unwrap_or_else(|e| e.into_inner());
-        p.done += n;
+        if !self.prints_lines() {
+            return;
+        }
         let frac = p.done as f64 / self.total.max(1) as f64;
         if frac - p.last_frac < 0.1 && p.last_print.elapsed() < Duration::from_secs(10) {
             return;
         }
         let el = self.start.elapsed().as_secs_f64();
-        if self.json {
+        if self.mode == Mode::Json {
             line(&json_event(
                 &self.name, "progress", p.done, self.total, self.unit, el,
             ));
@@ -220,18 +275,22 @@ impl Stage {
         p.last_frac = frac;
     }
 
-    /// Finish the stage; returns its wall time.
+    /// Finish the stage; returns its wall time. A delayed stage that was never shown ends
+    /// silently.
     pub fn finish(self) -> Duration {
         let el = self.start.elapsed();
-        if let Some(b) = &self.bar {
+        let Some(shown) = self.shown.get() else {
+            return el;
+        };
+        if let Some(b) = shown {
             b.finish_and_clear();
         }
-        if self.json {
+        if self.mode == Mode::Json {
             let s = el.as_secs_f64();
             line(&json_event(
                 &self.name, "done", self.total, self.total, self.unit, s,
             ));
-        } else if self.bar.is_some() || self.lines.is_some() {
+        } else if shown.is_some() || self.prints_lines() {
             line(&format!(
                 "[{}] done: {} {} in {:.2} s",
                 self.name,
@@ -290,6 +349,25 @@ mod tests {
         let v: serde_json::Value =
             serde_json::from_str(&json_event("atlas", "start", 0, 9, "texels", 0.0)).unwrap();
         assert!(v["eta_s"].is_null());
+    }
+
+    #[test]
+    fn a_delayed_stage_is_shown_only_once_its_delay_has_passed() {
+        let shown = |s: &Stage| s.shown.get().is_some();
+        assert!(shown(&Stage::new(Mode::Never, "now", 4, "tiles")));
+        let quick = Stage::after(Mode::Never, "quick", 10, "tiles", Duration::from_secs(3600));
+        quick.inc(10);
+        assert!(
+            !shown(&quick),
+            "a pass that ends before its delay says nothing"
+        );
+        let slow = Stage::after(Mode::Never, "slow", 10, "tiles", Duration::from_millis(30));
+        slow.inc(3);
+        assert!(!shown(&slow));
+        std::thread::sleep(Duration::from_millis(40));
+        slow.inc(1);
+        assert!(shown(&slow), "shown at the first unit after the delay");
+        assert_eq!(slow.lines.lock().unwrap().done, 4);
     }
 
     #[test]

@@ -10,6 +10,7 @@ use crate::atlas::slot_texture::Scratch;
 use crate::atlas::tiles::{map_tiles, TileStore};
 use crate::config::{Config, UpdateRule};
 use crate::error::Result;
+use crate::progress::Tick;
 use crate::scene::luminance;
 use glam::Vec3;
 use std::f32::consts::PI;
@@ -210,14 +211,18 @@ pub fn kd_step(
     layout: &Layout,
     charts: &Charts,
     geom: &TileStore<TexelGeom>,
-    state: &mut TileStore<TexelState>,
-    window: usize,
+    (state, window): (&mut TileStore<TexelState>, usize),
     pinned: &[Option<Vec3>],
     scratch: &Scratch,
+    tick: Tick,
 ) -> Result<(u64, u64)> {
-    let clamped: u64 = map_tiles(state, geom, window, |_, g, s| kd_tile(s, g))?
-        .iter()
-        .sum();
+    let clamped: u64 = map_tiles(state, geom, window, |_, g, s| {
+        let c = kd_tile(s, g);
+        tick(1);
+        c
+    })?
+    .iter()
+    .sum();
     let filled = fill_unobserved_all(layout, charts, geom, state, scratch)?;
     if pinned.iter().any(Option::is_some) {
         map_tiles(state, geom, window, |t, g, s| {
@@ -254,8 +259,8 @@ pub fn update_step(
     n: u32,
     prev: Option<([f64; 3], [f64; 3])>,
     geom: &TileStore<TexelGeom>,
-    state: &mut TileStore<TexelState>,
-    window: usize,
+    (state, window): (&mut TileStore<TexelState>, usize),
+    tick: Tick,
 ) -> Result<Update> {
     let a = alpha(cfg.alpha0, n);
     let (mut sum_e_i, mut sum_traced) = ([0.0f64; 3], [0.0f64; 3]);
@@ -271,7 +276,9 @@ pub fn update_step(
         Vec3::splat(cfg.relaxation)
     };
     let sums = map_tiles(state, geom, window, |_, g, s| {
-        compare_update_tile(s, g, rule, a, beta)
+        let e = compare_update_tile(s, g, rule, a, beta);
+        tick(1);
+        e
     })?;
     let mut errors = ErrorSums::default();
     for s in &sums {

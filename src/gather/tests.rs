@@ -6,7 +6,7 @@ use crate::atlas::layout::TexelGeom;
 use crate::atlas::unwrap::AtlasSettings;
 use crate::atlas::{build_geometry, Prepared};
 use crate::light::area::projected_solid_angle;
-use crate::progress::Mode;
+use crate::progress::{no_tick, Mode};
 use crate::scene::{mesh, Mesh, Scene, Shape, Sides};
 use glam::{DVec3, Mat4};
 use std::path::PathBuf;
@@ -75,6 +75,7 @@ impl Fixture {
             &self.geom,
             &path,
             budget,
+            &no_tick,
         )
         .unwrap()
     }
@@ -126,6 +127,7 @@ impl Fixture {
             &self.charts,
             spacing,
             &self.scratch(1 << 30),
+            &no_tick,
         )
         .unwrap();
         let radiance = self.radiance(1 << 30);
@@ -136,7 +138,7 @@ impl Fixture {
             seed: 5,
             rays,
         };
-        let cache = trace_points(&ctx, &points);
+        let cache = trace_points(&ctx, &points, &no_tick);
         assert_eq!(cache.stats.points as usize, points.points.len());
         let values = cache.evaluate(&radiance);
         (points, values)
@@ -350,7 +352,15 @@ fn back_faces_emitters_and_unobserved_texels() {
 #[test]
 fn interpolation_stays_within_the_chart() {
     let fx = Fixture::new(vec![shape("cube", mesh::cube(), None)], 16.0);
-    let pts = GatherPoints::new(&fx.p, &fx.geom, &fx.charts, 0.3, &fx.scratch(1 << 30)).unwrap();
+    let pts = GatherPoints::new(
+        &fx.p,
+        &fx.geom,
+        &fx.charts,
+        0.3,
+        &fx.scratch(1 << 30),
+        &no_tick,
+    )
+    .unwrap();
     assert!(pts.stride(0) > 1);
     let vals: Vec<Vec3> = pts
         .points
@@ -464,7 +474,15 @@ fn cached_hits_reevaluate_like_a_fresh_trace() {
         s.k_d = [0.4; 3];
         s.e_d = [1.0, 2.0, 3.0];
     });
-    let points = GatherPoints::new(&fx.p, &fx.geom, &fx.charts, 0.2, &fx.scratch(1 << 30)).unwrap();
+    let points = GatherPoints::new(
+        &fx.p,
+        &fx.geom,
+        &fx.charts,
+        0.2,
+        &fx.scratch(1 << 30),
+        &no_tick,
+    )
+    .unwrap();
     let trace = |fx: &Fixture| {
         let radiance = fx.radiance(1 << 30);
         let ctx = GatherContext {
@@ -474,7 +492,7 @@ fn cached_hits_reevaluate_like_a_fresh_trace() {
             seed: 5,
             rays: 36,
         };
-        (trace_points(&ctx, &points), radiance)
+        (trace_points(&ctx, &points, &no_tick), radiance)
     };
     let (cache, _) = trace(&fx);
     assert!(cache.stats.cached_hits > 0 && cache.stats.cached_hits < cache.stats.rays);

@@ -41,24 +41,48 @@ use crate::atlas::Prepared;
 use crate::error::{Error, Result};
 use crate::fsio;
 use crate::image::write_pixmap_png;
+use crate::progress::Tick;
 use crate::render::Texture;
 use crate::report::Report;
 use glam::Vec3;
 use std::path::Path;
 use std::time::Instant;
 
+/// The units of [`write_outputs`]' progress: every texture's texels and every view's pixels.
+pub fn output_units(p: &Prepared) -> u64 {
+    let texels: u64 = p
+        .layout
+        .slots
+        .iter()
+        .map(|s| s.width as u64 * s.height as u64)
+        .sum();
+    texels
+        + p.views
+            .iter()
+            .map(|(si, _)| view_pixels(p, *si))
+            .sum::<u64>()
+}
+
+/// Pixels of sensor `si`'s photo.
+fn view_pixels(p: &Prepared, si: usize) -> u64 {
+    let s = &p.scene.sensors[si];
+    s.width as u64 * s.height as u64
+}
+
 /// Write the whole output directory for a finished run (see the module doc): textures and
 /// maps per reconstructed shape, meshes, `scene.xml`, the re-rendered views, the convergence
 /// plot; then fill `report.table` and `report.timings.output` and write `report.json` last.
 /// The caller sets the other report fields (including `timings.total`) before calling.
+/// `tick` gets each shape's texels once its textures and maps are written, and each view's
+/// pixels once it is re-rendered ([`output_units`] in all).
 pub fn write_outputs(
     p: &Prepared,
     hits: &HitTable,
-    geom: &TileStore<TexelGeom>,
-    state: &TileStore<TexelState>,
+    (geom, state): (&TileStore<TexelGeom>, &TileStore<TexelState>),
     report: &mut Report,
     out: &Path,
     scratch: &Scratch,
+    tick: Tick,
 ) -> Result<()> {
     let t0 = Instant::now();
     fsio::create_dir(out)?;
@@ -80,6 +104,7 @@ pub fn write_outputs(
         let keep = scratch.share(st.width as u64 * st.height as u64, total);
         let lr = maps::write_slot(p, geom, state, slot, out, &scale, (scratch, &keep))?;
         radiance[st.shape] = Some(lr);
+        tick(st.width as u64 * st.height as u64);
     }
 
     let meshes = out.join("meshes");
@@ -111,6 +136,7 @@ pub fn write_outputs(
             &renders,
             &scale,
         )?);
+        tick(view_pixels(p, *si));
     }
     report.table = table;
     for r in radiance.iter().flatten() {

@@ -15,7 +15,7 @@ use kdmap::image::{read_exr, read_sensor_image};
 use kdmap::output::renders::xy_chromaticity;
 use kdmap::output::write_outputs;
 use kdmap::pipeline::run_projection;
-use kdmap::progress::Mode;
+use kdmap::progress::{no_tick, Mode};
 use kdmap::project::View;
 use kdmap::report::{IterationStats, Report};
 use kdmap::scene::{luminance, mitsuba, Emitter};
@@ -104,7 +104,16 @@ fn run() -> &'static Run {
         let charts = kdmap::atlas::charts::Charts::new(&p.scene, &p.layout, &p.atlases).unwrap();
         let hits = kdmap::atlas::hits::HitTable::new(&p, &charts);
         let scratch = Scratch::new(dir.path(), 1 << 28);
-        write_outputs(&p, &hits, &geom, &state, &mut report, &out, &scratch).unwrap();
+        write_outputs(
+            &p,
+            &hits,
+            (&geom, &state),
+            &mut report,
+            &out,
+            &scratch,
+            &no_tick,
+        )
+        .unwrap();
         Run {
             _dir: dir,
             out,
