@@ -555,16 +555,19 @@ fn plan_text(cfg: &Config, scene: &Scene, plan: &RunPlan) -> String {
     );
     for (sh, d) in scene.shapes.iter().zip(&plan.shapes) {
         let Some(d) = d else { continue };
-        let fine = d
-            .finest_footprint
-            .map_or("unseen".to_string(), |f| format!("{:.4} units/pixel", f));
+        // a fixed density looks at no photo
+        let fine = match (cfg.atlas.texels_per_unit.per_unit(), d.finest_footprint) {
+            (Some(_), _) => String::new(),
+            (None, Some(f)) => format!("  finest photo {f:.4} units/pixel"),
+            (None, None) => "  finest photo unseen".to_string(),
+        };
         let lim = d
             .limited_by
             .as_deref()
             .map_or(String::new(), |l| format!("  limited by {l}"));
         let _ = writeln!(
             s,
-            "  {:<16} {:>8.1} texels/unit  finest photo {fine}{lim}",
+            "  {:<16} {:>8.1} texels/unit{fine}{lim}",
             sh.id, d.texels_per_unit
         );
     }

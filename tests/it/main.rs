@@ -2,6 +2,7 @@
 //! links once, which keeps `cargo test --release` (full LTO per test binary) fast enough for CI.
 
 mod accuracy;
+mod budget;
 mod camera;
 mod cli;
 mod diskfull;
