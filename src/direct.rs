@@ -73,29 +73,50 @@ pub fn run(
     state: &mut TileStore<TexelState>,
     mode: Mode,
 ) -> Result<DirectStats> {
-    run_with(p, cfg, (charts, geom), state, mode, FEATURE_OF_RADIUS)
+    let sums = run_tiles(p, cfg, charts, geom, state, mode, &|_| true)?;
+    Ok(DirectStats::from_tiles(&sums))
 }
 
-/// [`run`] with the coarse lattices' feature size `feature` (a fraction of the scene's
-/// bounding radius; 0 keeps the 2-texel lattice alone).
-fn run_with(
+/// `E_d` of the covered texels of the tiles `owns` accepts (the share of one process when
+/// several run the stage), and per tile its sums (zero for the others), in tile order.
+pub fn run_tiles(
     p: &Prepared,
     cfg: &Config,
-    (charts, geom): (&Charts, &TileStore<TexelGeom>),
+    charts: &Charts,
+    geom: &TileStore<TexelGeom>,
+    state: &mut TileStore<TexelState>,
+    mode: Mode,
+    owns: &(dyn Fn(usize) -> bool + Sync),
+) -> Result<Vec<TileSums>> {
+    let shared = (charts, geom, owns);
+    light_tiles(p, cfg, shared, state, mode, FEATURE_OF_RADIUS)
+}
+
+/// [`run_tiles`] with the coarse lattices' feature size `feature` (a fraction of the scene's
+/// bounding radius; 0 keeps the 2-texel lattice alone).
+fn light_tiles(
+    p: &Prepared,
+    cfg: &Config,
+    (charts, geom, owns): (
+        &Charts,
+        &TileStore<TexelGeom>,
+        &(dyn Fn(usize) -> bool + Sync),
+    ),
     state: &mut TileStore<TexelState>,
     mode: Mode,
     feature: f32,
-) -> Result<DirectStats> {
+) -> Result<Vec<TileSums>> {
     let params = DirectParams {
         area_samples: cfg.area_samples,
         ..DirectParams::default()
     };
     let window = p.window::<TexelState>(cfg);
     let feature = crate::light::bounding_sphere(&p.scene).1 * feature;
-    let stage = Stage::new(mode, "direct", state.tile_count() as u64, "tiles");
+    let mine = (0..state.tile_count()).filter(|&t| owns(t)).count();
+    let stage = Stage::new(mode, "direct", mine as u64, "tiles");
     let sums = map_tiles(state, geom, window, |t, g, st| {
         // a stop was asked for: skip the rest, the stage's result is not used
-        if interrupt::requested() {
+        if !owns(t) || interrupt::requested() {
             return TileSums::default();
         }
         let ctx = TileCtx::new(p, charts, (cfg.seed, feature), &params, t, g);
@@ -105,20 +126,27 @@ fn run_with(
     })?;
     interrupt::check(interrupt::NOTHING_SAVED)?;
     stage.finish();
-    let (mut e, mut a, mut stats) = (Vec3::ZERO, 0.0f64, DirectStats::default());
-    for s in &sums {
-        e += s.sum;
-        a += s.area;
-        stats.texels += s.texels;
-        stats.first_pass += s.first_pass;
-        stats.dense += s.dense;
-        stats.dense_per_emitter.resize(s.dense_k.len(), 0);
-        for (a, b) in stats.dense_per_emitter.iter_mut().zip(&s.dense_k) {
-            *a += b;
+    Ok(sums)
+}
+
+impl DirectStats {
+    /// The stage's statistics from every tile's sums, added in tile order.
+    pub fn from_tiles(sums: &[TileSums]) -> DirectStats {
+        let (mut e, mut a, mut stats) = (Vec3::ZERO, 0.0f64, DirectStats::default());
+        for s in sums {
+            e += s.sum;
+            a += s.area;
+            stats.texels += s.texels;
+            stats.first_pass += s.first_pass;
+            stats.dense += s.dense;
+            stats.dense_per_emitter.resize(s.dense_k.len(), 0);
+            for (a, b) in stats.dense_per_emitter.iter_mut().zip(&s.dense_k) {
+                *a += b;
+            }
         }
+        stats.mean = if a > 0.0 { e / a as f32 } else { Vec3::ZERO };
+        stats
     }
-    stats.mean = if a > 0.0 { e / a as f32 } else { Vec3::ZERO };
-    Ok(stats)
 }
 
 /// Whether texel `off` has its first-pass values (rows of `lights` per texel).
@@ -127,8 +155,8 @@ fn valued(first: &[Option<(Vec3, Reach)>], off: usize, lights: usize) -> bool {
 }
 
 /// One tile's sums.
-#[derive(Debug, Clone, Default)]
-struct TileSums {
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct TileSums {
     sum: Vec3,
     area: f64,
     texels: u64,
@@ -533,7 +561,10 @@ mod tests {
             .create_store(dir.path().join("s"), TexelState::default())
             .unwrap();
         let cfg = Config::for_scene("t/scene.xml".into());
-        let stats = run_with(&p, &cfg, (&charts, &geom), &mut state, Mode::Quiet, feature).unwrap();
+        let all = |_: usize| true;
+        let shared = (&charts, &geom, &all as &(dyn Fn(usize) -> bool + Sync));
+        let sums = light_tiles(&p, &cfg, shared, &mut state, Mode::Quiet, feature).unwrap();
+        let stats = DirectStats::from_tiles(&sums);
         let mut e = Vec::new();
         for t in 0..state.tile_count() {
             if p.layout.slot_of_tile(t as u32) == 0 {

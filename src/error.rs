@@ -44,6 +44,10 @@ pub enum Error {
     /// was saved and how to continue.
     #[error("interrupted: {}", .0.replace('\n', " "))]
     Interrupted(String),
+    /// An error another rank of an MPI job met (`comm`), passed on so that every rank ends
+    /// with its exit code; rank 0 prints it.
+    #[error("rank {rank}: {}", .msg.replace('\n', " "))]
+    Rank { rank: usize, code: u8, msg: String },
 }
 
 fn fmt_input(path: &Path, loc: &Location, msg: &str) -> String {
@@ -91,6 +95,8 @@ pub mod exit {
     pub const CORRUPT: u8 = 75;
     /// Impossible settings (EX_CONFIG).
     pub const CONFIG: u8 = 78;
+    /// Another rank of an MPI job died (EX_UNAVAILABLE); the launcher ends the job.
+    pub const RANK_DIED: u8 = 69;
     /// Stopped by SIGINT or SIGTERM (128 + 2).
     pub const INTERRUPTED: u8 = 130;
 }
@@ -163,6 +169,7 @@ impl Error {
             Error::Config { .. } => exit::CONFIG,
             Error::Internal(_) => exit::INTERNAL,
             Error::Interrupted(_) => exit::INTERRUPTED,
+            Error::Rank { code, .. } => *code,
         }
     }
 }

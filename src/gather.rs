@@ -433,17 +433,32 @@ pub struct GatherCache {
 /// Cast every point's rays (see [`GatherCache`]). A pure function of the scene, the
 /// observed radiance and `ctx.seed`: a resumed run recomputes it bit for bit.
 pub fn trace_points(ctx: &GatherContext, points: &GatherPoints, tick: Tick) -> GatherCache {
+    trace_points_where(ctx, points, &|_| true, tick)
+}
+
+/// [`trace_points`] for the points `owns` accepts (the share of one process when several run
+/// the gather); the others get no rays and evaluate to 0. `tick` gets each traced point.
+pub fn trace_points_where(
+    ctx: &GatherContext,
+    points: &GatherPoints,
+    owns: &(dyn Fn(usize) -> bool + Sync),
+    tick: Tick,
+) -> GatherCache {
     let t0 = Instant::now();
     let per_point: Vec<(Vec3, Vec<CachedHit>)> = points
         .points
         .par_iter()
         .enumerate()
-        .map(|(i, pt)| {
-            let r = trace_point(ctx, i as u64, pt);
-            tick(1);
-            r
+        .map(|(i, pt)| match owns(i) {
+            true => {
+                let r = trace_point(ctx, i as u64, pt);
+                tick(1);
+                r
+            }
+            false => (Vec3::ZERO, Vec::new()),
         })
         .collect();
+    let traced = (0..per_point.len()).filter(|&i| owns(i)).count() as u64;
     let k = strata(ctx.rays);
     let scale = PI / (k * k) as f32;
     let mut start = Vec::with_capacity(per_point.len() + 1);
@@ -456,8 +471,8 @@ pub fn trace_points(ctx: &GatherContext, points: &GatherPoints, tick: Tick) -> G
     }
     start.push(hits.len() as u64);
     let stats = GatherStats {
-        points: fixed.len() as u64,
-        rays: fixed.len() as u64 * (k * k) as u64,
+        points: traced,
+        rays: traced * (k * k) as u64,
         cached_hits: hits.len() as u64,
         seconds: t0.elapsed().as_secs_f64(),
     };

@@ -6,6 +6,10 @@
 //!
 //! The handlers are only installed by [`install`] (the command line does it for the commands
 //! that can stop cleanly); a library user that never calls it is never interrupted.
+//!
+//! In an MPI job (`comm`) the signal reaches the ranks at different moments, so a safe point
+//! decides with every rank ([`agreed`], [`check`]: collective operations): a stop asked for on
+//! any rank stops them all at the same safe point.
 
 use crate::error::{Error, Result};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -44,10 +48,16 @@ pub fn request() {
 pub const NOTHING_SAVED: &str =
     "stopped before the first checkpoint; run the same command again to start over";
 
-/// `Err(Error::Interrupted)` with `msg` if a stop was asked for: the check of a safe point
-/// that has nothing to save.
+/// Whether a stop was asked for on any rank of the run: the decision of a safe point. A
+/// collective operation in an MPI job: every rank calls it at the same safe points.
+pub fn agreed() -> bool {
+    crate::comm::world().any(requested())
+}
+
+/// `Err(Error::Interrupted)` with `msg` if a stop was asked for (on any rank, [`agreed`]):
+/// the check of a safe point that has nothing to save.
 pub fn check(msg: &str) -> Result<()> {
-    match requested() {
+    match agreed() {
         true => Err(Error::Interrupted(msg.to_string())),
         false => Ok(()),
     }

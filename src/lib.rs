@@ -19,7 +19,7 @@
 //! L2  project/  direct  gather  photon/  solve   the stages, plain functions over tiles
 //! L1  config  report  scene/  scatter  image  camera  accel  light/  render  atlas/
 //!                                    settings, the scene and its physics, tiles
-//! L0  error  rng  progress  fsio  interrupt  mem   no kdmap imports but L0
+//! L0  error  rng  progress  fsio  comm  interrupt  mem   no kdmap imports but L0
 //! ```
 //!
 //! Within L1 the order is as listed: `report` uses `config`; `scene` uses `config` (the run's
@@ -28,6 +28,7 @@
 //! `scene`; `light` uses `accel`; `render` uses `camera`, `accel`, `image`; `atlas` uses all
 //! of them. The L2 stages are independent of each other. A stage's state lives in the tile stores of `atlas`, not in another stage.
 
+pub mod comm;
 pub mod error;
 pub mod fsio;
 pub mod interrupt;

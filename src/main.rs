@@ -5,6 +5,10 @@
 //! `--quiet` choose; only this file and `progress` talk to the terminal. A closed stdout
 //! (`kdmap inspect ... | head`) ends the output quietly with exit code 0. SIGINT / SIGTERM
 //! stop `reconstruct` and `project` at a safe point (`kdmap::interrupt`), exit code 130.
+//!
+//! Started by an MPI launcher (`mpirun -np N kdmap ...`, a build with `--features mpi`), every
+//! rank runs the command (`kdmap::comm`); rank 0 prints results, progress and errors, the
+//! other ranks only errors of their own, prefixed by their rank.
 
 use clap::{Parser, Subcommand, ValueEnum};
 use glam::Vec3;
@@ -138,24 +142,46 @@ enum Command {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    let mode = cli.mode();
-    match run(cli.command, mode) {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            let line = match &e {
-                Error::Interrupted(_) => e.to_string(),
-                _ => format!("error: {e}"),
-            };
-            let line = match mode {
-                Mode::Json => {
-                    serde_json::json!({"error": line, "exit_code": e.exit_code()}).to_string()
-                }
-                _ => line,
-            };
-            let _ = writeln!(std::io::stderr(), "{line}");
-            ExitCode::from(e.exit_code())
+    let job = match kdmap::comm::init() {
+        Ok(job) => job,
+        Err(msg) => {
+            let _ = writeln!(std::io::stderr(), "error: {msg}");
+            return ExitCode::from(kdmap::error::exit::CONFIG);
         }
+    };
+    let world = kdmap::comm::world();
+    let mode = match world.is_root() {
+        true => cli.mode(),
+        false => Mode::Quiet,
+    };
+    let e = match run(cli.command, mode) {
+        Ok(()) => return ExitCode::SUCCESS,
+        Err(e) => e,
+    };
+    // Another rank's error (rank 0 prints it) or an agreed stop: nothing more to say here.
+    let said_elsewhere = matches!(e, Error::Rank { .. } | Error::Interrupted(_));
+    if world.is_root() || !said_elsewhere {
+        print_error(&e, mode, world.rank());
     }
+    match world.size() {
+        1 => ExitCode::from(e.exit_code()),
+        _ => job.exit(e.exit_code()),
+    }
+}
+
+/// The one line of an error on stderr (as JSON with `--progress json`), naming the rank
+/// unless it is rank 0.
+fn print_error(e: &Error, mode: Mode, rank: usize) {
+    let line = match (e, rank) {
+        (Error::Interrupted(_), _) => e.to_string(),
+        (_, 0) => format!("error: {e}"),
+        (_, r) => format!("error: rank {r}: {e}"),
+    };
+    let line = match mode {
+        Mode::Json => serde_json::json!({"error": line, "exit_code": e.exit_code()}).to_string(),
+        _ => line,
+    };
+    let _ = writeln!(std::io::stderr(), "{line}");
 }
 
 /// A JSON document for stdout, pretty-printed, with a final newline.
@@ -176,8 +202,8 @@ fn emit(text: &str) -> Result<()> {
 }
 
 fn run(command: Command, mode: Mode) -> Result<()> {
+    let root = kdmap::comm::world().is_root();
     match command {
-        Command::Inspect { scene, json } => inspect(&scene, json),
         Command::Reconstruct {
             input,
             out,
@@ -209,6 +235,9 @@ fn run(command: Command, mode: Mode) -> Result<()> {
             kdmap::interrupt::install()?;
             project(&input, &out, preset, threads, mode)
         }
+        // the read-only commands answer once, on rank 0
+        _ if !root => Ok(()),
+        Command::Inspect { scene, json } => inspect(&scene, json),
         Command::InspectCheckpoint { out, json } => inspect_checkpoint(&out, json, mode),
         Command::Accuracy { out, truth, json } => accuracy(&out, &truth, json),
     }
@@ -223,9 +252,12 @@ fn pool(threads: usize) -> Result<rayon::ThreadPool> {
 }
 
 fn reconstruct(input: &Path, out: &Path, ov: &Overrides, resume: bool, mode: Mode) -> Result<()> {
-    let cfg = Config::load(input, ov)?;
+    let cfg = kdmap::comm::world().agree(Config::load(input, ov))?;
     let (report, start) =
         pool(cfg.threads)?.install(|| pipeline::reconstruct_resumable(&cfg, out, mode, resume))?;
+    if !kdmap::comm::world().is_root() {
+        return Ok(());
+    }
     if start == Start::AlreadyFinished {
         return emit(&format!(
             "already finished ({} iterations, {}): nothing to do; results: {}\n",
@@ -375,8 +407,12 @@ fn project(
         threads,
         ..Default::default()
     };
-    let cfg = Config::load(input, &ov)?;
+    let world = kdmap::comm::world();
+    let cfg = world.agree(Config::load(input, &ov))?;
     let (p, stats) = pool(cfg.threads)?.install(|| pipeline::run_projection(&cfg, out, mode))?;
+    if !world.is_root() {
+        return Ok(());
+    }
     emit(&format!(
         "projected {} views onto {} shapes: {} of {} surface texels observed ({:.1}%), {} pixels masked, {:.2} s\nmaps: {}\n",
         stats.views,
@@ -531,7 +567,21 @@ fn plan_run(cfg: &Config, scene: &Scene) -> RunPlan {
     let plan = kdmap::atlas::prepared::plan_density(cfg, scene, &accel, &views);
     let sensors: Vec<usize> = views.iter().map(|v| v.0).collect();
     let pixels = kdmap::atlas::density::photo_pixels(scene, &sensors);
-    let needs = kdmap::atlas::density::needs(scene, &plan, pixels, cfg.memory_budget_mib << 20);
+    let gather = match cfg.method {
+        kdmap::config::Method::Gather => {
+            let area: f64 = scene
+                .shapes
+                .iter()
+                .filter(|s| s.in_atlas())
+                .map(|s| s.mesh.area())
+                .sum();
+            let spacing = cfg.gather_spacing_for(kdmap::light::bounding_sphere(scene).1);
+            kdmap::atlas::density::gather_bytes(area, spacing, cfg.gather_rays)
+        }
+        kdmap::config::Method::Photons => 0,
+    };
+    let budget = cfg.memory_budget_mib << 20;
+    let needs = kdmap::atlas::density::needs(scene, &plan, pixels, (budget, gather));
     Ok((plan, needs))
 }
 

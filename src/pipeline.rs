@@ -13,6 +13,19 @@
 //! After SIGINT / SIGTERM (`interrupt`), a run stops at its next safe point: after a batch
 //! group of a photon pass or an iteration with a checkpoint of where it stands, or in
 //! projection / direct light with nothing saved; it returns `Error::Interrupted`.
+//!
+//! **Several processes** (an MPI job, `comm`): every rank loads the scene and builds the
+//! geometry (deterministic, so they agree) in its own working directory (rank 0 in
+//! `<out>/checkpoint`, rank `r` in `<out>/checkpoint/rank-<r>`). This module decides who
+//! computes what: tiles of the projection (and bands of rows of its refinement renders) and of
+//! the direct light, batches of a photon pass, chunks of gather points, unit `u` by rank
+//! `u mod N`; `share` combines the results in unit order (a photon batch's deposits go to the
+//! rank of their tile, whose tiles are shared after the pass and before a checkpoint), so
+//! every rank's state is the same bits after each stage, whatever N. The rest (the per-texel update, smoothing, fill) runs
+//! on every rank alike. Rank 0 alone writes checkpoints and outputs; a resumed run restores
+//! rank 0's checkpoint and sends it to the others, so it continues under any N.
+
+mod share;
 
 use crate::atlas::charts::Charts;
 use crate::atlas::check::{check_geometry, check_state};
@@ -22,24 +35,26 @@ use crate::atlas::slot_texture::{Scratch, SlotTexture};
 use crate::atlas::tiles::{map_tiles, TileStore};
 use crate::atlas::{build_geometry, prepare, state_dir, Prepared};
 use crate::checkpoint::{self as ck, Manifest, Writer};
+use crate::comm::{self, World};
 use crate::config::{Config, Method, UpdateRule};
 use crate::error::{Error, Result};
 use crate::fsio;
 use crate::gather::{
-    trace_points, write_accum, GatherCache, GatherContext, GatherPoints, Radiance,
+    trace_points_where, write_accum, GatherCache, GatherContext, GatherPoints, Radiance,
 };
 use crate::interrupt;
 use crate::light::EmitterSampler;
 use crate::output::{output_units, write_map, write_outputs};
 use crate::photon::{
-    begin_pass, finish_pass, photon_pass, smooth_accum, AlbedoTextures, PassContext,
+    begin_pass, finish_pass, photon_pass_shared, smooth_accum, AlbedoTextures, PassContext,
 };
 use crate::progress::{self, note, Mode, Stage};
-use crate::project::ProjectionStats;
+use crate::project::{ProjectionStats, Shard};
 use crate::report::{Counts, IterationStats, Report};
 use crate::solve::{init_indirect_tile, kd_step, update_step};
 use crate::{direct, project};
 use serde::{Deserialize, Serialize};
+use share::GATHER_CHUNK;
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 use std::time::Instant;
@@ -151,9 +166,10 @@ pub fn reconstruct_resumable(
     resume: bool,
 ) -> Result<(Report, Start)> {
     let clock = Instant::now();
-    let run = Run::open(cfg, out, mode)?;
+    let world = comm::world();
+    let run = world.agree(Run::open(cfg, out, mode))?;
     let found = match resume {
-        true => run.find_checkpoint()?,
+        true => world.decide(|| run.find_checkpoint())?,
         false => None,
     };
     let mut r = match found {
@@ -171,16 +187,26 @@ pub fn reconstruct_resumable(
 /// Steps 1-2 on their own: atlas, projection, and the luminance and coverage maps in
 /// `<out>/maps/`. Returns the projection statistics.
 pub fn run_projection(cfg: &Config, out: &Path, mode: Mode) -> Result<(Prepared, ProjectionStats)> {
-    let p = prepare(cfg, mode)?;
-    let dir = state_dir(out);
-    fsio::create_dir(&dir)?;
-    let geom = build_geometry(&p, &dir.join("geometry.tiles"), mode)?;
-    let mut state = p.create_store(dir.join("state.tiles"), TexelState::default())?;
+    let world = comm::world();
+    let opened = || -> Result<_> {
+        let p = prepare(cfg, mode)?;
+        let dir = work_dir(out, world);
+        fsio::create_dir(&dir)?;
+        let geom = build_geometry(&p, &dir.join("geometry.tiles"), mode)?;
+        let state = p.create_store(dir.join("state.tiles"), TexelState::default())?;
+        Ok((p, dir, geom, state))
+    };
+    let (p, dir, geom, mut state) = world.agree(opened())?;
     let charts = Charts::new(&p.scene, &p.layout, &p.atlases)?;
     let hits = HitTable::new(&p, &charts);
     let scratch = open_scratch(&dir, cfg.memory_budget_mib << 20)?;
-    let stats = project::run(&p, cfg, &hits, &geom, &mut state, mode, &scratch)?;
+    let stats = with_shard(world, |sh| {
+        project::run_shard(&p, cfg, &hits, &geom, &mut state, mode, &scratch, sh)
+    })?;
     debug_check(&geom, &state)?;
+    if !world.is_root() {
+        return Ok((p, stats));
+    }
     let maps = out.join("maps");
     for slot in 0..p.layout.slots.len() {
         let (l, id) = (&p.layout, p.slot_id(slot));
@@ -201,6 +227,28 @@ pub fn run_projection(cfg: &Config, out: &Path, mode: Mode) -> Result<(Prepared,
     Ok((p, stats))
 }
 
+/// The working directory of this rank: rank 0's is the run's checkpoint directory, the
+/// others' a `rank-<r>` directory inside it (their stores and scratch; never checkpoints).
+fn work_dir(out: &Path, world: &World) -> PathBuf {
+    match world.rank() {
+        0 => state_dir(out),
+        r => state_dir(out).join(format!("rank-{r}")),
+    }
+}
+
+/// `f` with the projection's share of the work on this rank: tiles and row bands `u mod N`,
+/// synced through `share`.
+fn with_shard<R>(world: &World, f: impl FnOnce(&Shard) -> R) -> R {
+    let owns = |u: usize| world.owns(u as u64);
+    let sync = |s: &mut TileStore<TexelState>| share::share_tiles(world, s);
+    let pixels = |img: &mut [Option<glam::Vec3>], unit| share::share_pixels(world, img, unit);
+    f(&Shard {
+        owns: &owns,
+        sync: &sync,
+        sync_pixels: &pixels,
+    })
+}
+
 /// The stores' invariants after a stage, in debug builds (`atlas::check`).
 fn debug_check(geom: &TileStore<TexelGeom>, state: &TileStore<TexelState>) -> Result<()> {
     if cfg!(debug_assertions) {
@@ -218,7 +266,10 @@ struct Run<'a> {
     atlas: Vec<crate::report::ShapeTexels>,
     out: &'a Path,
     mode: Mode,
+    /// The processes of the run (one, or the ranks of an MPI job).
+    world: &'static World,
     p: Prepared,
+    /// This rank's working directory (see [`work_dir`]); rank 0's holds the checkpoints.
     dir: PathBuf,
     state_path: PathBuf,
     hash: u64,
@@ -248,6 +299,8 @@ struct Running {
     /// When this attempt began, and the seconds spent by earlier attempts.
     clock: Instant,
     prior_s: f64,
+    /// Whether this process writes the checkpoints (rank 0).
+    root: bool,
 }
 
 impl Running {
@@ -278,12 +331,18 @@ impl Running {
         if !saved {
             self.checkpoint(state_path, stage)?;
         }
+        // the other ranks wait for rank 0's checkpoint: a rank that ended sooner would make
+        // the launcher kill the job while rank 0 still writes
+        comm::world().barrier();
         let dir = state_path.parent().unwrap_or(state_path);
         Ok(interrupted(dir, self.writer.seq()))
     }
 
-    /// Checkpoint: the state (unless finished) and where the run stands.
+    /// Checkpoint: the state (unless finished) and where the run stands (rank 0 only).
     fn checkpoint(&mut self, state_path: &Path, stage: RunStage) -> Result<()> {
+        if !self.root {
+            return Ok(());
+        }
         let progress = Progress {
             stage,
             projection: self.proj,
@@ -299,11 +358,12 @@ impl<'a> Run<'a> {
     /// Load and prepare the scene, fingerprint the inputs and build the geometry store.
     fn open(cfg: &Config, out: &'a Path, mode: Mode) -> Result<Run<'a>> {
         let t = Instant::now();
+        let world = comm::world();
         let p = prepare(cfg, mode)?;
         let load_s = t.elapsed().as_secs_f64();
         // the scene itself (meshes, BVH, photos): what a run needs beside the budget
         let load_rss = crate::mem::peak_mib();
-        let dir = state_dir(out);
+        let dir = work_dir(out, world);
         fsio::create_dir(&dir)?;
         let hash = p.fingerprint(cfg)?;
         let t = Instant::now();
@@ -328,6 +388,7 @@ impl<'a> Run<'a> {
             cfg,
             out,
             mode,
+            world,
             p,
             dir,
             hash,
@@ -366,8 +427,10 @@ impl<'a> Run<'a> {
 
     /// A fresh start: projection, direct light, the initial E_i, and the first checkpoint.
     fn start(&self, clock: Instant) -> Result<Running> {
-        let (cfg, p, mode) = (&self.cfg, &self.p, self.mode);
-        Writer::clear(&self.dir)?;
+        let (cfg, p, mode, world) = (&self.cfg, &self.p, self.mode, self.world);
+        if world.is_root() {
+            Writer::clear(&self.dir)?;
+        }
         let mut report = Report::new(cfg.clone());
         report.timings.load = self.load_s;
         report.timings.atlas = self.atlas_s;
@@ -378,15 +441,10 @@ impl<'a> Run<'a> {
         res.after("load + atlas");
         let mut state = p.create_store(&self.state_path, TexelState::default())?;
         let t = Instant::now();
-        let ps = project::run(
-            p,
-            cfg,
-            self.hits(),
-            &self.geom,
-            &mut state,
-            mode,
-            &self.scratch,
-        )?;
+        let ps = with_shard(world, |sh| {
+            let (hits, geom, scratch) = (self.hits(), &self.geom, &self.scratch);
+            project::run_shard(p, cfg, hits, geom, &mut state, mode, scratch, sh)
+        })?;
         report.timings.projection = t.elapsed().as_secs_f64();
         report.resources.after("projection");
         debug_check(&self.geom, &state)?;
@@ -397,7 +455,7 @@ impl<'a> Run<'a> {
             observed_texels: ps.observed_texels,
         };
         let t = Instant::now();
-        let direct = direct::run(p, cfg, &self.charts, &self.geom, &mut state, mode)?;
+        let direct = self.direct(&mut state)?;
         report.timings.direct = t.elapsed().as_secs_f64();
         report.resources.after("direct");
         report.counts.dense_direct_texels = direct.dense;
@@ -419,18 +477,42 @@ impl<'a> Run<'a> {
             start: Start::Fresh,
             clock,
             prior_s: 0.0,
+            root: world.is_root(),
         };
         r.checkpoint(&self.state_path, RunStage::Direct)?;
         Ok(r)
     }
 
+    /// The direct light, each rank its tiles, their E_d and sums shared in tile order.
+    fn direct(&self, state: &mut TileStore<TexelState>) -> Result<direct::DirectStats> {
+        let (p, cfg, world) = (&self.p, &self.cfg, self.world);
+        let owns = |t: usize| world.owns(t as u64);
+        let sums = direct::run_tiles(p, cfg, &self.charts, &self.geom, state, self.mode, &owns)?;
+        share::share_tiles(world, state)?;
+        let mine = sums.into_iter().enumerate().map(|(t, s)| (t as u64, s));
+        let mine = mine.filter(|(t, _)| world.owns(*t)).collect();
+        let all = share::share_serde(world, mine)?;
+        let sums: Vec<_> = all.into_iter().map(|(_, s)| s).collect();
+        Ok(direct::DirectStats::from_tiles(&sums))
+    }
+
     /// Continue from checkpoint `m`: its state snapshot restored, its report and stage.
     fn resume(&self, m: Manifest<Progress>, clock: Instant) -> Result<Running> {
-        check_stage(&m.payload.stage, &self.cfg, &self.dir.join(ck::MANIFEST))?;
+        let world = self.world;
+        world.agree(check_stage(
+            &m.payload.stage,
+            &self.cfg,
+            &self.dir.join(ck::MANIFEST),
+        ))?;
         // no projection: the photos `prepare` checked are not needed
         self.p.release_photos();
-        ck::restore(&self.dir, &m, &self.state_path)?;
-        let state = self.p.open_store(&self.state_path)?;
+        // rank 0 restores its checkpoint and sends it to the others
+        let mut state = world.agree(match world.is_root() {
+            true => ck::restore(&self.dir, &m, &self.state_path)
+                .and_then(|()| self.p.open_store(&self.state_path)),
+            false => self.p.create_store(&self.state_path, TexelState::default()),
+        })?;
+        share::broadcast_store(world, &mut state)?;
         let mut report = m.payload.report;
         report.settings = self.cfg.clone();
         let at = match m.payload.stage {
@@ -457,6 +539,7 @@ impl<'a> Run<'a> {
             start: Start::Resumed(m.seq),
             clock,
             prior_s: m.seconds,
+            root: world.is_root(),
         })
     }
 
@@ -592,7 +675,7 @@ impl<'a> Run<'a> {
         };
         r.stage = stage;
         let saved = r.checkpoint_if_due(&self.state_path, stage, cfg.checkpoint_every_seconds)?;
-        if interrupt::requested() {
+        if interrupt::agreed() {
             return Err(r.interrupted(&self.state_path, stage, saved)?);
         }
         Ok(done)
@@ -614,8 +697,11 @@ impl<'a> Run<'a> {
         let albedo =
             AlbedoTextures::gather(&p.layout, charts, &r.state, &self.geom, padding, &keep)?;
         pass.update_seconds += t.elapsed().as_secs_f64();
-        let ctx = PassContext::new(p, cfg, (sampler, charts, self.hits(), &albedo), n as u64);
+        let mut ctx = PassContext::new(p, cfg, (sampler, charts, self.hits(), &albedo), n as u64);
+        ctx.group_batches = self.group_batches();
         let traced = self.photon_pass(r, &ctx, n, pass)?;
+        // the deposits went to their tiles' ranks: every tile current everywhere
+        share::share_tiles(self.world, &mut r.state)?;
         finish_pass(&self.geom, &mut r.state, window)?;
         if cfg.smoothing_radius > 0 {
             let radius = cfg.smoothing_radius;
@@ -661,12 +747,14 @@ impl<'a> Run<'a> {
             None => {
                 let cache = self.trace_gather(&radiance)?;
                 radiance.check()?;
-                rays = cache.stats.rays;
+                rays = self.world.sum(cache.stats.rays);
                 self.gather.get_or_init(|| cache)
             }
         };
-        let values = cache.evaluate(&radiance);
+        // each rank evaluates the chunks of points it traced; then every rank has every value
+        let mut values = cache.evaluate(&radiance);
         radiance.check()?;
+        share::share_points(self.world, &mut values)?;
         drop(radiance);
         std::fs::remove_file(&path).map_err(|e| crate::Error::io(&path, e))?;
         let (points, layout, charts, geom) =
@@ -700,13 +788,11 @@ impl<'a> Run<'a> {
             seed: self.cfg.seed,
             rays: self.cfg.gather_rays,
         };
-        let stage = Stage::new(
-            self.mode,
-            "gather rays",
-            points.points.len() as u64,
-            "points",
-        );
-        let cache = trace_points(&ctx, points, &|k| stage.inc(k));
+        let world = self.world;
+        let owns = |i: usize| world.owns((i / GATHER_CHUNK) as u64);
+        let mine = (0..points.points.len()).filter(|&i| owns(i)).count();
+        let stage = Stage::new(self.mode, "gather rays", mine as u64, "points");
+        let cache = trace_points_where(&ctx, points, &owns, &|k| stage.inc(k));
         stage.finish();
         Ok(cache)
     }
@@ -714,7 +800,8 @@ impl<'a> Run<'a> {
     /// Steps 3-5 (`solve::kd_step`) with a progress stage `name` over the tiles: `(clamped
     /// texels, filled texels)`.
     fn kd_step(&self, r: &mut Running, name: &str) -> Result<(u64, u64)> {
-        let stage = self.tile_stage(name, 1);
+        // the K_d pass, then the fill's read and write of every tile
+        let stage = self.tile_stage(name, 3);
         let p = &self.p;
         let got = kd_step(
             &p.layout,
@@ -797,7 +884,7 @@ impl<'a> Run<'a> {
         stage.inc(last);
         let mut last_ck = pass.batches_done;
         let t_pass = Instant::now();
-        let state_path = &self.state_path;
+        let (state_path, world) = (&self.state_path, self.world);
         let Running {
             state,
             report,
@@ -805,16 +892,26 @@ impl<'a> Run<'a> {
             writer,
             clock,
             prior_s,
+            root,
             ..
         } = r;
-        let traced = photon_pass(ctx, state, pass.batches_done, |done| {
+        let owns = |b: u64| world.owns(b);
+        let mut route = |traced| share::route_batches(world, traced);
+        let first = pass.batches_done;
+        let traced = photon_pass_shared(ctx, state, first, &owns, &mut route, |done, state| {
             let photons = ctx.photons_in(done);
             stage.inc(photons - last);
             last = photons;
-            let due = writer.since_last() >= cfg.checkpoint_every_seconds;
-            // a signal: stop after this group, with a checkpoint of it
-            let stop = done < batches && interrupt::requested();
-            if done < batches && (done - last_ck >= every && due || stop) {
+            let due = *root
+                && done - last_ck >= every
+                && writer.since_last() >= cfg.checkpoint_every_seconds;
+            // a signal (on any rank): stop after this group, with a checkpoint of it
+            let stop = done < batches && interrupt::agreed();
+            // rank 0's clock decides; every rank first makes its tiles current there
+            if done < batches && (stop || world.any(due)) {
+                share::share_tiles(world, state)?;
+            }
+            if *root && done < batches && (due || stop) {
                 let progress = Progress {
                     stage: RunStage::Pass {
                         iteration: n,
@@ -831,19 +928,37 @@ impl<'a> Run<'a> {
                 writer.write(Some(state_path), &progress, seconds)?;
                 last_ck = done;
             }
-            match stop {
-                true => Err(interrupted(&self.dir, writer.seq())),
-                false => Ok(()),
+            if stop {
+                world.barrier(); // as in `Running::interrupted`
+                return Err(interrupted(&self.dir, writer.seq()));
             }
+            Ok(())
         })?;
         stage.finish();
         Ok(traced)
     }
 
-    /// K_d consistent with the final E_i, the counts, every output, the last checkpoint.
+    /// Batches per group of a photon pass: the default of one process (which decides where a
+    /// pass can checkpoint); in an MPI job the same on every rank, about as many per rank.
+    fn group_batches(&self) -> usize {
+        let world = self.world;
+        match world.size() {
+            1 => 0,
+            n => {
+                let mine = (2 * rayon::current_num_threads()).max(16) as u64;
+                world.max(mine) as usize * n
+            }
+        }
+    }
+
+    /// K_d consistent with the final E_i, the counts, every output, the last checkpoint (rank
+    /// 0; the other ranks are done).
     fn finish(&self, mut r: Running) -> Result<Report> {
-        if interrupt::requested() {
+        if interrupt::agreed() {
             return Err(r.interrupted(&self.state_path, r.stage, false)?);
+        }
+        if !self.world.is_root() {
+            return Ok(r.report);
         }
         let p = &self.p;
         let (_, filled) = self.kd_step(&mut r, "final K_d")?;
@@ -909,6 +1024,19 @@ impl<'a> Run<'a> {
                 r.report.resources.store_bytes as f64 / 1e9
             ),
         );
+        if self.world.size() > 1 {
+            let t = self.world.traffic();
+            note(
+                self.mode,
+                &format!(
+                    "{} ranks; rank 0 exchanged {:.1} MB with the others, {:.2} s inside \
+                     collective operations (waiting for them included)",
+                    self.world.size(),
+                    t.bytes as f64 / 1e6,
+                    t.seconds
+                ),
+            );
+        }
         Ok(r.report)
     }
 }

@@ -137,13 +137,26 @@ pub struct Resources {
     pub store_bytes: u64,
     /// Bytes written to checkpoints.
     pub checkpoint_bytes: u64,
+    /// Processes of the run: 1, or the ranks of an MPI job (`comm`).
+    #[serde(default)]
+    pub ranks: usize,
+    /// `(stage, bytes, seconds)`, in the order the stages ended: what this process (rank 0)
+    /// had sent to and received from the other ranks so far, and the seconds it had spent
+    /// inside collective operations (waiting for slower ranks included). Zeros in one process.
+    #[serde(default)]
+    pub communication: Vec<(String, u64, f64)>,
 }
 
 impl Resources {
-    /// Records the peak RSS so far after `stage`.
+    /// Records the peak RSS and the communication so far after `stage`.
     pub fn after(&mut self, stage: &str) {
         self.peak_rss_mib
             .push((stage.to_string(), crate::mem::peak_mib()));
+        let world = crate::comm::world();
+        let t = world.traffic();
+        self.ranks = world.size();
+        self.communication
+            .push((stage.to_string(), t.bytes, t.seconds));
     }
 }
 

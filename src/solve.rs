@@ -223,7 +223,7 @@ pub fn kd_step(
     })?
     .iter()
     .sum();
-    let filled = fill_unobserved_all(layout, charts, geom, state, scratch)?;
+    let filled = fill_unobserved_all(layout, charts, geom, state, scratch, tick)?;
     if pinned.iter().any(Option::is_some) {
         map_tiles(state, geom, window, |t, g, s| {
             if let Some(k) = pinned[layout.slot_of_tile(t as u32)] {

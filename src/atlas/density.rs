@@ -105,8 +105,29 @@ pub struct Needs {
 /// (0.69M stored for 0.64M covered at 64/unit) and the boxes (233k for 105k: small charts).
 const STORE_OVERHEAD: f64 = 1.5;
 
-/// [`Needs`] of a run over `plan` with `pixels` photo pixels and a tile budget in bytes.
-pub fn needs(scene: &Scene, plan: &DensityPlan, pixels: u64, budget_bytes: u64) -> Needs {
+/// Gather points per (surface area / spacing^2): one per chart per cell, and a cell holds
+/// more than one chart along seams and on small parts (the room: 1.1M triangles, 157 m^2 at
+/// spacing 0.13 gave about 2.3 points per cell).
+const GATHER_POINTS_PER_CELL: f64 = 2.5;
+
+/// Bytes the gather's ray cache can take at most (`crate::gather::GatherCache`): per point its
+/// fixed part and offsets, and a 32-byte record per ray that could hit an unobserved texel
+/// (all of them, at worst). It follows the scene's area over the spacing squared, not the
+/// texel count: a finer atlas does not grow it.
+pub fn gather_bytes(area: f64, spacing: f32, rays: u32) -> u64 {
+    let s = f64::from(spacing.max(1e-6));
+    let points = (area / (s * s) * GATHER_POINTS_PER_CELL).ceil() as u64;
+    points * (12 + 8 + u64::from(rays) * 32)
+}
+
+/// [`Needs`] of a run over `plan` with `pixels` photo pixels, a tile budget in bytes and a
+/// gather cache of at most `gather` bytes ([`gather_bytes`]; 0 for photon tracing).
+pub fn needs(
+    scene: &Scene,
+    plan: &DensityPlan,
+    pixels: u64,
+    (budget_bytes, gather): (u64, u64),
+) -> Needs {
     use crate::atlas::layout::{TexelGeom, TexelState};
     let (geom, state) = (
         std::mem::size_of::<TexelGeom>() as u64,
@@ -125,8 +146,6 @@ pub fn needs(scene: &Scene, plan: &DensityPlan, pixels: u64, budget_bytes: u64) 
     let scene_bytes = tris * (12 + 64 + 48) + verts * 32;
     // photos (RGBA f32) and the projection's cached ray per pixel
     let photo_bytes = pixels * (16 + 48);
-    // gather hit table and radiance per texel
-    let gather = store_texels * 32;
     Needs {
         store_texels,
         disk_bytes: stores + 2 * store_texels * state + outputs,
@@ -385,13 +404,29 @@ mod tests {
         let sc = scene(2.0, 64, false);
         let plan = DensityPlan::fixed(&sc, 100.0); // 4 units^2 -> 40,000 surface texels
         assert_eq!(plan.estimated_texels, 40_000);
-        let big = needs(&sc, &plan, 4096, u64::MAX);
+        let big = needs(&sc, &plan, 4096, (u64::MAX, 0));
         assert_eq!(big.store_texels, 60_000);
         // geometry (52 B) and state (72 B) stores, two state snapshots, outputs
         let stores = 60_000 * (52 + 72);
         assert_eq!(big.disk_bytes, stores + 2 * 60_000 * 72 + 40_000 * 140);
-        let small = needs(&sc, &plan, 4096, 1000);
+        let small = needs(&sc, &plan, 4096, (1000, 0));
         assert_eq!(big.memory_bytes - small.memory_bytes, stores - 1000);
+        // the gather's cache adds its bytes to memory and nothing to disk
+        let gathered = needs(&sc, &plan, 4096, (1000, 5000));
+        assert_eq!(gathered.memory_bytes - small.memory_bytes, 5000);
+        assert_eq!(gathered.disk_bytes, small.disk_bytes);
+        // the memory a run needs does not follow the atlas beyond the budget
+        let finer = needs(&sc, &DensityPlan::fixed(&sc, 400.0), 4096, (1000, 5000));
+        assert_eq!(finer.memory_bytes, gathered.memory_bytes);
+        assert!(finer.disk_bytes > 15 * gathered.disk_bytes);
+    }
+
+    #[test]
+    fn gather_bytes_follow_area_over_spacing_squared_not_texels() {
+        let a = gather_bytes(100.0, 0.5, 256);
+        assert_eq!(a, 1000 * (20 + 256 * 32)); // 400 cells x 2.5 points
+        assert_eq!(gather_bytes(100.0, 0.25, 256), 4 * a);
+        assert_eq!(gather_bytes(400.0, 0.5, 256), 4 * a);
     }
 
     #[test]

@@ -14,6 +14,7 @@ use super::texels::dilate;
 use super::tile_cache::{Reader, TileCache};
 use super::tiles::TileStore;
 use crate::error::{Error, Result};
+use crate::progress::Tick;
 use bytemuck::Pod;
 use rayon::prelude::*;
 use std::ops::{Add, Mul};
@@ -229,10 +230,23 @@ impl<V: Pod + Send + Sync> SlotTexture<V> {
         name: &str,
         f: impl Fn(&S, &TexelGeom) -> V + Sync,
     ) -> Result<Self> {
+        let sources = (layout, slot, store, geom);
+        Self::gather_ticking(sources, scratch, name, f, &crate::progress::no_tick)
+    }
+
+    /// [`SlotTexture::gather`] that gives `tick` each tile read (for a stage's progress).
+    pub fn gather_ticking<S: Pod + Send + Sync>(
+        (layout, slot, store, geom): (&Layout, usize, &TileStore<S>, &TileStore<TexelGeom>),
+        scratch: &Scratch,
+        name: &str,
+        f: impl Fn(&S, &TexelGeom) -> V + Sync,
+        tick: Tick,
+    ) -> Result<Self> {
         let grid = Grid::of(layout, slot);
         Self::build(grid, scratch, name, |t| {
             let g = (grid.first_tile + t) as usize;
             let (recs, geo) = (store.read_tile(g)?, geom.read_tile(g)?);
+            tick(1);
             Ok(recs.iter().zip(&geo).map(|(s, g)| f(s, g)).collect())
         })
     }
@@ -338,8 +352,19 @@ impl<V: Pod + Send + Sync> SlotTexture<V> {
         store: &mut TileStore<S>,
         f: impl Fn(&mut S, &V) -> bool,
     ) -> Result<u64> {
+        self.scatter_ticking(store, f, &crate::progress::no_tick)
+    }
+
+    /// [`SlotTexture::scatter`] that gives `tick` each tile written (for a stage's progress).
+    pub fn scatter_ticking<S: Pod + Send + Sync>(
+        &self,
+        store: &mut TileStore<S>,
+        f: impl Fn(&mut S, &V) -> bool,
+        tick: Tick,
+    ) -> Result<u64> {
         let mut changed = 0u64;
         for t in 0..self.grid.tiles() {
+            tick(1);
             let g = (self.grid.first_tile + t) as usize;
             let (mut recs, vals) = (store.read_tile(g)?, self.tile(t)?);
             let mut n = 0u64;

@@ -336,8 +336,9 @@ impl<'a> PassContext<'a> {
 }
 
 /// One photon hit's contribution: flux (scene power units, already divided by `N`) into
-/// texel `offset` of tile `tile`.
-#[derive(Debug, Clone, Copy, PartialEq)]
+/// texel `offset` of tile `tile`. Plain bytes, so batches travel between processes as they are.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct Deposit {
     pub tile: u32,
     pub offset: u32,
@@ -351,7 +352,7 @@ pub struct PassStats {
     pub photons: u64,
     /// Closest-hit rays cast.
     pub rays: u64,
-    /// Hits deposited into covered texels.
+    /// Hits deposited into covered texels (by this process, when several share the pass).
     pub deposits: u64,
     /// Hits after a bounce that landed in an uncovered texel (or another chart's) and were
     /// dropped, as the bin areas require.
@@ -380,6 +381,28 @@ pub fn photon_pass(
     first_batch: u64,
     mut on_group: impl FnMut(u64) -> Result<()>,
 ) -> Result<PassStats> {
+    let mut own = |traced: Vec<(u64, Traced)>| Ok(traced.into_iter().map(|t| t.1).collect());
+    let on_group = |done, _: &mut TileStore<TexelState>| on_group(done);
+    photon_pass_shared(ctx, state, first_batch, &|_| true, &mut own, on_group)
+}
+
+/// One batch's deposits (in photon order) and counters.
+pub type Traced = (Vec<Deposit>, PathCounts);
+
+/// [`photon_pass`] shared by several processes: this one traces the batches of each group
+/// that `owns` accepts, and `share` turns them (with their batch numbers, in order) into the
+/// group's batches in batch order that this process adds: every batch, or each with only the
+/// deposits in the tiles this process keeps current (the caller then makes the other tiles
+/// current before it reads or saves them: `on_group` gets the store). The groups must be the
+/// same on every process (set `ctx.group_batches`).
+pub fn photon_pass_shared(
+    ctx: &PassContext,
+    state: &mut TileStore<TexelState>,
+    first_batch: u64,
+    owns: &(dyn Fn(u64) -> bool + Sync),
+    share: &mut dyn FnMut(Vec<(u64, Traced)>) -> Result<Vec<Traced>>,
+    mut on_group: impl FnMut(u64, &mut TileStore<TexelState>) -> Result<()>,
+) -> Result<PassStats> {
     ctx.check(state, first_batch)?;
     let t0 = Instant::now();
     let batches = ctx.batch_count();
@@ -391,10 +414,12 @@ pub fn photon_pass(
     let mut b = first_batch;
     while b < batches {
         let end = (b + group).min(batches);
-        let outs: Vec<(Vec<Deposit>, PathCounts)> = (0..(end - b) as usize)
+        let mine: Vec<u64> = (b..end).filter(|&i| owns(i)).collect();
+        let traced = mine
             .into_par_iter()
-            .map(|k| trace_batch(ctx, b + k as u64))
+            .map(|i| (i, trace_batch(ctx, i)))
             .collect();
+        let outs = share(traced)?;
         for (d, c) in &outs {
             stats.rays += c.rays;
             stats.deposits += d.len() as u64;
@@ -403,7 +428,7 @@ pub fn photon_pass(
         stats.photons += (b..end).map(|i| ctx.batch_len(i)).sum::<u64>();
         stats.batches += end - b;
         add_deposits(&outs, state, ctx.window)?;
-        on_group(end)?;
+        on_group(end, state)?;
         b = end;
     }
     stats.seconds = t0.elapsed().as_secs_f64();

@@ -73,6 +73,43 @@ pub struct ProjectionStats {
     pub seconds: f64,
 }
 
+/// How the stage is shared with the other processes of a run (decided by `pipeline`): this
+/// process computes the work units `owns` accepts (tiles, and bands of [`ROW_BAND`] rows of a
+/// re-rendered view), `sync` makes every tile of the state current after a step that changed
+/// it, `sync_pixels` makes an image computed in units of `n` consecutive pixels whole; so every
+/// process goes on from the same state. [`Shard::whole`]: one process.
+pub struct Shard<'a> {
+    pub owns: &'a (dyn Fn(usize) -> bool + Sync),
+    pub sync: &'a dyn Fn(&mut TileStore<TexelState>) -> Result<()>,
+    pub sync_pixels: &'a SyncPixels<'a>,
+}
+
+/// See [`Shard::sync_pixels`].
+pub type SyncPixels<'a> = dyn Fn(&mut [Option<Vec3>], usize) -> Result<()> + 'a;
+
+/// Rows of a re-rendered view per work unit (see [`Shard`]).
+pub const ROW_BAND: u32 = 8;
+
+impl Shard<'static> {
+    /// Everything here, nothing elsewhere.
+    pub fn whole() -> Self {
+        fn every(_: usize) -> bool {
+            true
+        }
+        fn tiles(_: &mut TileStore<TexelState>) -> Result<()> {
+            Ok(())
+        }
+        fn pixels(_: &mut [Option<Vec3>], _: usize) -> Result<()> {
+            Ok(())
+        }
+        Shard {
+            owns: &every,
+            sync: &tiles,
+            sync_pixels: &pixels,
+        }
+    }
+}
+
 /// The stage: project every photo onto the atlas into `state` (L_orig, weight, OBSERVED),
 /// then refine (`cfg.refine_passes`). Each view's rays are cast once; the photos and their
 /// classification stay in memory through the refinement passes, which cast no rays where a
@@ -85,6 +122,22 @@ pub fn run(
     state: &mut TileStore<TexelState>,
     mode: Mode,
     scratch: &Scratch,
+) -> Result<ProjectionStats> {
+    run_shard(p, cfg, hits, geom, state, mode, scratch, &Shard::whole())
+}
+
+/// [`run`] shared by several processes: only the tiles `shard` owns are projected and refined
+/// here, and the store is synced after the weighted mean and after each refinement pass.
+#[allow(clippy::too_many_arguments)]
+pub fn run_shard(
+    p: &Prepared,
+    cfg: &Config,
+    hits: &HitTable,
+    geom: &TileStore<TexelGeom>,
+    state: &mut TileStore<TexelState>,
+    mode: Mode,
+    scratch: &Scratch,
+    shard: &Shard,
 ) -> Result<ProjectionStats> {
     let mut stats = ProjectionStats {
         views: p.views.len(),
@@ -105,7 +158,7 @@ pub fn run(
             photo,
         );
         map_tiles(state, geom, window, |t, g, st| {
-            if !bounds[t].is_some_and(|(lo, hi)| view.camera.may_see(lo, hi)) {
+            if !(shard.owns)(t) || !bounds[t].is_some_and(|(lo, hi)| view.camera.may_see(lo, hi)) {
                 return;
             }
             let slot = p.layout.slot_of_tile(t as u32);
@@ -116,6 +169,7 @@ pub fn run(
         interrupt::check(interrupt::NOTHING_SAVED)?;
     }
     state.for_each_tile_mut(window, |_, st| finish_tile(st))?;
+    (shard.sync)(state)?;
     let ctx = refine::Refine {
         p,
         hits,
@@ -124,6 +178,7 @@ pub fn run(
         bounds: &bounds,
         window,
         scratch,
+        shard,
     };
     ctx.run(state, cfg.refine_passes, mode)?;
     stage.finish();

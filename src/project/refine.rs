@@ -3,7 +3,7 @@
 //! and weights, add their weighted mean (see the module notes of [`super`]).
 
 use super::view::{PixelInfo, View};
-use super::{apply_refinement, backproject_tile, RESIDUAL_SHRINK};
+use super::{apply_refinement, backproject_tile, Shard, RESIDUAL_SHRINK, ROW_BAND};
 use crate::atlas::hits::HitTable;
 use crate::atlas::layout::{TexelGeom, TexelState};
 use crate::atlas::slot_texture::{Scratch, SlotTexture};
@@ -102,6 +102,8 @@ pub struct Refine<'a> {
     pub window: usize,
     /// Where the maps and the residual store live, and their memory.
     pub scratch: &'a Scratch,
+    /// The tiles refined here, and how the others' reach this process after each pass.
+    pub shard: &'a Shard<'a>,
 }
 
 /// The residuals of a pass, per texel, summed over the views: a scratch tile store (mapped a
@@ -146,6 +148,7 @@ impl Refine<'_> {
                     apply_refinement(st, d);
                 }
             })?;
+            (self.shard.sync)(state)?;
         }
         std::fs::remove_file(&path).map_err(|e| Error::io(&path, e))?;
         stage.finish();
@@ -178,15 +181,18 @@ impl Refine<'_> {
         // A blurring film needs the neighbours of clean pixels within its reach too.
         let filter = view.camera.filter();
         let needed = view.near_clean(filter.reach());
+        let owns = self.shard.owns;
         let plan = |x: u32, y: u32| {
             let i = (y * w + x) as usize;
-            if !needed[i] {
+            if !needed[i] || !owns((y / ROW_BAND) as usize) {
                 return Plan::Skip;
             }
             view.flat(self.hits, x, y).map_or(Plan::Trace, Plan::Flat)
         };
         let k = REFINE_SUPERSAMPLE;
-        let render = render_view_with(&p.accel, &view.camera, textures, k, Film::HitsOnly, &plan);
+        let mut render =
+            render_view_with(&p.accel, &view.camera, textures, k, Film::HitsOnly, &plan);
+        (self.shard.sync_pixels)(&mut render, (ROW_BAND * w) as usize)?;
         // The photo is the scene seen through the film's filter: so is what it is compared with.
         let render = apply_pixel_filter(&render, w, photo.height, filter);
         let mut residual: Vec<Vec3> = photo
@@ -211,7 +217,9 @@ impl Refine<'_> {
         let err: Mutex<Option<Error>> = Mutex::new(None);
         let touched = &delta.touched;
         delta.store.for_each_tile_mut(self.window, |t, d| {
-            if !self.bounds[t].is_some_and(|(lo, hi)| view.camera.may_see(lo, hi)) {
+            if !(self.shard.owns)(t)
+                || !self.bounds[t].is_some_and(|(lo, hi)| view.camera.may_see(lo, hi))
+            {
                 return;
             }
             let g = match self.geom.read_tile(t) {

@@ -17,6 +17,7 @@ use crate::atlas::slot_texture::{Block, Grid, Scratch, SlotTexture};
 use crate::atlas::texels::NONE;
 use crate::atlas::tiles::TileStore;
 use crate::error::Result;
+use crate::progress::Tick;
 use glam::Vec3;
 use rayon::prelude::*;
 use std::collections::BTreeMap;
@@ -139,37 +140,42 @@ const FAR: u32 = u32::MAX;
 /// [`fill_unobserved`] over every texture of the layout, one texture at a time: unobserved
 /// covered texels get `K_d` from observed neighbours of their chart (else the shape's mean)
 /// and the `FILLED` flag, a texture whole if it fits in `scratch`'s budget, else tile by tile
-/// (the same values). Returns how many texels were filled.
+/// (the same values). Returns how many texels were filled. `tick` gets every tile read and
+/// every tile written back (two per tile in all; the waves between are not counted).
 pub fn fill_unobserved_all(
     layout: &Layout,
     charts: &Charts,
     geom: &TileStore<TexelGeom>,
     state: &mut TileStore<TexelState>,
     scratch: &Scratch,
+    tick: Tick,
 ) -> Result<u64> {
     let mut filled_total = 0u64;
     for slot in 0..layout.slots.len() {
         let c = &charts.slots[slot];
-        let tex = SlotTexture::gather(layout, slot, state, geom, scratch, "fill", |s, g| {
+        let sources = (layout, slot, &*state, geom);
+        let read = |s: &TexelState, g: &TexelGeom| {
             let observed = g.covered() && s.flags & flags::OBSERVED != 0;
             FillTexel {
                 kd: Vec3::from_array(s.k_d),
                 chart: c.texel(g),
                 round: if observed { 0 } else { FAR },
             }
-        })?;
+        };
+        let tex = SlotTexture::gather_ticking(sources, scratch, "fill", read, tick)?;
         let out = match tex.is_whole() {
             true => fill_whole(&tex, scratch)?,
             false => fill_tiled(tex, scratch)?,
         };
-        filled_total += out.scatter(state, |r, v| match v.round {
+        let write = |r: &mut TexelState, v: &FillTexel| match v.round {
             FILLED_MARK => {
                 r.k_d = v.kd.to_array();
                 r.flags |= flags::FILLED;
                 true
             }
             _ => false,
-        })?;
+        };
+        filled_total += out.scatter_ticking(state, write, tick)?;
     }
     Ok(filled_total)
 }
@@ -555,6 +561,85 @@ mod tests {
                 a.iter().filter(|t| t.round == FILLED_MARK).count() > n / 4,
                 "case {case}"
             );
+        }
+    }
+
+    /// The fill over a prepared atlas ticks every tile twice (read and written back), in a
+    /// texture held whole and in one filled tile by tile, and fills every covered texel no
+    /// photo saw; a progress stage of `2 x tiles` therefore ends at its total.
+    #[test]
+    fn the_fill_of_an_atlas_ticks_each_tile_read_and_written() {
+        use crate::atlas::tiles::map_tiles;
+        use crate::atlas::unwrap::AtlasSettings;
+        use crate::atlas::{build_geometry, Prepared};
+        use crate::progress::Mode;
+        use crate::scene::{mesh, Scene, Shape, Sides};
+        use std::sync::atomic::{AtomicU64, Ordering};
+        let shape = Shape {
+            id: "cube".into(),
+            kind: "test".into(),
+            file: None,
+            mesh: mesh::cube(),
+            sides: Sides::Front,
+            emission: None,
+            reflectance: None,
+            material: Default::default(),
+        };
+        let scene = Scene {
+            path: "test.xml".into(),
+            shapes: vec![shape],
+            emitters: vec![],
+            sensors: vec![],
+            files: vec![],
+        };
+        let settings = AtlasSettings {
+            texels_per_unit: 24.0,
+            ..Default::default()
+        };
+        let p = Prepared::new(scene, vec![], &settings, 16).unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let geom = build_geometry(&p, &dir.path().join("g"), Mode::Quiet).unwrap();
+        let charts = Charts::new(&p.scene, &p.layout, &p.atlases).unwrap();
+        let tiles = p.layout.tile_count as u64;
+        assert!(tiles > 4, "{tiles} tiles");
+        for budget in [1u64 << 30, 1] {
+            let mut state = p
+                .create_store(dir.path().join(format!("s{budget}")), TexelState::default())
+                .unwrap();
+            // every 7th covered texel observed with K_d 0.5
+            let observed: u64 = map_tiles(&mut state, &geom, 4, |_, g, s| {
+                let mut n = 0;
+                for (i, (g, s)) in g.iter().zip(s.iter_mut()).enumerate() {
+                    if g.covered() && i % 7 == 0 {
+                        s.flags |= flags::OBSERVED;
+                        s.k_d = [0.5; 3];
+                        n += 1;
+                    }
+                }
+                n
+            })
+            .unwrap()
+            .iter()
+            .sum();
+            let covered: u64 = (0..tiles as usize)
+                .map(|t| {
+                    geom.read_tile(t)
+                        .unwrap()
+                        .iter()
+                        .filter(|g| g.covered())
+                        .count() as u64
+                })
+                .sum();
+            let ticks = AtomicU64::new(0);
+            let scratch = Scratch::new(dir.path(), budget);
+            let tick = |k: u64| {
+                ticks.fetch_add(k, Ordering::Relaxed);
+            };
+            let filled =
+                fill_unobserved_all(&p.layout, &charts, &geom, &mut state, &scratch, &tick)
+                    .unwrap();
+            assert_eq!(ticks.load(Ordering::Relaxed), 2 * tiles, "budget {budget}");
+            assert_eq!(filled, covered - observed, "budget {budget}");
         }
     }
 }

@@ -7,7 +7,15 @@ use std::path::{Path, PathBuf};
 
 /// The layers of `src/lib.rs`, bottom up, each in its allowed order.
 const LAYERS: &[&[&str]] = &[
-    &["error", "rng", "progress", "fsio", "interrupt", "mem"],
+    &[
+        "error",
+        "rng",
+        "progress",
+        "fsio",
+        "comm",
+        "interrupt",
+        "mem",
+    ],
     &[
         "config", "report", "scene", "scatter", "image", "camera", "accel", "light", "render",
         "atlas",

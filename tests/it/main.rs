@@ -12,6 +12,8 @@ mod gltf;
 mod import;
 mod known;
 mod layers;
+#[cfg(feature = "mpi")]
+mod mpi;
 mod output;
 mod projection;
 mod resume;
