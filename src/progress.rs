@@ -4,7 +4,7 @@
 //! through here too, so `--quiet` and `--progress json` hold for everything but errors.
 //! Writes to stderr never panic: a closed stderr just loses the line.
 
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle, TermLike};
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressState, ProgressStyle, TermLike};
 use std::io::{IsTerminal, Write};
 use std::sync::{Mutex, OnceLock};
 use std::time::{Duration, Instant};
@@ -118,12 +118,37 @@ impl TermLike for AnsiStderr {
     }
 }
 
+/// A rate for the bar: three significant digits with k/M/G (`3.16M/s`, `412/s`, `0.52/s`),
+/// where indicatif's own `per_sec` prints four decimals of a seven-digit number.
+fn rate_text(r: f64) -> String {
+    if !r.is_finite() || r <= 0.0 {
+        return "-/s".into();
+    }
+    let (v, unit) = match r {
+        r if r >= 1e9 => (r / 1e9, "G"),
+        r if r >= 1e6 => (r / 1e6, "M"),
+        r if r >= 1e3 => (r / 1e3, "k"),
+        r => (r, ""),
+    };
+    let digits = match v {
+        v if v >= 100.0 => 0,
+        v if v >= 10.0 => 1,
+        _ => 2,
+    };
+    format!("{v:.digits$}{unit}/s")
+}
+
 fn bar(name: &str, total: u64, target: ProgressDrawTarget) -> ProgressBar {
     let b = ProgressBar::with_draw_target(Some(total), target);
     b.set_style(
         ProgressStyle::with_template(
-            "{prefix:>12} [{bar:30}] {human_pos}/{human_len} {per_sec} eta {eta}",
+            "{prefix:>12} [{bar:30}] {human_pos}/{human_len} {rate} eta {eta}",
         )
+        .map(|s| {
+            s.with_key("rate", |st: &ProgressState, w: &mut dyn std::fmt::Write| {
+                let _ = w.write_str(&rate_text(st.per_sec()));
+            })
+        })
         .unwrap_or_else(|_| ProgressStyle::default_bar())
         .progress_chars("=> "),
     );
@@ -325,6 +350,17 @@ pub fn report(mode: Mode, text: &str, json: serde_json::Value) {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn rates_print_three_significant_digits_with_a_prefix() {
+        assert_eq!(rate_text(3_162_962.659_2), "3.16M/s");
+        assert_eq!(rate_text(41_234.0), "41.2k/s");
+        assert_eq!(rate_text(412.4), "412/s");
+        assert_eq!(rate_text(0.524), "0.52/s");
+        assert_eq!(rate_text(2.5e9), "2.50G/s");
+        assert_eq!(rate_text(0.0), "-/s");
+        assert_eq!(rate_text(f64::NAN), "-/s");
+    }
+
     use super::*;
 
     #[test]
