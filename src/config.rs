@@ -965,4 +965,15 @@ mod example_config {
         assert!(c.scene.ends_with("tests/fixtures/cbox/input.xml"));
         assert!(c.scene.is_file(), "{}", c.scene.display());
     }
+
+    /// The 100M-texel run's config (its scene is generated into the cache on demand) parses,
+    /// validates and asks for the density the README's figures were measured at.
+    #[test]
+    fn room_100m_config_is_valid() {
+        let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/room-100m.toml");
+        let c = Config::load(&p, &Overrides::default()).unwrap();
+        assert!(c.scene.ends_with("cache/scenes/room-pointspot/input.xml"));
+        assert_eq!(c.atlas.texels_per_unit.per_unit(), Some(820.0));
+        assert_eq!(c.memory_budget_mib, 1024);
+    }
 }

@@ -150,6 +150,9 @@ pub fn fill_unobserved_all(
     scratch: &Scratch,
     tick: Tick,
 ) -> Result<u64> {
+    // A texture filled whole is copied about five times over (its records, K_d, masks,
+    // charts, the result); the budget is for all of them, the tiled path keeps three caches.
+    let scratch = &scratch.share(1, FILL_COPIES);
     let mut filled_total = 0u64;
     for slot in 0..layout.slots.len() {
         let c = &charts.slots[slot];
@@ -179,6 +182,11 @@ pub fn fill_unobserved_all(
     }
     Ok(filled_total)
 }
+
+/// Share of the scratch budget a texture may take as one copy in [`fill_unobserved_all`]:
+/// [`fill_whole`] holds about 102 bytes per texel at its peak, five copies of a 20-byte
+/// [`FillTexel`] (a 12M-texel wall held whole once took 1.4 GB beside a 256 MB budget).
+const FILL_COPIES: u64 = 6;
 
 /// Marks a filled texel in the fill's result.
 const FILLED_MARK: u32 = FAR - 1;
