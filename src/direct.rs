@@ -64,19 +64,6 @@ pub struct DirectStats {
     pub dense_per_emitter: Vec<u64>,
 }
 
-/// `E_d` of every covered texel into `state`.
-pub fn run(
-    p: &Prepared,
-    cfg: &Config,
-    charts: &Charts,
-    geom: &TileStore<TexelGeom>,
-    state: &mut TileStore<TexelState>,
-    mode: Mode,
-) -> Result<DirectStats> {
-    let sums = run_tiles(p, cfg, charts, geom, state, mode, &|_| true)?;
-    Ok(DirectStats::from_tiles(&sums))
-}
-
 /// `E_d` of the covered texels of the tiles `owns` accepts (the share of one process when
 /// several run the stage), and per tile its sums (zero for the others), in tile order.
 pub fn run_tiles(

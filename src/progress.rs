@@ -350,6 +350,8 @@ pub fn report(mode: Mode, text: &str, json: serde_json::Value) {
 
 #[cfg(test)]
 mod tests {
+    use super::*;
+
     #[test]
     fn rates_print_three_significant_digits_with_a_prefix() {
         assert_eq!(rate_text(3_162_962.659_2), "3.16M/s");
@@ -360,8 +362,6 @@ mod tests {
         assert_eq!(rate_text(0.0), "-/s");
         assert_eq!(rate_text(f64::NAN), "-/s");
     }
-
-    use super::*;
 
     #[test]
     fn json_events_carry_the_documented_keys() {

@@ -5,8 +5,7 @@
 //! exits 130; both resume under another number of ranks (3, then 1) bit-identically; an input
 //! error is one line, once.
 
-use super::cli::files;
-use super::resume::manifest;
+use super::resume::{assert_same_files, manifest};
 use kdmap::pipeline::RunStage;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
@@ -83,21 +82,7 @@ fn run(ranks: usize, a: &[&str]) -> Output {
 /// Textures, maps and renders byte for byte, and report.json but for what measures the run
 /// (timings, resources, seconds and rates per iteration).
 fn assert_same_results(a: &Path, b: &Path) {
-    for sub in ["textures", "maps", "renders"] {
-        let (fa, fb) = (files(a, sub), files(b, sub));
-        assert!(!fa.is_empty());
-        let names = |f: &[(String, Vec<u8>)]| f.iter().map(|x| x.0.clone()).collect::<Vec<_>>();
-        assert_eq!(names(&fa), names(&fb));
-        for (x, y) in fa.iter().zip(&fb) {
-            assert!(
-                x.1 == y.1,
-                "{sub}/{} differs: {} vs {}",
-                x.0,
-                a.display(),
-                b.display()
-            );
-        }
-    }
+    assert_same_files(a, b, &["textures", "maps", "renders"]);
     let figures = |d: &Path| {
         let text = std::fs::read_to_string(d.join("report.json")).unwrap();
         let mut r: serde_json::Value = serde_json::from_str(&text).unwrap();

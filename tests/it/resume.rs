@@ -106,7 +106,13 @@ fn kill_when(a: &[&str], out: &Path, when: impl Fn(&Path) -> bool) -> bool {
 use super::cli::files;
 
 pub(super) fn assert_same_outputs(a: &Path, b: &Path) {
-    for sub in ["textures", "maps"] {
+    assert_same_files(a, b, &["textures", "maps"]);
+}
+
+/// The files of each of `subs` in run directories `a` and `b`: the same names, byte for byte
+/// (and at least one).
+pub(super) fn assert_same_files(a: &Path, b: &Path, subs: &[&str]) {
+    for sub in subs {
         let (fa, fb) = (files(a, sub), files(b, sub));
         assert!(!fa.is_empty());
         assert_eq!(
@@ -114,7 +120,13 @@ pub(super) fn assert_same_outputs(a: &Path, b: &Path) {
             fb.iter().map(|f| &f.0).collect::<Vec<_>>()
         );
         for (x, y) in fa.iter().zip(&fb) {
-            assert!(x.1 == y.1, "{sub}/{} differs after resume", x.0);
+            assert!(
+                x.1 == y.1,
+                "{sub}/{} differs: {} vs {}",
+                x.0,
+                a.display(),
+                b.display()
+            );
         }
     }
 }
