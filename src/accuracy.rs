@@ -2,7 +2,8 @@
 //! nightly harness): the true reflectance of each shape (`scene::truth`) baked into the run's
 //! atlas, averaged over each texel's square, compared with the recovered `K_d` over the texels
 //! a camera saw. Reads the run's settings from `report.json` and its final state from the
-//! checkpoint directory, and writes `<out>/accuracy/`: `accuracy.json`, and per shape
+//! checkpoint directory, and writes `<out>/accuracy/`: `accuracy.json` (with the calibration
+//! of the run's predicted standard errors, see `confidence`), and per shape
 //! `<id>_truth.exr|png` (the true albedo in the run's atlas; the PNG in sRGB at exposure 0,
 //! comparable with `textures/<id>_albedo.png`) and `<id>_diff.png` (`|K_d - K_true|` per
 //! channel, x4).
@@ -12,13 +13,14 @@ use crate::atlas::texture::gather;
 use crate::atlas::tiles::TileStore;
 use crate::atlas::unwrap::ShapeAtlas;
 use crate::atlas::{prepare_layout, state_dir, Prepared};
+use crate::confidence::{kd_rel_stderr, Calibration, CalibrationSums};
 use crate::error::{Error, Result};
 use crate::fsio;
 use crate::image::{write_exr_rgb, write_png_srgb};
 use crate::progress::Mode;
 use crate::report::Report;
 use crate::scene::truth::{Reflectance, Truth};
-use crate::scene::{Mesh, Rgb};
+use crate::scene::{luminance, Mesh, Rgb};
 use glam::{Vec2, Vec3};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -144,11 +146,16 @@ pub fn score_slot(
     let Some(truth) = bake_slot(truth, p, geom, slot)? else {
         return Ok(None);
     };
-    let (k_d, observed): (Vec<Vec3>, Vec<bool>) = gather(&p.layout, slot, state, geom, |s, _| {
-        (Vec3::from_array(s.k_d), s.flags & flags::OBSERVED != 0)
-    })?
-    .into_iter()
-    .unzip();
+    let per_texel = gather(&p.layout, slot, state, geom, |s, _| {
+        (
+            Vec3::from_array(s.k_d),
+            s.flags & flags::OBSERVED != 0,
+            kd_rel_stderr(s),
+        )
+    })?;
+    let k_d: Vec<Vec3> = per_texel.iter().map(|t| t.0).collect();
+    let observed: Vec<bool> = per_texel.iter().map(|t| t.1).collect();
+    let stderr: Vec<Option<f32>> = per_texel.iter().map(|t| t.2).collect();
     let mut acc = ShapeAccuracy {
         shape: p.slot_id(slot).to_string(),
         ..Default::default()
@@ -181,6 +188,7 @@ pub fn score_slot(
         accuracy: acc,
         truth,
         k_d,
+        stderr,
     }))
 }
 
@@ -192,6 +200,24 @@ pub struct SlotScore {
     pub truth: Vec<Option<Rgb>>,
     /// The recovered `K_d` per texel (observed or filled).
     pub k_d: Vec<Vec3>,
+    /// The predicted relative standard error of its luminance (observed texels).
+    pub stderr: Vec<Option<f32>>,
+}
+
+impl SlotScore {
+    /// Add every texel with a prediction and a truth to `sums`: predicted relative standard
+    /// error of `K_d`'s luminance against its actual relative error.
+    pub fn calibrate(&self, sums: &mut CalibrationSums) {
+        for ((kd, t), pred) in self.k_d.iter().zip(&self.truth).zip(&self.stderr) {
+            let (Some(t), Some(pred)) = (t, pred) else {
+                continue;
+            };
+            let yt = luminance(*t) as f64;
+            if yt > 0.0 {
+                sums.add(*pred as f64, (luminance(*kd) as f64 - yt) / yt);
+            }
+        }
+    }
 }
 /// Gain of the difference preview.
 const DIFF_GAIN: f32 = 4.0;
@@ -204,6 +230,10 @@ pub struct AccuracyReport {
     /// Relative L1 error over all shapes' texels and channels.
     pub rel_l1_error: f64,
     pub shapes: Vec<ShapeAccuracy>,
+    /// The run's predicted standard errors of `K_d` against its actual errors (see
+    /// `confidence`).
+    #[serde(default)]
+    pub calibration: Calibration,
 }
 
 impl AccuracyReport {
@@ -224,6 +254,7 @@ impl AccuracyReport {
             mean_rel_error: mean,
             rel_l1_error: num / f64::max(den, f64::MIN_POSITIVE),
             shapes,
+            calibration: Calibration::default(),
         }
     }
 }
@@ -262,7 +293,9 @@ pub fn score_run(out: &Path, truth_xml: &Path) -> Result<AccuracyReport> {
     let adir = out.join("accuracy");
     fsio::create_dir(&adir)?;
     let mut acc = Vec::new();
+    let mut calibration = CalibrationSums::default();
     for (slot, score) in scores {
+        score.calibrate(&mut calibration);
         let st = p.layout.slots[slot];
         let id = p.slot_id(slot);
         let tv: Vec<Vec3> = score
@@ -282,7 +315,8 @@ pub fn score_run(out: &Path, truth_xml: &Path) -> Result<AccuracyReport> {
         write_png_srgb(adir.join(format!("{id}_diff.png")), w, h, &diff, 0.0)?;
         acc.push(score.accuracy);
     }
-    let rep = AccuracyReport::new(acc);
+    let mut rep = AccuracyReport::new(acc);
+    rep.calibration = calibration.finish();
     let json = serde_json::to_vec_pretty(&rep)
         .map_err(|e| Error::internal(format!("cannot encode accuracy: {e}")))?;
     fsio::write_atomic(&adir.join("accuracy.json"), &json)?;

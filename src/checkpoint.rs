@@ -42,7 +42,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 static CHECKPOINT_WRITES: AtomicU64 = AtomicU64::new(0);
 
 /// Manifest format version this build reads and writes.
-pub const VERSION: u32 = 4;
+pub const VERSION: u32 = 5;
 const MAGIC: &str = "KDMCKPT";
 /// The current manifest.
 pub const MANIFEST: &str = "progress.kdm";

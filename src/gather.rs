@@ -40,6 +40,7 @@ use crate::error::Result;
 use crate::progress::Tick;
 use crate::rng::Rng;
 use crate::scatter;
+use crate::scene::luminance;
 use bytemuck::{Pod, Zeroable};
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
@@ -90,7 +91,7 @@ pub struct GatherPoints {
 }
 
 impl GatherPoints {
-    /// Points for every slot of `p`'s layout, `spacing` scene units apart (at least one
+    /// Points for every slot of `p`'s layout, `spacing(shape)` scene units apart (at least one
     /// texel: `stride = max(1, round(spacing * texel density))`). Each texture's geometry is
     /// read through a [`SlotTexture`] (whole if it fits in `scratch`'s budget); `tick` gets
     /// each texture's texels once its points are placed.
@@ -98,7 +99,7 @@ impl GatherPoints {
         p: &Prepared,
         geom: &TileStore<TexelGeom>,
         charts: &Charts,
-        spacing: f32,
+        spacing: &dyn Fn(usize) -> f32,
         scratch: &Scratch,
         tick: Tick,
     ) -> Result<GatherPoints> {
@@ -110,7 +111,7 @@ impl GatherPoints {
             let density = p.atlases[st.shape]
                 .as_ref()
                 .map_or(1.0, |a| a.texel_density);
-            let stride = ((spacing * density).round() as u32).max(1);
+            let stride = ((spacing(st.shape) * density).round() as u32).max(1);
             let sc = &charts.slots[slot];
             let g = SlotTexture::gather(&p.layout, slot, geom, geom, scratch, "points", |g, _| {
                 GeomChart {
@@ -422,6 +423,8 @@ struct CachedHit {
 pub struct GatherCache {
     /// Per point, `pi / N` times the radiance summed over its rays that saw observed texels.
     fixed: Vec<Vec3>,
+    /// Per point, the squared luminance of those rays' radiance, summed (for the variance).
+    fixed_sq: Vec<f32>,
     /// Per point `start[i]..start[i + 1]` of `hits`.
     start: Vec<u64>,
     hits: Vec<CachedHit>,
@@ -445,7 +448,7 @@ pub fn trace_points_where(
     tick: Tick,
 ) -> GatherCache {
     let t0 = Instant::now();
-    let per_point: Vec<(Vec3, Vec<CachedHit>)> = points
+    let per_point: Vec<(Vec3, f32, Vec<CachedHit>)> = points
         .points
         .par_iter()
         .enumerate()
@@ -455,7 +458,7 @@ pub fn trace_points_where(
                 tick(1);
                 r
             }
-            false => (Vec3::ZERO, Vec::new()),
+            false => (Vec3::ZERO, 0.0, Vec::new()),
         })
         .collect();
     let traced = (0..per_point.len()).filter(|&i| owns(i)).count() as u64;
@@ -464,10 +467,12 @@ pub fn trace_points_where(
     let mut start = Vec::with_capacity(per_point.len() + 1);
     let mut hits = Vec::new();
     let mut fixed = Vec::with_capacity(per_point.len());
-    for (f, h) in per_point {
+    let mut fixed_sq = Vec::with_capacity(per_point.len());
+    for (f, sq, h) in per_point {
         start.push(hits.len() as u64);
         hits.extend_from_slice(&h);
         fixed.push(f * scale);
+        fixed_sq.push(sq);
     }
     start.push(hits.len() as u64);
     let stats = GatherStats {
@@ -478,6 +483,7 @@ pub fn trace_points_where(
     };
     GatherCache {
         fixed,
+        fixed_sq,
         start,
         hits,
         scale,
@@ -501,6 +507,35 @@ impl GatherCache {
             })
             .collect()
     }
+
+    /// The Monte Carlo variance of the luminance of each point's `E_i` (in `x`; `y`, `z` are
+    /// 0) with this iteration's radiance: `pi^2 s^2 / N` from the sample variance `s^2` of the
+    /// luminance its `N` rays brought back. The rays are stratified, so this is an upper bound.
+    pub fn variance(&self, radiance: &Radiance) -> Vec<Vec3> {
+        let n = PI / self.scale;
+        self.fixed
+            .par_iter()
+            .enumerate()
+            .map(|(i, f)| {
+                let hits = &self.hits[self.start[i] as usize..self.start[i + 1] as usize];
+                let (mut sum, mut sq) = (luminance(*f) / self.scale, self.fixed_sq[i]);
+                for h in hits {
+                    let y = luminance(radiance.lookup(h.slot as usize, h.uv, h.chart).0 * h.weight);
+                    sum += y;
+                    sq += y * y;
+                }
+                Vec3::new(sample_variance_of_mean(sum, sq, n) * PI * PI, 0.0, 0.0)
+            })
+            .collect()
+    }
+}
+
+/// The variance of the mean of `n` samples from their sum and sum of squares (0 for `n < 2`).
+pub fn sample_variance_of_mean(sum: f32, sq: f32, n: f32) -> f32 {
+    if n < 2.0 {
+        return 0.0;
+    }
+    ((sq - sum * sum / n) / (n * (n - 1.0))).max(0.0)
 }
 
 /// Strata per side for `rays` rays.
@@ -510,13 +545,17 @@ fn strata(rays: u32) -> u32 {
 
 /// One point's `k x k` stratified cosine-weighted rays about its shading normal: the radiance
 /// summed over the rays that saw observed texels, and the hits on the others.
-fn trace_point(ctx: &GatherContext, index: u64, pt: &Point) -> (Vec3, Vec<CachedHit>) {
+fn trace_point(ctx: &GatherContext, index: u64, pt: &Point) -> (Vec3, f32, Vec<CachedHit>) {
     let mut rng = Rng::new(ctx.seed ^ STREAM_TAG, 0, index, 0);
     let k = strata(ctx.rays);
     let (u, v) = pt.n.any_orthonormal_pair();
     // Rays must leave on the side of the geometric surface the shading normal is on.
     let side = pt.n.dot(pt.ng).signum();
-    let (mut sum, mut cached) = (Vec3::ZERO, Vec::new());
+    let (mut sum, mut sq, mut cached) = (Vec3::ZERO, 0.0, Vec::new());
+    let mut add = |l: Vec3| {
+        sum += l;
+        sq += luminance(l).powi(2);
+    };
     for i in 0..k {
         for j in 0..k {
             let r2 = (i as f32 + rng.f32()) / k as f32;
@@ -529,15 +568,15 @@ fn trace_point(ctx: &GatherContext, index: u64, pt: &Point) -> (Vec3, Vec<Cached
             }
             match walk(ctx, offset_origin(pt.p, pt.ng, d), d, &mut rng) {
                 Seen::Surface(h) => match ctx.radiance.lookup(h.slot as usize, h.uv, h.chart) {
-                    (l, true) => sum += l * h.weight,
+                    (l, true) => add(l * h.weight),
                     (_, false) => cached.push(h),
                 },
-                Seen::Light(l) => sum += l,
+                Seen::Light(l) => add(l),
                 Seen::Nothing => {}
             }
         }
     }
-    (sum, cached)
+    (sum, sq, cached)
 }
 
 /// What a gather ray brings back.
@@ -601,12 +640,13 @@ fn walk(ctx: &GatherContext, mut o: Vec3, mut d: Vec3, rng: &mut Rng) -> Seen {
 }
 
 /// Writes the gathered `E_i` into `TexelState::accum` of every covered texel (interpolated
-/// between points, see [`GatherPoints::interpolate`]); 0 elsewhere. After it `accum` holds
-/// this pass's `E_i`, as after a photon pass.
+/// between points, see [`GatherPoints::interpolate`]), and its variance (in `x` of
+/// `variance`, interpolated the same way: an upper bound) into `e_var`; 0 elsewhere. After it
+/// `accum` holds this pass's `E_i`, as after a photon pass.
 pub fn write_accum(
     layout: &Layout,
     points: &GatherPoints,
-    values: &[Vec3],
+    (values, variance): (&[Vec3], &[Vec3]),
     charts: &Charts,
     geom: &TileStore<TexelGeom>,
     (state, window): (&mut TileStore<TexelState>, usize),
@@ -617,6 +657,7 @@ pub fn write_accum(
         let sc = &charts.slots[span.slot];
         for s in st.iter_mut() {
             s.accum = [0.0; 3];
+            s.e_var = 0.0;
         }
         for (off, x, y) in span.texels() {
             let c = sc.texel(&g[off]);
@@ -624,6 +665,7 @@ pub fn write_accum(
                 continue;
             }
             st[off].accum = points.interpolate(values, span.slot, x, y, c).to_array();
+            st[off].e_var = points.interpolate(variance, span.slot, x, y, c).x.max(0.0);
         }
         tick(1);
     })?;

@@ -15,7 +15,8 @@
 //!
 //! ```text
 //! L4  pipeline                       the order of the stages, start / resume / finish
-//! L3  checkpoint  output/  accuracy  what a run leaves: checkpoints, results, scores
+//! L3  checkpoint  confidence  output/  accuracy   what a run leaves: checkpoints, results,
+//!                                    confidence, scores
 //! L2  project/  direct  gather  photon/  solve   the stages, plain functions over tiles
 //! L1  config  report  scene/  scatter  image  camera  accel  light/  render  atlas/
 //!                                    settings, the scene and its physics, tiles
@@ -55,6 +56,7 @@ pub mod solve;
 
 pub mod accuracy;
 pub mod checkpoint;
+pub mod confidence;
 pub mod output;
 
 pub mod pipeline;

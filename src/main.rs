@@ -314,7 +314,35 @@ fn accuracy(out: &Path, truth: &Path, json: bool) -> Result<()> {
         100.0 * rep.rel_l1_error,
         out.join("accuracy").join("accuracy.json").display()
     );
+    write_calibration(&mut t, &rep.calibration);
     emit(&t)
+}
+
+/// The calibration of the predicted K_d standard errors, one line per populated bin.
+fn write_calibration(t: &mut String, c: &kdmap::confidence::Calibration) {
+    if c.texels == 0 {
+        return;
+    }
+    let _ = writeln!(
+        t,
+        "confidence: {:.0}% of texels within one predicted standard error of K_d (68% if calibrated), {:.0}% within two (95%)",
+        100.0 * c.within_one,
+        100.0 * c.within_two
+    );
+    for b in c.bins.iter().filter(|b| b.texels > 0) {
+        let hi =
+            b.hi.map_or("inf".to_string(), |h| format!("{:.1}%", 100.0 * h));
+        let _ = writeln!(
+            t,
+            "  predicted {:>4.1}%..{:<6} {:>8} texels, mean {:>6.2}%: within one {:>3.0}%, within two {:>3.0}%",
+            100.0 * b.lo,
+            hi,
+            b.texels,
+            100.0 * b.mean_predicted,
+            100.0 * b.within_one,
+            100.0 * b.within_two
+        );
+    }
 }
 
 fn inspect_checkpoint(out: &Path, json: bool, mode: Mode) -> Result<()> {
@@ -569,14 +597,16 @@ fn plan_run(cfg: &Config, scene: &Scene) -> RunPlan {
     let pixels = kdmap::atlas::density::photo_pixels(scene, &sensors);
     let gather = match cfg.method {
         kdmap::config::Method::Gather => {
-            let area: f64 = scene
+            let radius = kdmap::light::bounding_sphere(scene).1;
+            scene
                 .shapes
                 .iter()
                 .filter(|s| s.in_atlas())
-                .map(|s| s.mesh.area())
-                .sum();
-            let spacing = cfg.gather_spacing_for(kdmap::light::bounding_sphere(scene).1);
-            kdmap::atlas::density::gather_bytes(area, spacing, cfg.gather_rays)
+                .map(|s| {
+                    let spacing = cfg.gather_spacing_for(radius, s.mesh.bounding_radius());
+                    kdmap::atlas::density::gather_bytes(s.mesh.area(), spacing, cfg.gather_rays)
+                })
+                .sum()
         }
         kdmap::config::Method::Photons => 0,
     };

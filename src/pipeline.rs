@@ -753,8 +753,10 @@ impl<'a> Run<'a> {
         };
         // each rank evaluates the chunks of points it traced; then every rank has every value
         let mut values = cache.evaluate(&radiance);
+        let mut variance = cache.variance(&radiance);
         radiance.check()?;
         share::share_points(self.world, &mut values)?;
+        share::share_points(self.world, &mut variance)?;
         drop(radiance);
         std::fs::remove_file(&path).map_err(|e| crate::Error::io(&path, e))?;
         let (points, layout, charts, geom) =
@@ -764,7 +766,7 @@ impl<'a> Run<'a> {
         write_accum(
             layout,
             points,
-            &values,
+            (&values, &variance),
             charts,
             geom,
             (&mut r.state, self.window),
@@ -834,7 +836,11 @@ impl<'a> Run<'a> {
             return Ok(p);
         }
         let radius = crate::light::bounding_sphere(&self.p.scene).1;
-        let spacing = self.cfg.gather_spacing_for(radius);
+        let shapes = &self.p.scene.shapes;
+        let spacing = |shape: usize| {
+            self.cfg
+                .gather_spacing_for(radius, shapes[shape].mesh.bounding_radius())
+        };
         let texels = self.p.layout.slots.iter();
         let total = texels.map(|s| s.width as u64 * s.height as u64).sum();
         let stage = Stage::after(
@@ -849,7 +855,7 @@ impl<'a> Run<'a> {
             &self.p,
             &self.geom,
             &self.charts,
-            spacing,
+            &spacing,
             &self.scratch,
             &tick,
         )?;

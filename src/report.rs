@@ -121,6 +121,9 @@ pub struct Report {
     /// Memory and disk the run used.
     #[serde(default)]
     pub resources: Resources,
+    /// The estimated standard error of the recovered `K_d` (see `confidence`).
+    #[serde(default)]
+    pub confidence: Confidence,
 }
 
 /// What a run used besides time: the peak resident set after each stage (the process's peak
@@ -188,6 +191,25 @@ impl Report {
             atlas: Vec::new(),
             table: Vec::new(),
             resources: Resources::default(),
+            confidence: Default::default(),
         }
     }
+}
+
+/// What `report.json` says of the confidence of a run's `K_d` (relative standard errors of its
+/// luminance over observed texels; quantiles to within 9%, from a log histogram).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct Confidence {
+    /// Observed texels with an estimate.
+    pub texels: u64,
+    pub kd_rel_stderr_median: f64,
+    pub kd_rel_stderr_p90: f64,
+    /// Share of the texels where the photos' noise outweighs `E_i`'s.
+    pub photo_dominated: f64,
+    /// Observed texels at least one view disagreed on, and the disagreeing observations.
+    pub texels_with_disagreement: u64,
+    pub disagreeing_views: u64,
+    /// Whether `E_i`'s noise was estimated (the gather; photons: no).
+    pub e_i_noise_estimated: bool,
 }

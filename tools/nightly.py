@@ -225,6 +225,11 @@ def run_scene(scene, args, kdmap, logs):
         rec["accuracy"]["seconds"] = awall
         log(f"{scene}: albedo error mean {100 * rec['accuracy']['mean_rel_error']:.2f}%, "
             f"rel. L1 {100 * rec['accuracy']['rel_l1_error']:.2f}%")
+        cal = rec["accuracy"].get("calibration") or {}
+        if cal.get("texels"):
+            # issue 17: is the predicted standard error of K_d (maps/*_kd_stderr) calibrated?
+            log(f"{scene}: {100 * cal['within_one']:.0f}% of texels within one predicted "
+                f"standard error (68% if calibrated), {100 * cal['within_two']:.0f}% within two")
     else:
         rec["failures"].append(f"{scene}: kdmap accuracy exited {code}: {tail(acc_log)}")
 

@@ -72,7 +72,7 @@ pub fn check_state(state: &TileStore<TexelState>, geom: &TileStore<TexelGeom>) -
 }
 
 fn state_ok(s: &TexelState, covered: bool) -> std::result::Result<(), String> {
-    let fields: [(&str, &[f32]); 7] = [
+    let fields: [(&str, &[f32]); 10] = [
         ("l_orig", &s.l_orig),
         ("weight", std::slice::from_ref(&s.weight)),
         ("e_d", &s.e_d),
@@ -80,6 +80,9 @@ fn state_ok(s: &TexelState, covered: bool) -> std::result::Result<(), String> {
         ("k_d", &s.k_d),
         ("error", std::slice::from_ref(&s.error)),
         ("accum", &s.accum),
+        ("l_var", std::slice::from_ref(&s.l_var)),
+        ("e_var", std::slice::from_ref(&s.e_var)),
+        ("disagree", std::slice::from_ref(&s.disagree)),
     ];
     for (name, v) in fields {
         if v.iter().any(|x| !(x.is_finite() && *x >= 0.0)) {
@@ -147,6 +150,9 @@ mod tests {
         let mut s = good;
         s.e_i[1] = f32::NAN;
         assert!(state_ok(&s, true).unwrap_err().contains("e_i"));
+        let mut s = good;
+        s.l_var = -1.0;
+        assert!(state_ok(&s, true).unwrap_err().contains("l_var"));
         let mut s = good;
         s.k_d[0] = -0.5;
         assert!(state_ok(&s, true).unwrap_err().contains("k_d"));

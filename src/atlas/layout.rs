@@ -197,7 +197,7 @@ impl TexelGeom {
     }
 }
 
-/// The solver's per-texel state. 72 bytes. Radiance in scene units per channel, irradiance in
+/// The solver's per-texel state. 84 bytes. Radiance in scene units per channel, irradiance in
 /// scene units x sr.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, Pod, Zeroable)]
@@ -217,6 +217,15 @@ pub struct TexelState {
     /// Photon accumulator (flux / area summed over the current pass).
     pub accum: [f32; 3],
     pub flags: u32,
+    /// Estimated variance of the luminance of `l_orig` (photo noise through the views that
+    /// saw the texel, or their scatter where larger; see `project`), scene units squared.
+    pub l_var: f32,
+    /// Estimated variance of the luminance of the gathered `E_i` (Monte Carlo noise of the
+    /// gather rays; 0 when not estimated).
+    pub e_var: f32,
+    /// Views whose value for this texel departed from the others by more than their noise
+    /// and were down-weighted (robust fusion, see `project`).
+    pub disagree: f32,
 }
 
 #[cfg(test)]
@@ -270,6 +279,6 @@ mod tests {
     #[test]
     fn records_have_the_documented_sizes() {
         assert_eq!(std::mem::size_of::<TexelGeom>(), 52);
-        assert_eq!(std::mem::size_of::<TexelState>(), 72);
+        assert_eq!(std::mem::size_of::<TexelState>(), 84);
     }
 }

@@ -173,7 +173,7 @@ pub fn plan_density(
         let sensors: Vec<usize> = views.iter().map(|v| v.0).collect();
         let fine = density::finest_footprints(scene, accel, &sensors);
         let budget = match cfg.atlas.max_texels {
-            0 => density::photo_pixels(scene, &sensors).min(density::DEFAULT_MAX_TEXELS),
+            0 => density::default_budget(density::photo_pixels(scene, &sensors)),
             n => n,
         };
         return density::plan(scene, &fine, cfg.atlas.max_texture_size, budget);

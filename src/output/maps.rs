@@ -8,6 +8,7 @@ use crate::atlas::layout::{flags, TexelGeom, TexelState};
 use crate::atlas::slot_texture::{Scratch, SlotTexture};
 use crate::atlas::tiles::TileStore;
 use crate::atlas::Prepared;
+use crate::confidence::kd_stderr;
 use crate::fsio;
 use crate::image::{auto_exposure_with, srgb8, write_exr_rgb_fn, write_png_rows};
 use crate::{Error, Result};
@@ -133,7 +134,7 @@ pub fn write_map(
 }
 
 /// Everything for one slot: albedo texture, the error / colorless / coverage / direct /
-/// indirect / luminance maps, each made from the stores (whole or in tiles, within
+/// indirect / luminance / K_d standard error / disagreeing views maps, each made from the stores (whole or in tiles, within
 /// `scratch`'s budget). Returns the slot's dilated `L_render` texture for re-rendering, made
 /// within `keep` (it is kept while every view is re-rendered).
 pub fn write_slot(
@@ -194,12 +195,14 @@ pub fn write_slot(
     )?;
     drop(err);
 
-    let each: [(&str, &TexelFn, &SlotTexture<u8>); 5] = [
+    let each: [(&str, &TexelFn, &SlotTexture<u8>); 7] = [
         ("colorless", &colorless, &cov),
         ("coverage", &|s| Vec3::splat(s.weight), &cov),
         ("direct", &|s| arr(s.e_d), &cov),
         ("indirect", &|s| arr(s.e_i), &cov),
         ("luminance", &|s| arr(s.l_orig), &obs),
+        ("kd_stderr", &kd_stderr, &obs),
+        ("disagreement", &|s| Vec3::splat(s.disagree), &obs),
     ];
     for (name, f, mask) in each {
         write_map(&maps, id, name, &tex(name, f)?, mask, true, scratch)?;

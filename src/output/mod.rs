@@ -8,6 +8,8 @@
 //! <out>/maps/<id>_direct.exr|png         E_d
 //! <out>/maps/<id>_indirect.exr|png       E_i
 //! <out>/maps/<id>_luminance.exr|png      L_orig
+//! <out>/maps/<id>_kd_stderr.exr|png      estimated standard error of K_d (see `confidence`)
+//! <out>/maps/<id>_disagreement.exr|png   views down-weighted as disagreeing (see `project`)
 //! <out>/renders/<sensor>.exr|png         each view re-rendered with the recovered albedo
 //! <out>/renders/<sensor>_compare.png     original | render | relative error
 //! <out>/meshes/<id>.obj (+ .mtl)         world-space meshes with atlas UVs
@@ -89,6 +91,7 @@ pub fn write_outputs(
 
     // One error scale for every map and comparison image of the run.
     let scale = maps::error_scale(p, state)?;
+    report.confidence = crate::confidence::summarize(state, geom)?;
 
     // Each shape's re-render texture is kept through the renders: each gets its share of a
     // scratch budget, the temporaries of one shape at a time another.

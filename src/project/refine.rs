@@ -3,7 +3,9 @@
 //! and weights, add their weighted mean (see the module notes of [`super`]).
 
 use super::view::{PixelInfo, View};
-use super::{apply_refinement, backproject_tile, Shard, RESIDUAL_SHRINK, ROW_BAND};
+use super::{
+    apply_refinement, backproject_tile, Residual, ResidualViews, Shard, RESIDUAL_SHRINK, ROW_BAND,
+};
 use crate::atlas::hits::HitTable;
 use crate::atlas::layout::{TexelGeom, TexelState};
 use crate::atlas::slot_texture::{Scratch, SlotTexture};
@@ -23,15 +25,11 @@ pub const REFINE_SUPERSAMPLE: u32 = 4;
 /// Texels of dilation around observed texels before re-rendering, as for written maps.
 const REFINE_DILATE: u32 = 4;
 
-/// Soft-threshold a residual image at `RESIDUAL_SHRINK` times its noise level: every clean
-/// pixel's residual `r` (judged on its channel sum, relative to the photo's) shrinks towards
-/// zero by `RESIDUAL_SHRINK * sigma * photo`, where `sigma` is the median relative residual
-/// over clean pixels scaled to a standard deviation (1.4826 x MAD): a robust estimate of the
-/// photo noise, since most pixels are noise-dominated. Refinement then corrects disagreements
-/// larger than the noise (blurred texture edges) without fitting each photo's noise, which
-/// would make the map grainier with every pass. Photos without noise get `sigma` near zero and
-/// are left as they are.
-pub fn shrink_residual(residual: &mut [Vec3], photo: &[Vec3], pixels: &[PixelInfo]) {
+/// A photo's relative per-pixel noise, estimated from a residual image: the median relative
+/// residual over clean pixels (judged on the channel sum) scaled to a standard deviation
+/// (1.4826 x MAD), a robust estimate since most pixels are noise-dominated. 0 when no clean
+/// pixel has light.
+pub fn noise_sigma(residual: &[Vec3], photo: &[Vec3], pixels: &[PixelInfo]) -> f32 {
     let rel = |r: &Vec3, p: &Vec3| r.element_sum().abs() / p.element_sum();
     let mut rels: Vec<f32> = residual
         .iter()
@@ -42,10 +40,20 @@ pub fn shrink_residual(residual: &mut [Vec3], photo: &[Vec3], pixels: &[PixelInf
         .filter(|v| v.is_finite())
         .collect();
     if rels.is_empty() {
-        return;
+        return 0.0;
     }
     let mid = rels.len() / 2;
-    let sigma = 1.4826 * *rels.select_nth_unstable_by(mid, f32::total_cmp).1;
+    1.4826 * *rels.select_nth_unstable_by(mid, f32::total_cmp).1
+}
+
+/// Soft-threshold a residual image at `RESIDUAL_SHRINK` times its noise level: every clean
+/// pixel's residual `r` (judged on its channel sum, relative to the photo's) shrinks towards
+/// zero by `RESIDUAL_SHRINK * sigma * photo`, `sigma` from [`noise_sigma`]. Refinement then
+/// corrects disagreements larger than the noise (blurred texture edges) without fitting each
+/// photo's noise, which would make the map grainier with every pass. Photos without noise get
+/// `sigma` near zero and are left as they are. Returns `sigma`.
+pub fn shrink_residual(residual: &mut [Vec3], photo: &[Vec3], pixels: &[PixelInfo]) -> f32 {
+    let sigma = noise_sigma(residual, photo, pixels);
     for (r, p) in residual.iter_mut().zip(photo) {
         let (a, t) = (
             r.element_sum().abs(),
@@ -57,6 +65,7 @@ pub fn shrink_residual(residual: &mut [Vec3], photo: &[Vec3], pixels: &[PixelInf
             Vec3::ZERO
         };
     }
+    sigma
 }
 
 /// Every reconstructed shape's current luminance map (unobserved and gutter texels filled by
@@ -109,14 +118,17 @@ pub struct Refine<'a> {
 /// The residuals of a pass, per texel, summed over the views: a scratch tile store (mapped a
 /// window at a time), and which tiles some view could see.
 struct Delta {
-    store: TileStore<Vec3>,
+    store: TileStore<Residual>,
     touched: Vec<AtomicBool>,
 }
 
 impl Refine<'_> {
     /// `passes` times: re-render every view from the current maps, back-project the
     /// residuals `photo - render` (clean pixels only) and add their weighted mean to `l_orig`
-    /// (see the module notes). The maps and the residuals live in scratch textures and tiles
+    /// (see the module notes). Every pass is robust (a view that departs from the estimate by
+    /// more than its noise is down-weighted, see [`backproject_tile`]: from the first pass on,
+    /// as it takes all three default passes to outvote a highlight), and the last one's
+    /// residuals give each texel's `l_var` and `disagree`. The maps and the residuals live in scratch textures and tiles
     /// within the memory budget; casts rays only for clean pixels that straddle a chart seam.
     pub fn run(&self, state: &mut TileStore<TexelState>, passes: u32, mode: Mode) -> Result<()> {
         if passes == 0 {
@@ -125,16 +137,21 @@ impl Refine<'_> {
         let total = passes as u64 * self.views.len() as u64;
         let stage = Stage::new(mode, "refinement", total, "views");
         let path = self.scratch.dir.join("refine-delta.tiles");
-        for _ in 0..passes {
+        for pass in 0..passes {
             let maps = current_maps(self.p, self.geom, state, self.scratch)?;
             let textures = self.textures(&maps);
             let n = self.p.layout.tile_count as usize;
             let mut delta = Delta {
-                store: TileStore::create(&path, n, self.p.layout.tile_texels(), Vec3::ZERO)?,
+                store: TileStore::create(
+                    &path,
+                    n,
+                    self.p.layout.tile_texels(),
+                    Residual::default(),
+                )?,
                 touched: (0..n).map(|_| AtomicBool::new(false)).collect(),
             };
             for view in self.views {
-                self.backproject(view, &textures, &mut delta)?;
+                self.backproject(view, &textures, state, &mut delta)?;
                 stage.inc(1);
                 crate::interrupt::check(crate::interrupt::NOTHING_SAVED)?;
             }
@@ -145,7 +162,7 @@ impl Refine<'_> {
             drop(maps);
             map_tiles(state, &delta.store, self.window, |t, d, st| {
                 if delta.touched[t].load(Ordering::Relaxed) {
-                    apply_refinement(st, d);
+                    apply_refinement(st, d, pass + 1 == passes);
                 }
             })?;
             (self.shard.sync)(state)?;
@@ -169,11 +186,13 @@ impl Refine<'_> {
             .collect()
     }
 
-    /// One view's residual, back-projected into `delta` (per tile, allocated on first use).
+    /// One view's residual, back-projected into `delta` (per tile, allocated on first use),
+    /// judged against the current `state`.
     fn backproject(
         &self,
         view: &View,
         textures: &[Option<Texture>],
+        state: &TileStore<TexelState>,
         delta: &mut Delta,
     ) -> Result<()> {
         let (p, photo) = (self.p, view.image);
@@ -205,15 +224,22 @@ impl Refine<'_> {
                 _ => Vec3::ZERO,
             })
             .collect();
-        shrink_residual(&mut residual, &photo.pixels, &view.pixels);
-        let residual = Image {
+        let as_image = |pixels: Vec<Vec3>| Image {
             width: photo.width,
             height: photo.height,
-            pixels: residual,
+            pixels,
             valid: photo.valid.clone(),
             masked: photo.masked,
         };
-        let rview = view.with_image(&residual);
+        let raw = as_image(residual.clone());
+        let sigma = shrink_residual(&mut residual, &photo.pixels, &view.pixels);
+        let shrunk = as_image(residual);
+        let (raw_view, shrunk_view) = (view.with_image(&raw), view.with_image(&shrunk));
+        let rv = ResidualViews {
+            raw: &raw_view,
+            shrunk: &shrunk_view,
+            sigma,
+        };
         let err: Mutex<Option<Error>> = Mutex::new(None);
         let touched = &delta.touched;
         delta.store.for_each_tile_mut(self.window, |t, d| {
@@ -222,16 +248,16 @@ impl Refine<'_> {
             {
                 return;
             }
-            let g = match self.geom.read_tile(t) {
-                Ok(g) => g,
-                Err(e) => {
+            let (g, st) = match (self.geom.read_tile(t), state.read_tile(t)) {
+                (Ok(g), Ok(st)) => (g, st),
+                (Err(e), _) | (_, Err(e)) => {
                     *err.lock().unwrap_or_else(|e| e.into_inner()) = Some(e);
                     return;
                 }
             };
             touched[t].store(true, Ordering::Relaxed);
             let slot = p.layout.slot_of_tile(t as u32);
-            backproject_tile(&rview, &p.shape_ref(slot), &g, d);
+            backproject_tile(&rv, &p.shape_ref(slot), &g, &st, d);
         })?;
         match err.into_inner().unwrap_or_else(|e| e.into_inner()) {
             Some(e) => Err(e),

@@ -105,6 +105,19 @@ impl Mesh {
         0.5 * self.face_normal_raw(t).length()
     }
 
+    /// Half the diagonal of the bounding box: the radius of a sphere around the mesh.
+    pub fn bounding_radius(&self) -> f32 {
+        let lo = self.positions.iter().fold(Vec3::INFINITY, |a, p| a.min(*p));
+        let hi = self
+            .positions
+            .iter()
+            .fold(Vec3::NEG_INFINITY, |a, p| a.max(*p));
+        match lo.is_finite() && hi.is_finite() {
+            true => 0.5 * (hi - lo).length(),
+            false => 0.0,
+        }
+    }
+
     pub fn area(&self) -> f64 {
         (0..self.triangles.len())
             .map(|t| self.triangle_area(t) as f64)

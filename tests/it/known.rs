@@ -44,8 +44,7 @@ fn rgb_off(a: &ShapeAccuracy) -> f64 {
 #[test]
 fn mirror_cbox_recovers_its_diffuse_walls() {
     let root = fixture("mirror-cbox");
-    let mut cfg = Config::for_scene(root.join("input.xml"));
-    cfg.gather_rays = 256;
+    let cfg = Config::for_scene(root.join("input.xml"));
     let out = tempfile::tempdir().unwrap();
     let report = reconstruct(&cfg, out.path(), Mode::Quiet).unwrap();
     assert_eq!(report.counts.reconstructed_shapes, 5);

@@ -21,7 +21,7 @@ const LAYERS: &[&[&str]] = &[
         "atlas",
     ],
     &["project", "direct", "gather", "photon", "solve"],
-    &["checkpoint", "output", "accuracy"],
+    &["checkpoint", "confidence", "output", "accuracy"],
     &["pipeline"],
 ];
 /// The stage layer: its modules are independent of each other.

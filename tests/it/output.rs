@@ -152,6 +152,10 @@ fn every_contract_file_exists() {
             format!("maps/{id}_direct.exr"),
             format!("maps/{id}_indirect.exr"),
             format!("maps/{id}_luminance.exr"),
+            format!("maps/{id}_kd_stderr.exr"),
+            format!("maps/{id}_kd_stderr.png"),
+            format!("maps/{id}_disagreement.exr"),
+            format!("maps/{id}_disagreement.png"),
             format!("meshes/{id}.obj"),
             format!("meshes/{id}.mtl"),
         ] {
@@ -207,7 +211,9 @@ fn maps_hold_the_state_and_eq_10() {
         let direct = read(&format!("maps/{id}_direct.exr"));
         let indirect = read(&format!("maps/{id}_indirect.exr"));
         let lum = read(&format!("maps/{id}_luminance.exr"));
-        let mut n = 0;
+        let stderr = read(&format!("maps/{id}_kd_stderr.exr"));
+        let disagree = read(&format!("maps/{id}_disagreement.exr"));
+        let (mut n, mut estimated) = (0, 0);
         for (i, s) in recs.iter().enumerate() {
             if !cov[i] {
                 continue;
@@ -236,12 +242,35 @@ fn maps_hold_the_state_and_eq_10() {
                 assert_eq!(error[i], Vec3::splat(s.error));
                 assert_eq!(lum[i], Vec3::from_array(s.l_orig));
                 assert!(s.weight > 0.0);
+                assert_eq!(disagree[i], Vec3::splat(s.disagree));
+                // relative variances of L and E add (luminance), in double precision
+                let y = |v: [f32; 3]| {
+                    0.2126 * v[0] as f64 + 0.7152 * v[1] as f64 + 0.0722 * v[2] as f64
+                };
+                let e = [
+                    s.e_d[0] + s.e_i[0],
+                    s.e_d[1] + s.e_i[1],
+                    s.e_d[2] + s.e_i[2],
+                ];
+                let (yl, ye) = (y(s.l_orig), y(e));
+                // no light or no luminance: no estimate, 0
+                let rel = match yl > 0.0 && ye > 0.0 {
+                    true => (s.l_var as f64 / (yl * yl) + s.e_var as f64 / (ye * ye)).sqrt(),
+                    false => 0.0,
+                };
+                estimated += (rel > 0.0) as usize;
+                for (c, got) in stderr[i].to_array().into_iter().enumerate() {
+                    let (want, got) = (s.k_d[c] as f64 * rel, got as f64);
+                    let ok = (got - want).abs() <= 1e-4 * want + 1e-7;
+                    assert!(ok, "{id} texel {i}: {got} vs {want}");
+                }
             } else {
                 assert_eq!(error[i], Vec3::ZERO, "unobserved texels have no error");
                 assert_eq!(coverage[i], Vec3::ZERO);
             }
         }
         assert!(n > 0, "{id} has covered texels");
+        assert!(estimated > 0, "{id}: no texel has a standard error");
         // Gutter next to the charts is dilated: every texel with a covered 8-neighbour holds
         // an albedo, never the black background.
         let (w, h) = (st.width as i64, st.height as i64);
