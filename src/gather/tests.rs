@@ -121,6 +121,18 @@ impl Fixture {
     }
 
     fn gather(&self, spacing: f32, rays: u32) -> (GatherPoints, Vec<Vec3>) {
+        let (points, values, _) = self.gather_seeded(spacing, rays, 5);
+        (points, values)
+    }
+
+    /// The points, `E_i` at each and the predicted variance of its luminance, with gather
+    /// seed `seed`.
+    fn gather_seeded(
+        &self,
+        spacing: f32,
+        rays: u32,
+        seed: u64,
+    ) -> (GatherPoints, Vec<Vec3>, Vec<f32>) {
         let points = GatherPoints::new(
             &self.p,
             &self.geom,
@@ -135,38 +147,19 @@ impl Fixture {
             accel: &self.p.accel,
             hits: &self.hits,
             radiance: &radiance,
-            seed: 5,
-            rays,
-        };
-        let cache = trace_points(&ctx, &points, &no_tick);
-        assert_eq!(cache.stats.points as usize, points.points.len());
-        let values = cache.evaluate(&radiance);
-        (points, values)
-    }
-
-    /// Per point `(E_i, predicted variance of its luminance)` with gather seed `seed`.
-    fn gather_variance(&self, spacing: f32, rays: u32, seed: u64) -> Vec<(Vec3, f32)> {
-        let scratch = self.scratch(1 << 30);
-        let points = GatherPoints::new(
-            &self.p,
-            &self.geom,
-            &self.charts,
-            &|_| spacing,
-            &scratch,
-            &no_tick,
-        )
-        .unwrap();
-        let radiance = self.radiance(1 << 30);
-        let ctx = GatherContext {
-            accel: &self.p.accel,
-            hits: &self.hits,
-            radiance: &radiance,
             seed,
             rays,
         };
         let cache = trace_points(&ctx, &points, &no_tick);
-        let (v, var) = (cache.evaluate(&radiance), cache.variance(&radiance));
-        v.into_iter().zip(var.iter().map(|x| x.x)).collect()
+        assert_eq!(cache.stats.points as usize, points.points.len());
+        let (values, var) = (cache.evaluate(&radiance), cache.variance(&radiance));
+        (points, values, var.iter().map(|x| x.x).collect())
+    }
+
+    /// Per point `(E_i, predicted variance of its luminance)` with gather seed `seed`.
+    fn gather_variance(&self, spacing: f32, rays: u32, seed: u64) -> Vec<(Vec3, f32)> {
+        let (_, v, var) = self.gather_seeded(spacing, rays, seed);
+        v.into_iter().zip(var).collect()
     }
 
     fn slot_of(&self, id: &str) -> usize {

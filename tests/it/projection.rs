@@ -359,6 +359,36 @@ fn map_error(
     diff / total
 }
 
+/// Noise-free synthetic photos of `field` through every training camera of `p` (the radiance
+/// box-filtered over each pixel with 8 x 8 rays), `tweak(sensor, pixel index, value)` applied
+/// to each pixel, written to `dir` and put in `cfg.views` in place of the photos. Returns
+/// `(sensor, file)` per view.
+fn synthetic_photos(
+    p: &Prepared,
+    field: &Field,
+    cfg: &mut Config,
+    dir: &Path,
+    tweak: &dyn Fn(usize, usize, Vec3) -> Vec3,
+) -> Vec<(usize, PathBuf)> {
+    let sensors: Vec<usize> = p.views.iter().map(|v| v.0).collect();
+    cfg.views.clear();
+    let mut photos = Vec::new();
+    for si in sensors {
+        let s = &p.scene.sensors[si];
+        let cam = Camera::from_sensor(s);
+        let img: Vec<Vec3> = render_view(&p.accel, &cam, &field.textures(), 8, Film::HitsOnly)
+            .into_iter()
+            .enumerate()
+            .map(|(i, v)| tweak(si, i, v.unwrap_or(Vec3::ZERO)))
+            .collect();
+        let f = dir.join(format!("{}.exr", s.id));
+        write_exr_rgb(&f, s.width, s.height, &img, false).unwrap();
+        cfg.views.insert(s.id.clone(), f.clone());
+        photos.push((si, f));
+    }
+    photos
+}
+
 /// Noise-free synthetic photos of cbox-tex (the radiance is the [`Field`], box-filtered over
 /// each pixel with 8 x 8 rays) isolate the projection itself from Monte Carlo noise and
 /// lighting. The maps must give the photos back (the plain weighted mean of eq. 1 gives
@@ -372,26 +402,7 @@ fn synthetic_photos_of_known_textures_reproject_and_refine_towards_the_truth() {
     let p = prepare(&cfg, Mode::Quiet).unwrap();
     let field = Field::cbox_tex(&p, &root);
     let photos_dir = tempfile::tempdir().unwrap();
-    let sensors: Vec<usize> = p.views.iter().map(|v| v.0).collect();
-    cfg.views.clear();
-    let mut photos = Vec::new();
-    for si in sensors {
-        let s = &p.scene.sensors[si];
-        let img: Vec<Vec3> = render_view(
-            &p.accel,
-            &Camera::from_sensor(s),
-            &field.textures(),
-            8,
-            Film::HitsOnly,
-        )
-        .into_iter()
-        .map(|v| v.unwrap_or(Vec3::ZERO))
-        .collect();
-        let f = photos_dir.path().join(format!("{}.exr", s.id));
-        write_exr_rgb(&f, s.width, s.height, &img, false).unwrap();
-        cfg.views.insert(s.id.clone(), f.clone());
-        photos.push((si, f));
-    }
+    let photos = synthetic_photos(&p, &field, &mut cfg, photos_dir.path(), &|_, _, v| v);
 
     let out = tempfile::tempdir().unwrap();
     let (_, plain) = project(&cfg, out.path(), 0);
@@ -503,24 +514,7 @@ fn silhouettes_of_an_object_in_front_of_a_textured_plane_do_not_leak_into_it() {
     let p = prepare(&cfg, Mode::Quiet).unwrap();
     let field = Field::occlusion(&p);
     let photos_dir = tempfile::tempdir().unwrap();
-    let sensors: Vec<usize> = p.views.iter().map(|v| v.0).collect();
-    cfg.views.clear();
-    for si in sensors {
-        let s = &p.scene.sensors[si];
-        let img: Vec<Vec3> = render_view(
-            &p.accel,
-            &Camera::from_sensor(s),
-            &field.textures(),
-            8,
-            Film::HitsOnly,
-        )
-        .into_iter()
-        .map(|v| v.unwrap_or(Vec3::ZERO))
-        .collect();
-        let f = photos_dir.path().join(format!("{}.exr", s.id));
-        write_exr_rgb(&f, s.width, s.height, &img, false).unwrap();
-        cfg.views.insert(s.id.clone(), f);
-    }
+    synthetic_photos(&p, &field, &mut cfg, photos_dir.path(), &|_, _, v| v);
     let out = tempfile::tempdir().unwrap();
     let (p, _) = project(&cfg, out.path(), refine_passes());
     let dir = state_dir(out.path());
@@ -609,28 +603,20 @@ fn a_view_with_a_highlight_is_outvoted_and_flagged() {
     let p = prepare(&cfg, Mode::Quiet).unwrap();
     let field = Field::occlusion(&p);
     let photos_dir = tempfile::tempdir().unwrap();
-    let sensors: Vec<usize> = p.views.iter().map(|v| v.0).collect();
-    cfg.views.clear();
-    let (blob_view, centre, radius) = (sensors[0], Vec2::new(128.0, 128.0), 16.0);
-    for &si in &sensors {
-        let s = &p.scene.sensors[si];
-        let cam = Camera::from_sensor(s);
-        let img: Vec<Vec3> = render_view(&p.accel, &cam, &field.textures(), 8, Film::HitsOnly)
-            .into_iter()
-            .enumerate()
-            .map(|(i, v)| {
-                let v = v.unwrap_or(Vec3::ZERO);
-                let px = Vec2::new((i as u32 % s.width) as f32, (i as u32 / s.width) as f32);
-                match si == blob_view && (px + 0.5 - centre).length() < radius {
-                    true => v * 4.0,
-                    false => v,
-                }
-            })
-            .collect();
-        let f = photos_dir.path().join(format!("{}.exr", s.id));
-        write_exr_rgb(&f, s.width, s.height, &img, false).unwrap();
-        cfg.views.insert(s.id.clone(), f);
-    }
+    let blob_view = p.views[0].0;
+    let (width, centre, radius) = (
+        p.scene.sensors[blob_view].width,
+        Vec2::new(128.0, 128.0),
+        16.0,
+    );
+    let highlight = |si: usize, i: usize, v: Vec3| {
+        let px = Vec2::new((i as u32 % width) as f32, (i as u32 / width) as f32);
+        match si == blob_view && (px + 0.5 - centre).length() < radius {
+            true => v * 4.0,
+            false => v,
+        }
+    };
+    synthetic_photos(&p, &field, &mut cfg, photos_dir.path(), &highlight);
     let out = tempfile::tempdir().unwrap();
     let (p, _) = project(&cfg, out.path(), refine_passes());
     let dir = state_dir(out.path());
