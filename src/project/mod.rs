@@ -35,9 +35,9 @@
 //! **Views that disagree.** The passes are also a robust fusion: each view's residual at a
 //! texel is judged against that view's noise there (the photo's relative noise from
 //! [`noise_sigma`], averaged over the pixels the texel covers) plus a [`MODEL_FLOOR`] for
-//! differences that are expected; a view more than [`HUBER_C`] such deviations away (a
+//! differences that are expected; a view more than [`DISAGREE_Z`] such deviations away (a
 //! specular highlight, a misregistered pixel, something that moved) is down-weighted
-//! ([`huber_weight`]) and, in the last pass, counted (`TexelState::disagree`, the
+//! ([`robust_weight`]) and, in the last pass, counted (`TexelState::disagree`, the
 //! `maps/<shape>_disagreement` map). The last pass's residuals also give the variance of the
 //! fused luminance ([`fused_variance`]: the photo noise through the weights, or the views'
 //! scatter where larger), from which `confidence` makes the standard error of `K_d`.
@@ -46,7 +46,7 @@ mod refine;
 mod view;
 
 pub use refine::{noise_sigma, shrink_residual, Refine, REFINE_SUPERSAMPLE};
-pub use view::{classify_pixels, PixelInfo, View};
+pub use view::{classify_pixels, Pair, PixelInfo, Value, View};
 
 use crate::atlas::hits::HitTable;
 use crate::atlas::layout::{flags, TexelGeom, TexelState};
@@ -240,6 +240,16 @@ pub fn tile_bounds(geom: &TileStore<TexelGeom>) -> Result<Vec<Option<(Vec3, Vec3
 /// see it usefully. Its `k x k` sub-samples (k grows with the texel's footprint in pixels) are
 /// read where they land on clean pixels that see their plane (so unoccluded: no rays).
 pub fn observe_texel(view: &View, shape: &ShapeRef, g: &TexelGeom) -> Option<(Vec3, f32)> {
+    observe_texel_from(view, shape, g, &|x, y| view.image.get(x, y))
+}
+
+/// [`observe_texel`] reading pixel values from `get` (see [`View::sample_from`]).
+pub fn observe_texel_from<T: Value>(
+    view: &View,
+    shape: &ShapeRef,
+    g: &TexelGeom,
+    get: &dyn Fn(u32, u32) -> T,
+) -> Option<(T, f32)> {
     let cam = view.camera.position();
     let p = g.p();
     let n = g.n();
@@ -266,7 +276,7 @@ pub fn observe_texel(view: &View, shape: &ShapeRef, g: &TexelGeom) -> Option<(Ve
     // Sub-samples per side: about one per pixel the texel covers. (Per-axis counts from the
     // projected texel edges were measured too: no change, so the area rule stays.)
     let k = ((ratio.sqrt() * SUBSAMPLES_PER_PIXEL).ceil() as u32).clamp(1, MAX_SUBSAMPLES);
-    let mut sum = Vec3::ZERO;
+    let mut sum = T::default();
     let mut accepted = 0u32;
     for j in 0..k {
         for i in 0..k {
@@ -276,7 +286,7 @@ pub fn observe_texel(view: &View, shape: &ShapeRef, g: &TexelGeom) -> Option<(Ve
             let Some(pix) = view.camera.project(q) else {
                 continue;
             };
-            if let Some(l) = view.sample(pix, q, shape.index, ng) {
+            if let Some(l) = view.sample_from(pix, q, shape.index, ng, get) {
                 sum += l;
                 accepted += 1;
             }
@@ -321,7 +331,7 @@ pub fn finish_tile(state: &mut [TexelState]) {
 /// Disagreement threshold of the robust fusion, in standard deviations of a view's value for
 /// a texel: a view further than this from the current estimate is down-weighted by
 /// `(c / z)^4` and counted as disagreeing.
-pub const HUBER_C: f32 = 3.0;
+pub const DISAGREE_Z: f32 = 3.0;
 /// Relative spread between views that is not noise but expected (pixel footprints, filtering,
 /// registration to a fraction of a pixel, texture detail one view resolves and another
 /// blurs): added to a view's noise before judging it. Measured (held-out albedo, shipped
@@ -333,7 +343,7 @@ pub const MODEL_FLOOR: f32 = 0.25;
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct Residual {
-    /// `sum_v h_v w_v r_v`: the back-projected residuals, Huber-weighted.
+    /// `sum_v h_v w_v r_v`: the back-projected residuals, robust-weighted.
     pub d: [f32; 3],
     /// `sum_v h_v w_v y_v^2`, `y_v` the luminance of the raw (unshrunk) residual.
     pub wr2: f32,
@@ -341,9 +351,9 @@ pub struct Residual {
     pub w2var: f32,
     /// Views that saw the texel.
     pub views: f32,
-    /// Views that disagreed (`z > HUBER_C`).
+    /// Views that disagreed (`z > DISAGREE_Z`).
     pub out: f32,
-    /// `sum_v h_v w_v`: the Huber-weighted total weight.
+    /// `sum_v h_v w_v`: the robust-weighted total weight.
     pub hw: f32,
 }
 
@@ -355,30 +365,31 @@ pub fn view_variance(sigma: f32, l: f32, w: f32) -> f32 {
 }
 
 /// The weight of a view whose value lies `z` standard deviations from the estimate: 1 within
-/// [`HUBER_C`], `(HUBER_C / z)^4` beyond. It falls off much faster than Huber's `c / z`,
+/// [`DISAGREE_Z`], `(DISAGREE_Z / z)^4` beyond. It falls off much faster than Huber's `c / z`,
 /// because the estimate it is judged against still holds the outlier: with three views, one
 /// of them 4x too bright, Huber's weight left the texel 66% off after the refinement's
 /// passes, this one outvotes it (see the projection tests).
-pub fn huber_weight(z: f32) -> f32 {
-    if z > HUBER_C {
-        (HUBER_C / z).powi(4)
+pub fn robust_weight(z: f32) -> f32 {
+    if z > DISAGREE_Z {
+        (DISAGREE_Z / z).powi(4)
     } else {
         1.0
     }
 }
 
-/// The residual images of one view for back-projection: raw (`photo - render`, judged against
-/// the noise) and shrunk (what is added, see [`shrink_residual`]), with the photo's relative
-/// noise `sigma`.
+/// The residual of one view for back-projection, per pixel of its photo: raw (`photo -
+/// render`, judged against the noise) and shrunk (what is added, see [`shrink_residual`]) as
+/// one [`Pair`], so a texel's sub-samples are looked up once for both; with the view (its
+/// camera and pixel classification) and the photo's relative noise `sigma`.
 pub struct ResidualViews<'a> {
-    pub raw: &'a View<'a>,
-    pub shrunk: &'a View<'a>,
+    pub view: &'a View<'a>,
+    pub residual: &'a [Pair],
     pub sigma: f32,
 }
 
 /// Back-project one view's residual into one tile: per texel the view observes, `d += h w r`
 /// (`w` the projection's weight, `r` the shrunk residual, `h` the robust weight
-/// ([`huber_weight`]) of the raw residual against the view's noise plus [`MODEL_FLOOR`] at the
+/// ([`robust_weight`]) of the raw residual against the view's noise plus [`MODEL_FLOOR`] at the
 /// current `l_orig`), and the statistics of [`Residual`].
 pub fn backproject_tile(
     rv: &ResidualViews,
@@ -391,10 +402,9 @@ pub fn backproject_tile(
         if !g.covered() {
             continue;
         }
-        let Some((raw, w)) = observe_texel(rv.raw, shape, g) else {
-            continue;
-        };
-        let Some((r, _)) = observe_texel(rv.shrunk, shape, g) else {
+        let width = rv.view.camera.width();
+        let get = |x: u32, y: u32| rv.residual[(y * width + x) as usize];
+        let Some((Pair(raw, r), w)) = observe_texel_from(rv.view, shape, g, &get) else {
             continue;
         };
         let l = luminance(Vec3::from_array(s.l_orig)).max(0.0);
@@ -402,7 +412,7 @@ pub fn backproject_tile(
         let y = luminance(raw);
         let spread = (var + (MODEL_FLOOR * l).powi(2)).sqrt();
         let z = if spread > 0.0 { y.abs() / spread } else { 0.0 };
-        let h = huber_weight(z);
+        let h = robust_weight(z);
         for c in 0..3 {
             a.d[c] += h * w * r[c];
         }
@@ -410,7 +420,7 @@ pub fn backproject_tile(
         a.wr2 += h * w * y * y;
         a.w2var += w * w * var;
         a.views += 1.0;
-        a.out += (z > HUBER_C) as u32 as f32;
+        a.out += (z > DISAGREE_Z) as u32 as f32;
     }
 }
 
@@ -432,7 +442,7 @@ pub fn fused_variance(a: &Residual, weight: f32) -> f32 {
 }
 
 /// After a pass over all views: `l_orig += d / hw` (the weighted mean of the views'
-/// residuals, Huber-weighted: an iteratively reweighted least-squares step towards the robust
+/// residuals, robust-weighted: an iteratively reweighted least-squares step towards the robust
 /// estimate; where every view agrees `hw` is `weight`), clamped at zero; after the last pass
 /// (`stats`) also the texel's `l_var` and `disagree`.
 pub fn apply_refinement(state: &mut [TexelState], acc: &[Residual], stats: bool) {
@@ -488,9 +498,9 @@ mod tests {
 
     #[test]
     fn view_weight_is_one_within_c_and_falls_as_z_to_the_minus_4_beyond() {
-        assert_eq!(huber_weight(0.0), 1.0);
-        assert_eq!(huber_weight(HUBER_C), 1.0);
-        assert!((huber_weight(2.0 * HUBER_C) - 1.0 / 16.0).abs() < 1e-6);
+        assert_eq!(robust_weight(0.0), 1.0);
+        assert_eq!(robust_weight(DISAGREE_Z), 1.0);
+        assert!((robust_weight(2.0 * DISAGREE_Z) - 1.0 / 16.0).abs() < 1e-6);
     }
 
     /// Closed forms: n views of equal weight w and per-pixel noise sigma give a fused

@@ -4,7 +4,8 @@
 
 use super::view::{PixelInfo, View};
 use super::{
-    apply_refinement, backproject_tile, Residual, ResidualViews, Shard, RESIDUAL_SHRINK, ROW_BAND,
+    apply_refinement, backproject_tile, Pair, Residual, ResidualViews, Shard, RESIDUAL_SHRINK,
+    ROW_BAND,
 };
 use crate::atlas::hits::HitTable;
 use crate::atlas::layout::{TexelGeom, TexelState};
@@ -12,7 +13,6 @@ use crate::atlas::slot_texture::{Scratch, SlotTexture};
 use crate::atlas::tiles::{map_tiles, TileStore};
 use crate::atlas::Prepared;
 use crate::error::{Error, Result};
-use crate::image::Image;
 use crate::progress::{Mode, Stage};
 use crate::render::{apply_pixel_filter, render_view_with, Film, Plan, Texture};
 use glam::Vec3;
@@ -224,20 +224,16 @@ impl Refine<'_> {
                 _ => Vec3::ZERO,
             })
             .collect();
-        let as_image = |pixels: Vec<Vec3>| Image {
-            width: photo.width,
-            height: photo.height,
-            pixels,
-            valid: photo.valid.clone(),
-            masked: photo.masked,
-        };
-        let raw = as_image(residual.clone());
+        let raw = residual.clone();
         let sigma = shrink_residual(&mut residual, &photo.pixels, &view.pixels);
-        let shrunk = as_image(residual);
-        let (raw_view, shrunk_view) = (view.with_image(&raw), view.with_image(&shrunk));
+        let both: Vec<Pair> = raw
+            .into_iter()
+            .zip(residual)
+            .map(|(a, b)| Pair(a, b))
+            .collect();
         let rv = ResidualViews {
-            raw: &raw_view,
-            shrunk: &shrunk_view,
+            view,
+            residual: &both,
             sigma,
         };
         let err: Mutex<Option<Error>> = Mutex::new(None);

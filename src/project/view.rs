@@ -210,18 +210,6 @@ impl<'a> View<'a> {
         }
     }
 
-    /// The same camera and pixel classification reading the values of `image` (same size),
-    /// e.g. a residual, which may be negative.
-    pub fn with_image<'b>(&self, image: &'b Image) -> View<'b> {
-        assert_eq!(image.pixels.len(), self.pixels.len());
-        View {
-            camera: self.camera.clone(),
-            image,
-            pixels: self.pixels.clone(),
-            corners: self.corners.clone(),
-        }
-    }
-
     /// Per pixel, whether a clean pixel lies within `n` pixels of it (the clean mask for
     /// `n = 0`).
     pub fn near_clean(&self, n: u32) -> Vec<bool> {
@@ -288,6 +276,19 @@ impl<'a> View<'a> {
     /// nearest pixels are clean pixels seeing `q`'s plane, else the containing pixel if it is,
     /// else `None` (occluded, on an edge, off the film).
     pub fn sample(&self, pix: Vec2, q: Vec3, shape: u32, n: Vec3) -> Option<Vec3> {
+        self.sample_from(pix, q, shape, n, &|x, y| self.image.get(x, y))
+    }
+
+    /// [`View::sample`] reading pixel values from `get` instead of the photo (a residual of
+    /// the same size, say), with the same lookups.
+    pub fn sample_from<T: Value>(
+        &self,
+        pix: Vec2,
+        q: Vec3,
+        shape: u32,
+        n: Vec3,
+        get: &dyn Fn(u32, u32) -> T,
+    ) -> Option<T> {
         let tol = plane_tol((q - self.camera.position()).length());
         let sees = |x: i64, y: i64| self.sees(x, y, q, shape, n, tol);
         let fx = pix.x - 0.5;
@@ -296,13 +297,67 @@ impl<'a> View<'a> {
         let (tx, ty) = (fx - x0 as f32, fy - y0 as f32);
         let quad = [(x0, y0), (x0 + 1, y0), (x0, y0 + 1), (x0 + 1, y0 + 1)];
         if quad.iter().all(|&(x, y)| sees(x, y)) {
-            let g = |x: i64, y: i64| self.image.get(x as u32, y as u32);
+            let g = |x: i64, y: i64| get(x as u32, y as u32);
             let top = g(x0, y0) * (1.0 - tx) + g(x0 + 1, y0) * tx;
             let bot = g(x0, y0 + 1) * (1.0 - tx) + g(x0 + 1, y0 + 1) * tx;
             return Some(top * (1.0 - ty) + bot * ty);
         }
         let (x, y) = (pix.x.floor() as i64, pix.y.floor() as i64);
-        sees(x, y).then(|| self.image.get(x as u32, y as u32))
+        sees(x, y).then(|| get(x as u32, y as u32))
+    }
+}
+
+/// What a view's pixels can hold for sampling: values that mix linearly (radiance, or a
+/// radiance with a second image's value beside it, [`Pair`]).
+pub trait Value:
+    Copy
+    + Default
+    + std::ops::Add<Output = Self>
+    + std::ops::AddAssign
+    + std::ops::Mul<f32, Output = Self>
+    + std::ops::Div<f32, Output = Self>
+{
+}
+
+impl<T> Value for T where
+    T: Copy
+        + Default
+        + std::ops::Add<Output = T>
+        + std::ops::AddAssign
+        + std::ops::Mul<f32, Output = T>
+        + std::ops::Div<f32, Output = T>
+{
+}
+
+/// Two images' values at one pixel, sampled together (one set of lookups for both).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Pair(pub Vec3, pub Vec3);
+
+impl std::ops::Add for Pair {
+    type Output = Pair;
+    fn add(self, o: Pair) -> Pair {
+        Pair(self.0 + o.0, self.1 + o.1)
+    }
+}
+
+impl std::ops::AddAssign for Pair {
+    fn add_assign(&mut self, o: Pair) {
+        self.0 += o.0;
+        self.1 += o.1;
+    }
+}
+
+impl std::ops::Mul<f32> for Pair {
+    type Output = Pair;
+    fn mul(self, k: f32) -> Pair {
+        Pair(self.0 * k, self.1 * k)
+    }
+}
+
+impl std::ops::Div<f32> for Pair {
+    type Output = Pair;
+    fn div(self, k: f32) -> Pair {
+        Pair(self.0 / k, self.1 / k)
     }
 }
 
