@@ -36,11 +36,12 @@ use crate::atlas::texels::NONE;
 use crate::atlas::tile_cache::{Reader, TileCache};
 use crate::atlas::tiles::{map_tiles, window_tiles_for_budget, TileStore};
 use crate::atlas::Prepared;
+use crate::config::Config;
 use crate::error::Result;
 use crate::progress::Tick;
 use crate::rng::Rng;
 use crate::scatter;
-use crate::scene::luminance;
+use crate::scene::{luminance, Scene};
 use bytemuck::{Pod, Zeroable};
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
@@ -492,42 +493,42 @@ pub fn trace_points_where(
 }
 
 impl GatherCache {
-    /// `E_i` at every point with the radiance of this iteration for the cached hits.
-    pub fn evaluate(&self, radiance: &Radiance) -> Vec<Vec3> {
-        self.fixed
-            .par_iter()
-            .enumerate()
-            .map(|(i, f)| {
-                let hits = &self.hits[self.start[i] as usize..self.start[i + 1] as usize];
-                let sum: Vec3 = hits
-                    .iter()
-                    .map(|h| radiance.lookup(h.slot as usize, h.uv, h.chart).0 * h.weight)
-                    .sum();
-                *f + sum * self.scale
-            })
-            .collect()
-    }
-
-    /// The Monte Carlo variance of the luminance of each point's `E_i` (in `x`; `y`, `z` are
-    /// 0) with this iteration's radiance: `pi^2 s^2 / N` from the sample variance `s^2` of the
-    /// luminance its `N` rays brought back. The rays are stratified, so this is an upper bound.
-    pub fn variance(&self, radiance: &Radiance) -> Vec<Vec3> {
+    /// `E_i` at every point with the radiance of this iteration for the cached hits, and the
+    /// Monte Carlo variance of its luminance (in `x`; `y`, `z` are 0): `pi^2 s^2 / N` from the
+    /// sample variance `s^2` of the luminance its `N` rays brought back. The rays are
+    /// stratified, so the variance is an upper bound. One lookup per cached hit serves both.
+    pub fn evaluate(&self, radiance: &Radiance) -> (Vec<Vec3>, Vec<Vec3>) {
         let n = PI / self.scale;
         self.fixed
             .par_iter()
             .enumerate()
             .map(|(i, f)| {
                 let hits = &self.hits[self.start[i] as usize..self.start[i + 1] as usize];
-                let (mut sum, mut sq) = (luminance(*f) / self.scale, self.fixed_sq[i]);
+                let mut sum = Vec3::ZERO;
+                let (mut ysum, mut sq) = (luminance(*f) / self.scale, self.fixed_sq[i]);
                 for h in hits {
-                    let y = luminance(radiance.lookup(h.slot as usize, h.uv, h.chart).0 * h.weight);
-                    sum += y;
+                    let l = radiance.lookup(h.slot as usize, h.uv, h.chart).0 * h.weight;
+                    let y = luminance(l);
+                    sum += l;
+                    ysum += y;
                     sq += y * y;
                 }
-                Vec3::new(sample_variance_of_mean(sum, sq, n) * PI * PI, 0.0, 0.0)
+                let var = sample_variance_of_mean(ysum, sq, n) * PI * PI;
+                (*f + sum * self.scale, Vec3::new(var, 0.0, 0.0))
             })
-            .collect()
+            .unzip()
     }
+}
+
+/// The distance between gather points on each shape of `scene`, by shape index (see
+/// [`Config::gather_spacing_for`]).
+pub fn shape_spacing(cfg: &Config, scene: &Scene) -> Vec<f32> {
+    let radius = crate::light::bounding_sphere(scene).1;
+    scene
+        .shapes
+        .iter()
+        .map(|s| cfg.gather_spacing_for(radius, s.mesh.bounding_radius()))
+        .collect()
 }
 
 /// The variance of the mean of `n` samples from their sum and sum of squares (0 for `n < 2`).

@@ -597,14 +597,14 @@ fn plan_run(cfg: &Config, scene: &Scene) -> RunPlan {
     let pixels = kdmap::atlas::density::photo_pixels(scene, &sensors);
     let gather = match cfg.method {
         kdmap::config::Method::Gather => {
-            let radius = kdmap::light::bounding_sphere(scene).1;
+            let spacing = kdmap::gather::shape_spacing(cfg, scene);
             scene
                 .shapes
                 .iter()
-                .filter(|s| s.in_atlas())
-                .map(|s| {
-                    let spacing = cfg.gather_spacing_for(radius, s.mesh.bounding_radius());
-                    kdmap::atlas::density::gather_bytes(s.mesh.area(), spacing, cfg.gather_rays)
+                .zip(spacing)
+                .filter(|(s, _)| s.in_atlas())
+                .map(|(s, d)| {
+                    kdmap::atlas::density::gather_bytes(s.mesh.area(), d, cfg.gather_rays)
                 })
                 .sum()
         }

@@ -752,8 +752,7 @@ impl<'a> Run<'a> {
             }
         };
         // each rank evaluates the chunks of points it traced; then every rank has every value
-        let mut values = cache.evaluate(&radiance);
-        let mut variance = cache.variance(&radiance);
+        let (mut values, mut variance) = cache.evaluate(&radiance);
         radiance.check()?;
         share::share_points(self.world, &mut values)?;
         share::share_points(self.world, &mut variance)?;
@@ -835,12 +834,7 @@ impl<'a> Run<'a> {
         if let Some(p) = self.points.get() {
             return Ok(p);
         }
-        let radius = crate::light::bounding_sphere(&self.p.scene).1;
-        let shapes = &self.p.scene.shapes;
-        let spacing = |shape: usize| {
-            self.cfg
-                .gather_spacing_for(radius, shapes[shape].mesh.bounding_radius())
-        };
+        let spacing = crate::gather::shape_spacing(&self.cfg, &self.p.scene);
         let texels = self.p.layout.slots.iter();
         let total = texels.map(|s| s.width as u64 * s.height as u64).sum();
         let stage = Stage::after(
@@ -855,7 +849,7 @@ impl<'a> Run<'a> {
             &self.p,
             &self.geom,
             &self.charts,
-            &spacing,
+            &|shape| spacing[shape],
             &self.scratch,
             &tick,
         )?;

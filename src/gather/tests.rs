@@ -152,7 +152,7 @@ impl Fixture {
         };
         let cache = trace_points(&ctx, &points, &no_tick);
         assert_eq!(cache.stats.points as usize, points.points.len());
-        let (values, var) = (cache.evaluate(&radiance), cache.variance(&radiance));
+        let (values, var) = cache.evaluate(&radiance);
         (points, values, var.iter().map(|x| x.x).collect())
     }
 
@@ -520,8 +520,8 @@ fn cached_hits_reevaluate_like_a_fresh_trace() {
         s.e_i = [0.5; 3];
     });
     let (fresh, radiance) = trace(&fx);
-    let a = cache.evaluate(&radiance);
-    let b = fresh.evaluate(&radiance);
+    let (a, _) = cache.evaluate(&radiance);
+    let (b, _) = fresh.evaluate(&radiance);
     for (a, b) in a.iter().zip(&b) {
         assert!(
             (*a - *b).abs().max_element() <= 1e-5 * b.max_element().max(1e-3),
