@@ -9,9 +9,7 @@
 //! spot and directional light are; area and sky light are sampled with stratified rays whose
 //! noise is not counted), and so is `E_i` where it was not gathered (photons).
 
-use crate::atlas::layout::{flags, TexelGeom, TexelState};
-use crate::atlas::tiles::TileStore;
-use crate::error::Result;
+use crate::atlas::layout::{flags, TexelState};
 use crate::report::Confidence;
 use crate::scene::luminance;
 use glam::Vec3;
@@ -51,7 +49,8 @@ fn hist_value(k: usize) -> f32 {
     HIST_LO * ((k as f32 + 0.5) / HIST_PER_OCTAVE).exp2()
 }
 
-/// Running sums for [`Confidence`], added up tile by tile in tile order.
+/// Running sums for [`Confidence`], added up texel by texel in tile order (any texel may be
+/// added: only observed ones count, and only covered ones have `e_var`).
 #[derive(Debug, Clone)]
 pub struct ConfidenceSums {
     hist: Vec<u64>,
@@ -106,20 +105,6 @@ impl ConfidenceSums {
             ..self.c.clone()
         }
     }
-}
-
-/// [`Confidence`] of a run's state, over its covered texels.
-pub fn summarize(state: &TileStore<TexelState>, geom: &TileStore<TexelGeom>) -> Result<Confidence> {
-    let mut sums = ConfidenceSums::default();
-    for t in 0..state.tile_count() {
-        let (st, g) = (state.read_tile(t)?, geom.read_tile(t)?);
-        for (s, g) in st.iter().zip(&g) {
-            if g.covered() {
-                sums.add(s);
-            }
-        }
-    }
-    Ok(sums.finish())
 }
 
 /// Edges of the calibration bins of predicted relative standard error.

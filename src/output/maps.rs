@@ -8,9 +8,10 @@ use crate::atlas::layout::{flags, TexelGeom, TexelState};
 use crate::atlas::slot_texture::{Scratch, SlotTexture};
 use crate::atlas::tiles::TileStore;
 use crate::atlas::Prepared;
-use crate::confidence::kd_stderr;
+use crate::confidence::{kd_stderr, ConfidenceSums};
 use crate::fsio;
 use crate::image::{auto_exposure_with, srgb8, write_exr_rgb_fn, write_png_rows};
+use crate::report::Confidence;
 use crate::{Error, Result};
 use glam::Vec3;
 use std::f32::consts::PI;
@@ -42,13 +43,17 @@ pub fn colorless(s: &TexelState) -> Vec3 {
     (arr(s.e_d) + arr(s.e_i)) / PI * sum
 }
 
-/// Count, per scale step, the observed texels whose relative error exceeds it, and pick the
-/// run's error scale from that (see [`ErrorScale::from_exceedance`]).
-pub fn error_scale(p: &Prepared, state: &TileStore<TexelState>) -> Result<ErrorScale> {
+/// One pass over the state for what the outputs need of all of it: the run's error scale
+/// (count, per scale step, the observed texels whose relative error exceeds it, and pick the
+/// scale from that, see [`ErrorScale::from_exceedance`]) and the confidence summary of
+/// `report.json` (see `confidence`).
+pub fn scan_state(p: &Prepared, state: &TileStore<TexelState>) -> Result<(ErrorScale, Confidence)> {
     let mut exceed = [0u64; 9];
     let mut total = 0u64;
+    let mut confidence = ConfidenceSums::default();
     for t in 0..p.layout.tile_count as usize {
         for s in state.read_tile(t)? {
+            confidence.add(&s);
             if observed(&s) && s.error.is_finite() {
                 total += 1;
                 for (k, step) in ErrorScale::STEPS.iter().enumerate() {
@@ -57,7 +62,10 @@ pub fn error_scale(p: &Prepared, state: &TileStore<TexelState>) -> Result<ErrorS
             }
         }
     }
-    Ok(ErrorScale::from_exceedance(&exceed, total))
+    Ok((
+        ErrorScale::from_exceedance(&exceed, total),
+        confidence.finish(),
+    ))
 }
 
 /// A per-texel value of a map.

@@ -90,8 +90,8 @@ pub fn write_outputs(
     fsio::create_dir(out)?;
 
     // One error scale for every map and comparison image of the run.
-    let scale = maps::error_scale(p, state)?;
-    report.confidence = crate::confidence::summarize(state, geom)?;
+    let (scale, confidence) = maps::scan_state(p, state)?;
+    report.confidence = confidence;
 
     // Each shape's re-render texture is kept through the renders: each gets its share of a
     // scratch budget, the temporaries of one shape at a time another.
