@@ -359,6 +359,15 @@ fn map_error(
     diff / total
 }
 
+/// The geometry and state stores [`project`] left in `out`.
+fn stores(out: &Path) -> (TileStore<TexelGeom>, TileStore<TexelState>) {
+    let dir = state_dir(out);
+    (
+        TileStore::open(dir.join("geometry.tiles")).unwrap(),
+        TileStore::open(dir.join("state.tiles")).unwrap(),
+    )
+}
+
 /// Noise-free synthetic photos of `field` through every training camera of `p` (the radiance
 /// box-filtered over each pixel with 8 x 8 rays), `tweak(sensor, pixel index, value)` applied
 /// to each pixel, written to `dir` and put in `cfg.views` in place of the photos. Returns
@@ -411,9 +420,7 @@ fn synthetic_photos_of_known_textures_reproject_and_refine_towards_the_truth() {
     let res = reprojection_error("synthetic", &p, &refined, &photos);
     assert_below_1_percent("synthetic", &res);
 
-    let dir = state_dir(out.path());
-    let geom = TileStore::<TexelGeom>::open(dir.join("geometry.tiles")).unwrap();
-    let state = TileStore::<TexelState>::open(dir.join("state.tiles")).unwrap();
+    let (geom, state) = stores(out.path());
     let tiles: Vec<(Vec<TexelGeom>, Vec<TexelState>)> = (0..p.layout.tile_count as usize)
         .map(|t| (geom.read_tile(t).unwrap(), state.read_tile(t).unwrap()))
         .collect();
@@ -517,9 +524,7 @@ fn silhouettes_of_an_object_in_front_of_a_textured_plane_do_not_leak_into_it() {
     synthetic_photos(&p, &field, &mut cfg, photos_dir.path(), &|_, _, v| v);
     let out = tempfile::tempdir().unwrap();
     let (p, _) = project(&cfg, out.path(), refine_passes());
-    let dir = state_dir(out.path());
-    let geom = TileStore::<TexelGeom>::open(dir.join("geometry.tiles")).unwrap();
-    let state = TileStore::<TexelState>::open(dir.join("state.tiles")).unwrap();
+    let (geom, state) = stores(out.path());
     let boxes: Vec<usize> = ["short_box", "tall_box"]
         .iter()
         .map(|id| p.scene.shapes.iter().position(|s| s.id == *id).unwrap())
@@ -619,9 +624,7 @@ fn a_view_with_a_highlight_is_outvoted_and_flagged() {
     synthetic_photos(&p, &field, &mut cfg, photos_dir.path(), &highlight);
     let out = tempfile::tempdir().unwrap();
     let (p, _) = project(&cfg, out.path(), refine_passes());
-    let dir = state_dir(out.path());
-    let geom = TileStore::<TexelGeom>::open(dir.join("geometry.tiles")).unwrap();
-    let state = TileStore::<TexelState>::open(dir.join("state.tiles")).unwrap();
+    let (geom, state) = stores(out.path());
     let cam = Camera::from_sensor(&p.scene.sensors[blob_view]);
     let (mut inside, mut flagged_in, mut outside, mut flagged_out) = (Vec::new(), 0, 0, 0);
     for t in 0..p.layout.tile_count as usize {
