@@ -163,6 +163,11 @@ fn main() -> ExitCode {
     if world.is_root() || !said_elsewhere {
         print_error(&e, mode, world.rank());
     }
+    // An agreed stop: no rank exits before rank 0 has said so. The first rank to exit with
+    // 130 makes `mpirun` signal the others, and a second signal ends rank 0 at once.
+    if matches!(e, Error::Interrupted(_)) {
+        world.barrier();
+    }
     match world.size() {
         1 => ExitCode::from(e.exit_code()),
         _ => job.exit(e.exit_code()),
