@@ -352,6 +352,7 @@ mod tests {
                 .collect(),
             charts: 1,
             texel_density: n as f32,
+            levels: 0,
         };
         let texels = (0..m * m)
             .map(|i| Vec3::splat(texel(i % m, i / m)))

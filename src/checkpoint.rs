@@ -41,8 +41,9 @@ use std::sync::atomic::{AtomicU64, Ordering};
 /// them).
 static CHECKPOINT_WRITES: AtomicU64 = AtomicU64::new(0);
 
-/// Manifest format version this build reads and writes.
-pub const VERSION: u32 = 5;
+/// Manifest format version this build reads and writes. 6: the automatic atlas has density
+/// levels per triangle, so a run of version 5 has another texel layout for the same inputs.
+pub const VERSION: u32 = 6;
 const MAGIC: &str = "KDMCKPT";
 /// The current manifest.
 pub const MANIFEST: &str = "progress.kdm";

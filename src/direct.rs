@@ -180,7 +180,7 @@ impl<'a> TileCtx<'a> {
         let shape = p.shape_ref(slot);
         let density = p.atlases[shape.index as usize]
             .as_ref()
-            .map_or(0.0, |a| a.texel_density);
+            .map_or(0.0, |a| a.coarsest_density());
         let tri_chart = &charts.slots[slot].tri_chart;
         let fps = g
             .iter()

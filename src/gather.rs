@@ -16,7 +16,9 @@
 //! `spacing` and the shape's texel density), each chart present in a cell gets one point (its
 //! covered texel nearest the cell's center), and a texel interpolates bilinearly between the
 //! points of its own chart in the four cells around it. The rays, and the noise, per unit of
-//! surface therefore do not depend on the atlas resolution.
+//! surface therefore do not depend on the atlas resolution. An atlas with density levels
+//! (`atlas::density`) has one grid of cells per level, each `spacing` across on the charts of
+//! its level, so coarser texels do not spread the points further apart.
 //!
 //! Radiance at a hit is read bilinearly from the hit texel's neighbourhood, using only texels
 //! of the hit triangle's chart (so light never leaks across a chart seam or the gutter).
@@ -35,13 +37,14 @@ use crate::atlas::slot_texture::{Scratch, SlotTexture};
 use crate::atlas::texels::NONE;
 use crate::atlas::tile_cache::{Reader, TileCache};
 use crate::atlas::tiles::{map_tiles, window_tiles_for_budget, TileStore};
+use crate::atlas::unwrap::ShapeAtlas;
 use crate::atlas::Prepared;
 use crate::config::Config;
 use crate::error::Result;
 use crate::progress::Tick;
 use crate::rng::Rng;
 use crate::scatter;
-use crate::scene::{luminance, Scene};
+use crate::scene::{luminance, Mesh, Scene};
 use bytemuck::{Pod, Zeroable};
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
@@ -65,14 +68,23 @@ pub struct Point {
     pub ng: Vec3,
 }
 
-/// One slot's cells.
+/// One slot's cells: a grid per density level of its charts, each `spacing` scene units
+/// across on the charts of its level.
 #[derive(Debug, Clone, PartialEq)]
 struct SlotCells {
+    levels: Vec<LevelCells>,
+    /// Per chart of the slot, its density level (see [`ShapeAtlas::triangle_level`]).
+    chart_level: Vec<u8>,
+}
+
+/// The cells of one density level of a slot.
+#[derive(Debug, Clone, PartialEq)]
+struct LevelCells {
     stride: u32,
     cells_x: u32,
     cells_y: u32,
     /// Per cell (row-major) the range of its points in `GatherPoints::points`:
-    /// `start[c]..start[c + 1]`, one point per chart present, in chart order.
+    /// `start[c]..start[c + 1]`, one point per chart of the level present, in chart order.
     start: Vec<u32>,
 }
 
@@ -109,27 +121,45 @@ impl GatherPoints {
             points: Vec::new(),
         };
         for (slot, st) in p.layout.slots.iter().enumerate() {
-            let density = p.atlases[st.shape]
-                .as_ref()
-                .map_or(1.0, |a| a.texel_density);
-            let stride = ((spacing(st.shape) * density).round() as u32).max(1);
+            let atlas = p.atlases[st.shape].as_ref();
             let sc = &charts.slots[slot];
+            let chart_level = chart_levels(p.shape_ref(slot).mesh, atlas, &sc.tri_chart);
+            let top = atlas.map_or(0, |a| a.levels);
+            let density = atlas.map_or(1.0, |a| a.texel_density);
+            let strides: Vec<u32> = (0..=top)
+                .map(|k| {
+                    ((spacing(st.shape) * density / f32::from(1u16 << k)).round() as u32).max(1)
+                })
+                .collect();
             let g = SlotTexture::gather(&p.layout, slot, geom, geom, scratch, "points", |g, _| {
                 GeomChart {
                     g: *g,
                     chart: sc.texel(g),
                 }
             })?;
-            let cells = out.add_slot(&g, stride);
+            let levels = strides
+                .iter()
+                .enumerate()
+                .map(|(k, &s)| out.add_level(&g, s, |c| chart_level[c as usize] as usize == k))
+                .collect();
             g.check()?;
-            out.slots.push(cells);
+            out.slots.push(SlotCells {
+                levels,
+                chart_level,
+            });
             tick(st.width as u64 * st.height as u64);
         }
         Ok(out)
     }
 
-    /// Cuts one texture into cells of `s x s` texels and adds their points.
-    fn add_slot(&mut self, tex: &SlotTexture<GeomChart>, s: u32) -> SlotCells {
+    /// Cuts one texture into cells of `s x s` texels and adds the points of the charts that
+    /// `of_level` accepts.
+    fn add_level(
+        &mut self,
+        tex: &SlotTexture<GeomChart>,
+        s: u32,
+        of_level: impl Fn(u32) -> bool,
+    ) -> LevelCells {
         let (w, h) = (tex.grid.width, tex.grid.height);
         let (cells_x, cells_y) = (w.div_ceil(s), h.div_ceil(s));
         let mut start = Vec::with_capacity((cells_x * cells_y + 1) as usize);
@@ -144,7 +174,7 @@ impl GatherPoints {
                     for x in cx * s..((cx + 1) * s).min(w) {
                         let t = rd.get(x, y);
                         let c = t.chart;
-                        if c == NONE || !t.g.covered() {
+                        if c == NONE || !t.g.covered() || !of_level(c) {
                             continue;
                         }
                         let dx = (x - cx * s) as f32 + 0.5 - center;
@@ -172,7 +202,7 @@ impl GatherPoints {
             }
         }
         start.push(self.points.len() as u32);
-        SlotCells {
+        LevelCells {
             stride: s,
             cells_x,
             cells_y,
@@ -180,14 +210,20 @@ impl GatherPoints {
         }
     }
 
-    /// Texels per cell side in slot `slot`.
+    /// Texels per cell side in slot `slot` on its charts of density level 0.
     pub fn stride(&self, slot: usize) -> u32 {
-        self.slots[slot].stride
+        self.slots[slot].levels[0].stride
     }
 
-    /// The point of chart `chart` in cell `(cx, cy)` of `slot`, if any.
-    fn point_in(&self, slot: usize, cx: i64, cy: i64, chart: u32) -> Option<usize> {
+    /// The cells of `slot` that chart `chart` lies on.
+    fn cells(&self, slot: usize, chart: u32) -> &LevelCells {
         let c = &self.slots[slot];
+        let level = c.chart_level.get(chart as usize).copied().unwrap_or(0);
+        &c.levels[level as usize]
+    }
+
+    /// The point of chart `chart` in cell `(cx, cy)` of `cells`, if any.
+    fn point_in(&self, c: &LevelCells, cx: i64, cy: i64, chart: u32) -> Option<usize> {
         if cx < 0 || cy < 0 || cx >= c.cells_x as i64 || cy >= c.cells_y as i64 {
             return None;
         }
@@ -201,7 +237,8 @@ impl GatherPoints {
     /// chart in the four cells around it (renormalized over the cells that have one; the
     /// texel's own cell always does, with a weight of at least 1/4).
     pub fn interpolate(&self, values: &[Vec3], slot: usize, x: u32, y: u32, chart: u32) -> Vec3 {
-        let s = self.slots[slot].stride as f32;
+        let cells = self.cells(slot, chart);
+        let s = cells.stride as f32;
         let fx = (x as f32 + 0.5) / s - 0.5;
         let fy = (y as f32 + 0.5) / s - 0.5;
         let (x0, y0) = (fx.floor(), fy.floor());
@@ -216,7 +253,7 @@ impl GatherPoints {
             if w <= 0.0 {
                 continue;
             }
-            if let Some(i) = self.point_in(slot, x0 as i64 + dx, y0 as i64 + dy, chart) {
+            if let Some(i) = self.point_in(cells, x0 as i64 + dx, y0 as i64 + dy, chart) {
                 sum += values[i] * w;
                 wsum += w;
             }
@@ -227,6 +264,27 @@ impl GatherPoints {
             Vec3::ZERO
         }
     }
+}
+
+/// Per chart (numbered as in `tri_chart`), the density level of its triangles (charts never
+/// mix levels); all 0 for a uniform atlas.
+fn chart_levels(mesh: &Mesh, atlas: Option<&ShapeAtlas>, tri_chart: &[u32]) -> Vec<u8> {
+    let charts = tri_chart
+        .iter()
+        .filter(|&&c| c != NONE)
+        .map(|&c| c as usize + 1)
+        .max()
+        .unwrap_or(0);
+    let mut levels = vec![0u8; charts];
+    let Some(a) = atlas.filter(|a| a.levels > 0) else {
+        return levels;
+    };
+    for (t, &c) in tri_chart.iter().enumerate() {
+        if c != NONE {
+            levels[c as usize] = a.triangle_level(mesh, t);
+        }
+    }
+    levels
 }
 
 /// Every slot's outgoing radiance for a gather pass: `L_orig` where observed, the current

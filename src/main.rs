@@ -652,8 +652,10 @@ fn plan_text(cfg: &Config, scene: &Scene, plan: &RunPlan) -> String {
             .map_or(String::new(), |l| format!("  limited by {l}"));
         let _ = writeln!(
             s,
-            "  {:<16} {:>8.1} texels/unit{fine}{lim}",
-            sh.id, d.texels_per_unit
+            "  {:<16} {:>8.1} texels/unit{fine}{lim}{}",
+            sh.id,
+            d.texels_per_unit,
+            level_text(&d.level_shares(&sh.mesh))
         );
     }
     for note in &plan.notes {
@@ -668,6 +670,23 @@ fn plan_text(cfg: &Config, scene: &Scene, plan: &RunPlan) -> String {
         n.memory_bytes as f64 / 1e6
     );
     s
+}
+
+/// How a shape's area spreads over the density levels, if it has more than one: `area at
+/// 1, 1/2, 1/4, 1/8 of it: 40% 30% 20% 10%`.
+fn level_text(shares: &[f64]) -> String {
+    if shares[0] >= 1.0 {
+        return String::new();
+    }
+    let pct: Vec<String> = shares
+        .iter()
+        .map(|a| format!("{:.0}%", 100.0 * a))
+        .collect();
+    format!(
+        "\n  {:<16} area at 1, 1/2, 1/4, 1/8 of it: {}",
+        "",
+        pct.join(" ")
+    )
 }
 
 fn summary(scene: &Scene) -> String {

@@ -167,8 +167,13 @@ impl Resources {
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct ShapeTexels {
     pub shape: String,
-    /// Texels per scene unit of length.
+    /// Texels per scene unit of length (on its triangles at density level 0).
     pub texels_per_unit: f32,
+    /// The share of its area at each density level (`texels_per_unit / 2^level`), when the
+    /// automatic density gave it more than one; empty otherwise. (Always written: the
+    /// checkpoint's encoding is not self-describing.)
+    #[serde(default)]
+    pub area_by_level: Vec<f32>,
     /// Scene units per pixel in the photo that sees the shape finest (automatic density).
     pub finest_footprint: Option<f32>,
     /// What held the density below the photos' (`max_texture_size`, `max_texels`, `unseen`).

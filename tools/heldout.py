@@ -34,6 +34,11 @@ same seed, so pixels see the same sub-pixel positions, and the AOV has no lighti
 the box-filter mix of surfaces and texels inside a pixel, identical for a perfect
 reconstruction up to its texture resampling). Writes `<out>/heldout/<view>_albedo.exr`,
 `<view>_albedo_true.exr` and `<view>_albedo_mask.png`. `--albedo-only` runs just this judge.
+
+With the albedo judge, the image figures also get `block8_rel_lum_error_seen`: the block figure
+over the 8x8 blocks whose every pixel is in that mask. It leaves out what no training photo
+saw (the ceiling above an area light that relit.xml removes, the far side of an object), whose
+albedo a reconstruction can only guess, so it tells resolution and noise apart from that guess.
 """
 
 import argparse
@@ -150,6 +155,40 @@ def _render_all(xml_text, base_dir, save_dir, suffix, spp, truth_dir):
         e["seconds"] = secs
         views[sid] = e
     return views
+
+
+def block_error_seen(render, truth, seen, b=8):
+    """`block8_rel_lum_error` over the b x b blocks of `seen` (h, w) that are seen throughout
+    (nan if none)."""
+    yr, yt = render.astype(np.float64) @ LUMA, truth.astype(np.float64) @ LUMA
+    h, w = yt.shape
+    hb, wb = h // b, w // b
+
+    def blocks(a):
+        return a[: hb * b, : wb * b].reshape(hb, b, wb, b)
+
+    br, bt = blocks(yr).mean(axis=(1, 3)), blocks(yt).mean(axis=(1, 3))
+    full = blocks(seen.astype(np.float64)).min(axis=(1, 3)) > 0.5
+    m = full & (bt > BLACK)
+    return float(np.mean(np.abs(br[m] - bt[m]) / bt[m])) if m.any() else float("nan")
+
+
+def add_seen_figures(res, save, truth_dir, masks):
+    """`block8_rel_lum_error_seen` per view and on average into res["original"] and
+    res["relit"], from the renders in `save` and the judge's masks {view: seen}."""
+    for key, suffix in (("original", ""), ("relit", "_relit")):
+        if key not in res:
+            continue
+        figs = []
+        for vid, v in res[key]["views"].items():
+            if vid not in masks:
+                continue
+            r = read_exr_rgb(os.path.join(save, f"{vid}{suffix}.exr"))
+            t = read_exr_rgb(os.path.join(truth_dir, f"{vid}{suffix}.exr"))
+            v["block8_rel_lum_error_seen"] = block_error_seen(r, t, masks[vid])
+            figs.append(v["block8_rel_lum_error_seen"])
+        if figs:
+            res[key]["block8_rel_lum_error_seen"] = float(np.nanmean(figs))
 
 
 def _summary(views):
@@ -401,12 +440,12 @@ def albedo_errors(a, t, mask):
     }
 
 
-def albedo_score(out, scene_dir, spp=64, save_dir=None, orig_xml=None):
+def albedo_score(out, scene_dir, spp=64, save_dir=None, orig_xml=None, masks=None):
     """The held-out albedo judge: albedo AOVs of the recovered scene (`<out>/scene.xml` with the
     held-out sensors) and of the true scene (`truth.xml`) from every `cam_test_*` view,
     compared over the pixels whose first hit (pixel-centre ray) is a non-emitter shape that a
     training camera `cam_train_*` of truth.xml sees. Figures pooled over all views' masked
-    pixels, and per view and per shape."""
+    pixels, and per view and per shape. `masks` (a dict) gets every view's mask."""
     mi = mitsuba()
     t_start = time.perf_counter()
     truth_xml = os.path.join(scene_dir, "truth.xml")
@@ -432,6 +471,8 @@ def albedo_score(out, scene_dir, spp=64, save_dir=None, orig_xml=None):
         t0 = time.perf_counter()
         shape, seen = seen_mask(caster, vid, train_ids)
         mask_s += time.perf_counter() - t0
+        if masks is not None:
+            masks[vid] = seen
         a = rec[vid]
         e = albedo_errors(a, t, seen)
         tot += np.array(e.pop("_sums"))
@@ -486,8 +527,10 @@ def score(out, scene_dir, spp=64, floor=False, albedo=True):
     if os.path.exists(relit_xml):
         res["relit"] = _summary(_render_all(relit, out, save, "_relit", spp, truth_dir))
     if albedo:
+        masks = {}
         try:
-            res["albedo"] = albedo_score(out, scene_dir, spp, save, orig)
+            res["albedo"] = albedo_score(out, scene_dir, spp, save, orig, masks)
+            add_seen_figures(res, save, truth_dir, masks)
         except Exception as e:  # reported, the image figures above stand on their own
             res["albedo"] = {"error": f"{type(e).__name__}: {e}"}
     if floor:

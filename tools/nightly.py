@@ -254,9 +254,13 @@ def run_scene(scene, args, kdmap, logs):
             m = heldout.score(out, scene_dir, spp=args.spp, floor=args.floor)
             m["seconds"] = time.perf_counter() - t0
             rec["mitsuba"] = m
+            def seen(k):
+                v = m[k].get("block8_rel_lum_error_seen")
+                return "" if v is None else f", 8x8 where seen {100 * v:.2f}%"
+
             parts = [f"{k} rel. L1 {100 * m[k]['rel_l1_error']:.2f}% "
                      f"(pixel {100 * m[k]['mean_rel_lum_error']:.2f}%, "
-                     f"8x8 {100 * m[k]['block8_rel_lum_error']:.2f}%)"
+                     f"8x8 {100 * m[k]['block8_rel_lum_error']:.2f}%{seen(k)})"
                      for k in ("original", "relit") if k in m]
             log(f"{scene}: Mitsuba held-out at {args.spp} spp: " + "; ".join(parts)
                 + f" [{m['seconds']:.0f} s]")
@@ -279,7 +283,9 @@ def run_scene(scene, args, kdmap, logs):
 HELDOUT_FIGURES = [("albedo", "albedo_mean_rel_error"), ("albedo", "albedo_rel_l1"),
                    ("original", "rel_l1_error"), ("original", "mean_rel_lum_error"),
                    ("original", "block8_rel_lum_error"), ("relit", "rel_l1_error"),
-                   ("relit", "mean_rel_lum_error"), ("relit", "block8_rel_lum_error")]
+                   ("relit", "mean_rel_lum_error"), ("relit", "block8_rel_lum_error"),
+                   ("original", "block8_rel_lum_error_seen"),
+                   ("relit", "block8_rel_lum_error_seen")]
 
 
 def run_anchor(scene, scene_dir, args, rec, logs):

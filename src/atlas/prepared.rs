@@ -281,6 +281,26 @@ impl Prepared {
         Self::build(scene, views, settings, tile_size, Mode::Quiet)
     }
 
+    /// [`Prepared::new`] with per-triangle density levels (`levels[shape]`, as
+    /// `atlas::density` plans them): for tests of what follows the atlas.
+    #[cfg(test)]
+    pub(crate) fn with_levels(
+        scene: Scene,
+        settings: &AtlasSettings,
+        levels: Vec<Vec<u8>>,
+        tile_size: u32,
+    ) -> Result<Prepared> {
+        let mut plan = DensityPlan::fixed(&scene, settings.texels_per_unit);
+        for (d, l) in plan.shapes.iter_mut().zip(levels) {
+            if let Some(d) = d {
+                d.levels = l;
+            }
+        }
+        let accel = Accel::build(&scene);
+        let atlases = build_atlases(&scene, settings, &plan, false, Mode::Quiet)?;
+        Self::assemble(scene, accel, vec![], atlases, plan, tile_size)
+    }
+
     /// [`Prepared::new`] with the unwrap's progress shown in `mode`.
     fn build(
         scene: Scene,
@@ -360,9 +380,15 @@ impl Prepared {
             let i = slot.shape;
             let d = self.density.shapes[i].clone();
             let a = self.atlases[i].as_ref();
+            let mesh = &self.scene.shapes[i].mesh;
+            let area_by_level = match d.as_ref().filter(|d| !d.levels.is_empty()) {
+                Some(d) => d.level_shares(mesh).iter().map(|&a| a as f32).collect(),
+                None => Vec::new(),
+            };
             ShapeTexels {
                 shape: self.scene.shapes[i].id.clone(),
                 texels_per_unit: a.map_or(0.0, |a| a.texel_density),
+                area_by_level,
                 finest_footprint: d.as_ref().and_then(|d| d.finest_footprint),
                 limited_by: d.and_then(|d| d.limited_by),
                 width: a.map_or(0, |a| a.width),
@@ -561,7 +587,7 @@ fn shape_atlas(
     };
     let mut tries = 0;
     let r = loop {
-        match build_atlas_with_progress(mesh, &s, report) {
+        match build_atlas_with_progress(mesh, &s, &d.levels, report) {
             Err(Error::Config { .. }) if refit && tries < 3 => {
                 s.texels_per_unit *= 0.7;
                 tries += 1;

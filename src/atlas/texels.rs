@@ -620,6 +620,50 @@ mod tests {
     }
 
     #[test]
+    fn texels_of_a_density_level_are_4_to_the_level_times_as_large() {
+        // the bumpy sphere's triangles at levels 0..=3 in four wedges of equal area: every
+        // texel's area is 4^level times the nominal 1 / density^2 of its triangle's level,
+        // and the texels still cover the surface once
+        let mesh = bumpy_sphere(48, 24);
+        let n = mesh.triangles.len();
+        let levels: Vec<u8> = (0..n).map(|t| (4 * t / n) as u8).collect();
+        let a = crate::atlas::unwrap::build_atlas_with_progress(
+            &mesh,
+            &settings(48.0),
+            &levels,
+            |_, _, _| true,
+        )
+        .unwrap();
+        assert_eq!((a.levels, a.texel_density), (3, 48.0));
+        assert_eq!(a.coarsest_density(), 6.0);
+        // each triangle's level reads back from its texel and surface areas
+        for (t, &l) in levels.iter().enumerate() {
+            assert_eq!(a.triangle_level(&mesh, t), l, "triangle {t}");
+        }
+        let samples = rasterize(&mesh, &a);
+        let mut ratio = [(f64::INFINITY, 0.0f64, 0usize); 4];
+        let mut sum = 0.0;
+        for s in samples.iter().flatten() {
+            let l = levels[s.tri as usize] as usize;
+            let want = 4f64.powi(l as i32) / 48f64.powi(2);
+            let r = s.area as f64 / want;
+            ratio[l] = (ratio[l].0.min(r), ratio[l].1.max(r), ratio[l].2 + 1);
+            sum += s.area as f64;
+        }
+        assert!((sum / mesh.area() - 1.0).abs() < 0.03, "{sum}");
+        for (l, (lo, hi, count)) in ratio.iter().enumerate() {
+            assert!(*count > 0, "level {l} has no texel");
+            assert!(*lo > 0.8 && *hi < 1.25, "level {l}: {lo}..{hi}");
+        }
+        // a quarter of the surface at each level: each coarser level has about 1/4 the
+        // texels of the one before
+        for l in 1..4 {
+            let q = ratio[l].2 as f64 / ratio[l - 1].2 as f64;
+            assert!((0.15..0.4).contains(&q), "level {l}: {q}");
+        }
+    }
+
+    #[test]
     fn texel_areas_add_up_to_the_surface_and_match_the_density() {
         for (name, mesh, atlas) in cases() {
             let samples = rasterize(&mesh, &atlas);
@@ -749,6 +793,7 @@ mod tests {
                     .collect(),
                 charts: 1,
                 texel_density: 1.0,
+                levels: 0,
             };
             let map = TexelMap::new(&mesh, &atlas);
             assert_eq!(map.overlapped(), 0);
@@ -782,6 +827,7 @@ mod tests {
                 .collect(),
             charts: 1,
             texel_density: 1.0,
+            levels: 0,
         };
         assert_eq!(TexelMap::new(&mesh, &atlas).covered(), 16);
     }
@@ -981,6 +1027,7 @@ mod tests {
             corner_uv: vec![],
             charts: 0,
             texel_density: 1.0,
+            levels: 0,
         };
         assert!(rasterize(&mesh, &empty).is_empty());
         assert!(texel_subsamples(&mesh, &empty, 0, 0, 2).is_empty());

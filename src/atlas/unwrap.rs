@@ -50,13 +50,42 @@ pub struct ShapeAtlas {
     pub corner_uv: Vec<[Vec2; 3]>,
     /// Number of charts (UV islands).
     pub charts: u32,
-    /// Texels per scene unit actually used.
+    /// Texels per scene unit actually used (on triangles at density level 0).
     pub texel_density: f32,
+    /// The coarsest density level of its triangles: texels there are `2^levels` times as
+    /// large (`crate::atlas::density::LEVELS`; 0 for a uniform atlas).
+    #[serde(default)]
+    pub levels: u8,
 }
 
 impl ShapeAtlas {
     pub fn texel_count(&self) -> usize {
         self.width as usize * self.height as usize
+    }
+
+    /// The density level of triangle `t` of `mesh` (its atlas): from the ratio of its texel
+    /// and surface areas, `round(log2(texel_density / its density))`; 0 if degenerate.
+    pub fn triangle_level(&self, mesh: &Mesh, t: usize) -> u8 {
+        if self.levels == 0 {
+            return 0;
+        }
+        let [a, b, c] = self.corner_uv[t];
+        let texels = 0.5 * (b - a).perp_dot(c - a).abs();
+        let area = mesh.triangle_area(t);
+        if !(texels > 0.0 && area > 0.0) {
+            return 0;
+        }
+        let d = (texels / area).sqrt();
+        (self.texel_density / d)
+            .log2()
+            .round()
+            .clamp(0.0, f32::from(self.levels)) as u8
+    }
+
+    /// Texels per scene unit on its coarsest triangles (`texel_density / 2^levels`): the
+    /// density that spacings measured in texels must assume to stay fine enough everywhere.
+    pub fn coarsest_density(&self) -> f32 {
+        self.texel_density / f32::from(1u16 << self.levels)
     }
 
     /// The atlas of a shape without surface area: one texel, no chart.
@@ -67,21 +96,26 @@ impl ShapeAtlas {
             corner_uv: vec![[Vec2::ZERO; 3]; mesh.triangles.len()],
             charts: 0,
             texel_density: density,
+            levels: 0,
         }
     }
 }
 
-/// Builds the atlas of one mesh (world-space positions). See [`build_atlas_with_progress`].
+/// Builds the atlas of one mesh (world-space positions), one density everywhere. See
+/// [`build_atlas_with_progress`].
 pub fn build_atlas(mesh: &Mesh, settings: &AtlasSettings) -> Result<ShapeAtlas> {
-    build_atlas_with_progress(mesh, settings, |_, _, _| true)
+    build_atlas_with_progress(mesh, settings, &[], |_, _, _| true)
 }
 
-/// [`build_atlas`], reporting unwrap progress as `(stage, done, total)`; returning `false`
-/// cancels. A mesh without surface area gets a 1x1 atlas with no chart (every texel is
-/// gutter) rather than an error, so one degenerate shape doesn't stop a scene.
+/// [`build_atlas`] with per-triangle density `levels` (triangle `t` at `2^-levels[t]` times
+/// the density; empty: all at level 0; ignored with the mesh's own UVs), reporting unwrap
+/// progress as `(stage, done, total)`; returning `false` cancels. A mesh without surface area
+/// gets a 1x1 atlas with no chart (every texel is gutter) rather than an error, so one
+/// degenerate shape doesn't stop a scene.
 pub fn build_atlas_with_progress(
     mesh: &Mesh,
     settings: &AtlasSettings,
+    levels: &[u8],
     progress: impl Fn(&str, usize, Option<usize>) -> bool + Sync,
 ) -> Result<ShapeAtlas> {
     check_settings(settings)?;
@@ -91,10 +125,16 @@ pub fn build_atlas_with_progress(
         return Ok(ShapeAtlas::empty(mesh, settings.texels_per_unit));
     }
     if settings.use_mesh_uvs {
-        from_mesh_uvs(mesh, settings, area)
-    } else {
-        unwrap(mesh, settings, area, progress)
+        return from_mesh_uvs(mesh, settings, area);
     }
+    if !levels.is_empty() && levels.len() != mesh.triangles.len() {
+        return Err(Error::internal(format!(
+            "{} density levels for {} triangles",
+            levels.len(),
+            mesh.triangles.len()
+        )));
+    }
+    unwrap(mesh, settings, levels, progress)
 }
 
 fn check_settings(s: &AtlasSettings) -> Result<()> {
@@ -212,6 +252,7 @@ fn from_mesh_uvs(mesh: &Mesh, s: &AtlasSettings, area: f64) -> Result<ShapeAtlas
         corner_uv,
         charts: 0,
         texel_density: (side_f * (uv_area / area).sqrt()) as f32,
+        levels: 0,
     };
     let (charts, covered, overlapped) = {
         let map = super::texels::TexelMap::new(mesh, &atlas);
@@ -235,23 +276,79 @@ fn from_mesh_uvs(mesh: &Mesh, s: &AtlasSettings, area: f64) -> Result<ShapeAtlas
 /// within about 0.88..1.21 for a few more charts and no loss of fill or speed.
 const MAX_AREA_DISTORTION: f32 = 1.25;
 
-/// Unwraps with uvunwrap at a fixed density on one page that grows to fit.
+/// The triangles of one density level, with their own copy of the vertices they use: one
+/// uvunwrap input (charts never span inputs, so a chart has one density).
+struct LevelMesh {
+    level: u8,
+    positions: Vec<[f32; 3]>,
+    indices: Vec<u32>,
+    /// The mesh triangle of each of its triangles.
+    tris: Vec<u32>,
+}
+
+/// The mesh split by density level (`levels` empty: one input, the whole mesh at level 0).
+fn level_meshes(mesh: &Mesh, levels: &[u8]) -> Vec<LevelMesh> {
+    if levels.is_empty() {
+        return vec![LevelMesh {
+            level: 0,
+            positions: mesh.positions.iter().map(|p| p.to_array()).collect(),
+            indices: mesh.triangles.iter().flatten().copied().collect(),
+            tris: (0..mesh.triangles.len() as u32).collect(),
+        }];
+    }
+    let top = levels.iter().copied().max().unwrap_or(0);
+    let mut remap = vec![u32::MAX; mesh.positions.len()];
+    (0..=top)
+        .filter_map(|level| {
+            let mut m = LevelMesh {
+                level,
+                positions: Vec::new(),
+                indices: Vec::new(),
+                tris: Vec::new(),
+            };
+            remap.fill(u32::MAX);
+            for (t, tri) in mesh.triangles.iter().enumerate() {
+                if levels[t] != level {
+                    continue;
+                }
+                m.tris.push(t as u32);
+                for &v in tri {
+                    if remap[v as usize] == u32::MAX {
+                        remap[v as usize] = m.positions.len() as u32;
+                        m.positions.push(mesh.positions[v as usize].to_array());
+                    }
+                    m.indices.push(remap[v as usize]);
+                }
+            }
+            (!m.tris.is_empty()).then_some(m)
+        })
+        .collect()
+}
+
+/// Unwraps with uvunwrap at a fixed density (per triangle `2^-level` of it) on one page that
+/// grows to fit.
 fn unwrap(
     mesh: &Mesh,
     s: &AtlasSettings,
-    area: f64,
+    levels: &[u8],
     progress: impl Fn(&str, usize, Option<usize>) -> bool + Sync,
 ) -> Result<ShapeAtlas> {
     let density = s.texels_per_unit as f64;
     // Refuse early, before the packer rasterizes anything: the charts alone need this many
     // texels, and packing never does better than full coverage.
+    let area = super::density::effective_area(mesh, levels);
     let lower_bound = (area * density * density).sqrt().ceil() as u64;
     if lower_bound > s.max_size as u64 {
         return Err(too_large(lower_bound, lower_bound, s, "the unwrapped mesh"));
     }
-    let positions: Vec<[f32; 3]> = mesh.positions.iter().map(|p| p.to_array()).collect();
-    let indices: Vec<u32> = mesh.triangles.iter().flatten().copied().collect();
-    let input = uvunwrap::MeshInput::new(&positions, &indices);
+    let groups = level_meshes(mesh, levels);
+    let inputs: Vec<uvunwrap::MeshInput> = groups
+        .iter()
+        .map(|g| uvunwrap::MeshInput {
+            scale: 0.5f32.powi(i32::from(g.level)),
+            ..uvunwrap::MeshInput::new(&g.positions, &g.indices)
+        })
+        .collect();
     let options = uvunwrap::Options {
         density: uvunwrap::Density::Fixed {
             texels_per_unit: s.texels_per_unit,
@@ -262,7 +359,7 @@ fn unwrap(
         max_area_distortion: MAX_AREA_DISTORTION,
         ..Default::default()
     };
-    let result = uvunwrap::generate_with_progress(&[input], &options, |p| {
+    let result = uvunwrap::generate_with_progress(&inputs, &options, |p| {
         let stage = match p.stage {
             uvunwrap::Stage::Segmenting => "segmenting",
             uvunwrap::Stage::Parameterizing => "parameterizing",
@@ -294,31 +391,35 @@ fn unwrap(
             "the unwrapped mesh",
         ));
     }
-    let Some(out) = atlas.meshes.first() else {
-        return Err(Error::internal("unwrapping the mesh gave no output"));
-    };
-    if out.indices.len() != indices.len() {
-        return Err(Error::internal(
-            "unwrapping the mesh changed its triangle count",
-        ));
+    if atlas.meshes.len() != groups.len() {
+        return Err(Error::internal(format!(
+            "unwrapping gave {} meshes for {} inputs",
+            atlas.meshes.len(),
+            groups.len()
+        )));
     }
     let (w, h) = (atlas.width as f64, atlas.height as f64);
-    let corner_uv = out
-        .indices
-        .chunks_exact(3)
-        .map(|t| {
-            [0, 1, 2].map(|c| {
-                let uv = out.vertices.get(t[c] as usize).map_or([0.0; 2], |v| v.uv);
+    let mut corner_uv = vec![[Vec2::ZERO; 3]; mesh.triangles.len()];
+    for (g, out) in groups.iter().zip(&atlas.meshes) {
+        if out.indices.len() != g.indices.len() {
+            return Err(Error::internal(
+                "unwrapping the mesh changed its triangle count",
+            ));
+        }
+        for (t, c) in g.tris.iter().zip(out.indices.chunks_exact(3)) {
+            corner_uv[*t as usize] = [0, 1, 2].map(|k| {
+                let uv = out.vertices.get(c[k] as usize).map_or([0.0; 2], |v| v.uv);
                 Vec2::new((uv[0] as f64 * w) as f32, (uv[1] as f64 * h) as f32)
-            })
-        })
-        .collect();
+            });
+        }
+    }
     Ok(ShapeAtlas {
         width: atlas.width,
         height: atlas.height,
         corner_uv,
         charts: atlas.chart_count,
         texel_density: atlas.texels_per_unit,
+        levels: groups.last().map_or(0, |g| g.level),
     })
 }
 

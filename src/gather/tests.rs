@@ -36,6 +36,12 @@ struct Fixture {
 
 impl Fixture {
     fn new(shapes: Vec<Shape>, texels_per_unit: f32) -> Fixture {
+        Self::with_levels(shapes, texels_per_unit, vec![])
+    }
+
+    /// With per-triangle density levels per shape (`levels[shape]`; missing: uniform).
+    fn with_levels(shapes: Vec<Shape>, texels_per_unit: f32, mut levels: Vec<Vec<u8>>) -> Self {
+        levels.resize(shapes.len(), Vec::new());
         let scene = Scene {
             path: PathBuf::from("test.xml"),
             shapes,
@@ -47,7 +53,7 @@ impl Fixture {
             texels_per_unit,
             ..Default::default()
         };
-        let p = Prepared::new(scene, vec![], &settings, 16).unwrap();
+        let p = Prepared::with_levels(scene, &settings, levels, 16).unwrap();
         let dir = tempfile::tempdir().unwrap();
         let geom = build_geometry(&p, &dir.path().join("g"), Mode::Quiet).unwrap();
         let charts = Charts::new(&p.scene, &p.layout, &p.atlases).unwrap();
@@ -170,8 +176,9 @@ impl Fixture {
 
 /// Points of slot `slot` with their values.
 fn slot_points(fx: &Fixture, pts: &GatherPoints, vals: &[Vec3], slot: usize) -> Vec<(Point, Vec3)> {
-    let c = &pts.slots[slot];
-    let (a, b) = (c.start[0] as usize, *c.start.last().unwrap() as usize);
+    let c = &pts.slots[slot].levels;
+    let a = c[0].start[0] as usize;
+    let b = *c.last().unwrap().start.last().unwrap() as usize;
     let _ = fx;
     (a..b).map(|i| (pts.points[i], vals[i])).collect()
 }
@@ -404,6 +411,55 @@ fn interpolation_stays_within_the_chart() {
         }
     }
     assert!(n > 100);
+}
+
+/// On an atlas with density levels the points stay `spacing` apart on every level: the
+/// cube's faces at levels 0, 1 and 2 (texels 1, 2 and 4 times as wide) get the same number
+/// of points each, and every texel still interpolates its own chart only.
+#[test]
+fn points_are_spacing_apart_on_every_density_level() {
+    let levels: Vec<u8> = (0..12).map(|t| (t / 4) as u8).collect();
+    let fx = Fixture::with_levels(vec![shape("cube", mesh::cube(), None)], 32.0, vec![levels]);
+    assert_eq!(fx.p.atlases[0].as_ref().unwrap().levels, 2);
+    let pts = GatherPoints::new(
+        &fx.p,
+        &fx.geom,
+        &fx.charts,
+        &|_| 0.25,
+        &fx.scratch(1 << 30),
+        &no_tick,
+    )
+    .unwrap();
+    // a 2 x 2 face at spacing 0.25: about 8 x 8 points, on every level
+    let mut per_level = [0usize; 3];
+    for p in &pts.points {
+        let tri = fx.charts.slots[0]
+            .tri_chart
+            .iter()
+            .position(|&c| c == p.chart)
+            .unwrap();
+        per_level[tri / 4] += 1;
+    }
+    for (l, n) in per_level.iter().enumerate() {
+        // two faces per level
+        assert!((100..=200).contains(n), "level {l}: {per_level:?}");
+    }
+    let vals: Vec<Vec3> = pts
+        .points
+        .iter()
+        .map(|p| Vec3::splat(p.chart as f32 + 1.0))
+        .collect();
+    let tc = &fx.texel_charts(0);
+    let st = fx.p.layout.slots[0];
+    for y in 0..st.height {
+        for x in 0..st.width {
+            let c = tc[(y * st.width + x) as usize];
+            if c != NONE {
+                let v = pts.interpolate(&vals, 0, x, y, c);
+                assert!((v - (c as f32 + 1.0)).abs().max_element() < 1e-5);
+            }
+        }
+    }
 }
 
 /// Bilinear radiance lookups read only the hit chart's texels: next to a chart border the

@@ -152,6 +152,7 @@ mod tests {
             ],
             charts: 1,
             texel_density: 8.0,
+            levels: 0,
         };
         let s = obj_text(&quad(), Some(&atlas), true);
         assert!(s.contains("mtllib wall.mtl\n") && s.contains("usemtl wall\n"));

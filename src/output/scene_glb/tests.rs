@@ -102,6 +102,7 @@ fn scene() -> (Scene, Vec<Option<ShapeAtlas>>) {
         ],
         charts: 1,
         texel_density: 4.0,
+        levels: 0,
     };
     (scene, vec![Some(atlas), None])
 }
