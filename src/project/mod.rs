@@ -190,7 +190,7 @@ pub fn run_shard(
         scratch,
         shard,
     };
-    ctx.run(state, cfg.refine_passes, mode)?;
+    ctx.run(state, (cfg.refine_passes, cfg.refine_step), mode)?;
     stage.finish();
     let counts = map_tiles(state, geom, window, |_, g, st| {
         let c = g.iter().filter(|g| g.covered()).count() as u64;
@@ -441,15 +441,20 @@ pub fn fused_variance(a: &Residual, weight: f32) -> f32 {
     noise.max(scatter)
 }
 
-/// After a pass over all views: `l_orig += d / hw` (the weighted mean of the views'
+/// After a pass over all views: `l_orig += step * d / hw` (the weighted mean of the views'
 /// residuals, robust-weighted: an iteratively reweighted least-squares step towards the robust
 /// estimate; where every view agrees `hw` is `weight`), clamped at zero; after the last pass
-/// (`stats`) also the texel's `l_var` and `disagree`.
-pub fn apply_refinement(state: &mut [TexelState], acc: &[Residual], stats: bool) {
+/// (`stats`) also the texel's `l_var` and `disagree`. `step` over-relaxes the passes where
+/// every view agrees with the estimate within its noise (steps below 2 converge, as in
+/// SIRT); where a view is being outvoted the step stays 1, since an over-relaxed reweighting
+/// overshoots (at 1.8 the highlight test's texels end 14% off with the step everywhere, 6.0%
+/// without it where a view is outvoted, 4.5% at step 1).
+pub fn apply_refinement(state: &mut [TexelState], acc: &[Residual], stats: bool, step: f32) {
     for (s, a) in state.iter_mut().zip(acc) {
         if s.weight > 0.0 && a.hw > 0.0 {
+            let k = if a.out > 0.0 { 1.0 } else { step };
             for c in 0..3 {
-                s.l_orig[c] = (s.l_orig[c] + a.d[c] / a.hw).max(0.0);
+                s.l_orig[c] = (s.l_orig[c] + k * a.d[c] / a.hw).max(0.0);
             }
             if stats {
                 s.l_var = fused_variance(a, s.weight);
@@ -483,7 +488,7 @@ mod tests {
             acc(Vec3::splat(-0.5), 1.0),
             acc(Vec3::splat(5.0), 0.0),
         ];
-        apply_refinement(&mut st, &d, false);
+        apply_refinement(&mut st, &d, false, 1.0);
         assert_eq!(st[0].l_orig, [1.5, 0.5, 1.0]);
         assert_eq!(st[1].l_orig, [0.0; 3]);
         assert_eq!(st[2].l_orig, [0.0; 3], "unobserved texels stay as they are");
@@ -492,8 +497,28 @@ mod tests {
             weight: 2.0,
             ..Default::default()
         }];
-        apply_refinement(&mut st, &[acc(Vec3::ONE, 0.5)], false);
+        apply_refinement(&mut st, &[acc(Vec3::ONE, 0.5)], false, 1.0);
         assert_eq!(st[0].l_orig, [2.0; 3]);
+        // an over-relaxed step goes `step` times as far
+        let mut st = [TexelState {
+            weight: 2.0,
+            l_orig: [1.0; 3],
+            ..Default::default()
+        }];
+        apply_refinement(&mut st, &[acc(Vec3::new(1.0, -0.5, 0.0), 2.0)], false, 1.8);
+        assert_eq!(st[0].l_orig, [1.9, 0.55, 1.0]);
+        // but not where a view disagrees
+        let mut st = [TexelState {
+            weight: 2.0,
+            l_orig: [1.0; 3],
+            ..Default::default()
+        }];
+        let outvoted = Residual {
+            out: 1.0,
+            ..acc(Vec3::new(1.0, -0.5, 0.0), 2.0)
+        };
+        apply_refinement(&mut st, &[outvoted], false, 1.8);
+        assert_eq!(st[0].l_orig, [1.5, 0.75, 1.0]);
     }
 
     #[test]

@@ -124,13 +124,19 @@ struct Delta {
 
 impl Refine<'_> {
     /// `passes` times: re-render every view from the current maps, back-project the
-    /// residuals `photo - render` (clean pixels only) and add their weighted mean to `l_orig`
+    /// residuals `photo - render` (clean pixels only) and add `step` times their weighted
+    /// mean to `l_orig`
     /// (see the module notes). Every pass is robust (a view that departs from the estimate by
     /// more than its noise is down-weighted, see [`backproject_tile`]: from the first pass on,
     /// as it takes all three default passes to outvote a highlight), and the last one's
     /// residuals give each texel's `l_var` and `disagree`. The maps and the residuals live in scratch textures and tiles
     /// within the memory budget; casts rays only for clean pixels that straddle a chart seam.
-    pub fn run(&self, state: &mut TileStore<TexelState>, passes: u32, mode: Mode) -> Result<()> {
+    pub fn run(
+        &self,
+        state: &mut TileStore<TexelState>,
+        (passes, step): (u32, f32),
+        mode: Mode,
+    ) -> Result<()> {
         if passes == 0 {
             return Ok(());
         }
@@ -162,7 +168,7 @@ impl Refine<'_> {
             drop(maps);
             map_tiles(state, &delta.store, self.window, |t, d, st| {
                 if delta.touched[t].load(Ordering::Relaxed) {
-                    apply_refinement(st, d, pass + 1 == passes);
+                    apply_refinement(st, d, pass + 1 == passes, step);
                 }
             })?;
             (self.shard.sync)(state)?;
