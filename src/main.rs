@@ -655,7 +655,8 @@ fn plan_text(cfg: &Config, scene: &Scene, plan: &RunPlan) -> String {
             "  {:<16} {:>8.1} texels/unit{fine}{lim}{}",
             sh.id,
             d.texels_per_unit,
-            level_text(&d.level_shares(&sh.mesh))
+            d.level_shares(&sh.mesh)
+                .map_or(String::new(), |s| level_text(&s))
         );
     }
     for note in &plan.notes {
@@ -672,12 +673,9 @@ fn plan_text(cfg: &Config, scene: &Scene, plan: &RunPlan) -> String {
     s
 }
 
-/// How a shape's area spreads over the density levels, if it has more than one: `area at
-/// 1, 1/2, 1/4, 1/8 of it: 40% 30% 20% 10%`.
+/// How a shape's area spreads over its density levels: `area at 1, 1/2, 1/4, 1/8 of it: 40%
+/// 30% 20% 10%`.
 fn level_text(shares: &[f64]) -> String {
-    if shares[0] >= 1.0 {
-        return String::new();
-    }
     let pct: Vec<String> = shares
         .iter()
         .map(|a| format!("{:.0}%", 100.0 * a))

@@ -86,16 +86,18 @@ impl ShapeDensity {
         effective_area(mesh, &self.levels)
     }
 
-    /// The share of `mesh`'s area at each density level `0..=LEVELS` (all at level 0 if the
-    /// shape has one density).
-    pub fn level_shares(&self, mesh: &Mesh) -> [f64; LEVELS as usize + 1] {
+    /// The share of `mesh`'s area at each density level `0..=LEVELS`; `None` if the shape has
+    /// one density.
+    pub fn level_shares(&self, mesh: &Mesh) -> Option<[f64; LEVELS as usize + 1]> {
+        if self.levels.is_empty() {
+            return None;
+        }
         let mut by = [0.0; LEVELS as usize + 1];
-        for t in 0..mesh.triangles.len() {
-            let l = self.levels.get(t).copied().unwrap_or(0);
+        for (t, &l) in self.levels.iter().enumerate() {
             by[usize::from(l.min(LEVELS))] += mesh.triangle_area(t) as f64;
         }
         let total: f64 = by.iter().sum();
-        by.map(|a| if total > 0.0 { a / total } else { 0.0 })
+        Some(by.map(|a| if total > 0.0 { a / total } else { 0.0 }))
     }
 }
 
@@ -339,6 +341,11 @@ fn shape_levels(tris: &[f32], median: f32) -> Vec<u8> {
             false => LEVELS,
         })
         .collect();
+    one_density_as_empty(levels)
+}
+
+/// `levels`, or no levels if they are all 0 (one density: [`ShapeDensity::levels`] empty).
+fn one_density_as_empty(levels: Vec<u8>) -> Vec<u8> {
     match levels.iter().all(|&l| l == 0) {
         true => Vec::new(),
         false => levels,
@@ -450,12 +457,8 @@ fn cap_levels(scene: &Scene, shapes: &mut [Option<ShapeDensity>]) {
             true => largest.log2().floor().min(f32::from(LEVELS)) as u8,
             false => 0,
         };
-        for l in d.levels.iter_mut() {
-            *l = (*l).min(cap);
-        }
-        if d.levels.iter().all(|&l| l == 0) {
-            d.levels.clear();
-        }
+        let capped = d.levels.iter().map(|&l| l.min(cap)).collect();
+        d.levels = one_density_as_empty(capped);
     }
 }
 

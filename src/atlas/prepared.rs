@@ -125,7 +125,8 @@ fn prepare_scene(
         max_size: cfg.atlas.max_texture_size,
     };
     if cfg.atlas.texels_per_unit != Density::Auto {
-        return Prepared::build(scene, views, &settings, cfg.atlas.tile_size, mode);
+        let plan = DensityPlan::fixed(&scene, settings.texels_per_unit);
+        return Prepared::build(scene, views, &settings, plan, cfg.atlas.tile_size, mode);
     }
     let accel = Accel::build(&scene);
     let plan = plan_density(cfg, &scene, &accel, &views);
@@ -278,7 +279,8 @@ impl Prepared {
         settings: &AtlasSettings,
         tile_size: u32,
     ) -> Result<Prepared> {
-        Self::build(scene, views, settings, tile_size, Mode::Quiet)
+        let plan = DensityPlan::fixed(&scene, settings.texels_per_unit);
+        Self::build(scene, views, settings, plan, tile_size, Mode::Quiet)
     }
 
     /// [`Prepared::new`] with per-triangle density levels (`levels[shape]`, as
@@ -296,20 +298,19 @@ impl Prepared {
                 d.levels = l;
             }
         }
-        let accel = Accel::build(&scene);
-        let atlases = build_atlases(&scene, settings, &plan, false, Mode::Quiet)?;
-        Self::assemble(scene, accel, vec![], atlases, plan, tile_size)
+        Self::build(scene, vec![], settings, plan, tile_size, Mode::Quiet)
     }
 
-    /// [`Prepared::new`] with the unwrap's progress shown in `mode`.
+    /// The atlases of `plan` (a fixed density) and the BVH, with the unwrap's progress shown
+    /// in `mode`.
     fn build(
         scene: Scene,
         views: Vec<(usize, PathBuf)>,
         settings: &AtlasSettings,
+        plan: DensityPlan,
         tile_size: u32,
         mode: Mode,
     ) -> Result<Prepared> {
-        let plan = DensityPlan::fixed(&scene, settings.texels_per_unit);
         // The BVH and the shapes' atlases are independent: built side by side, each atlas a
         // pure function of its mesh (so the order of the work never changes a result).
         let (accel, atlases) = rayon::join(
@@ -381,10 +382,10 @@ impl Prepared {
             let d = self.density.shapes[i].clone();
             let a = self.atlases[i].as_ref();
             let mesh = &self.scene.shapes[i].mesh;
-            let area_by_level = match d.as_ref().filter(|d| !d.levels.is_empty()) {
-                Some(d) => d.level_shares(mesh).iter().map(|&a| a as f32).collect(),
-                None => Vec::new(),
-            };
+            let area_by_level = d
+                .as_ref()
+                .and_then(|d| d.level_shares(mesh))
+                .map_or(Vec::new(), |s| s.iter().map(|&a| a as f32).collect());
             ShapeTexels {
                 shape: self.scene.shapes[i].id.clone(),
                 texels_per_unit: a.map_or(0.0, |a| a.texel_density),

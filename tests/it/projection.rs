@@ -398,6 +398,42 @@ fn synthetic_photos(
     photos
 }
 
+/// Every tile of the geometry and state stores a run left in `out`.
+fn read_tiles(p: &Prepared, out: &Path) -> Vec<(Vec<TexelGeom>, Vec<TexelState>)> {
+    let (geom, state) = stores(out);
+    (0..p.layout.tile_count as usize)
+        .map(|t| (geom.read_tile(t).unwrap(), state.read_tile(t).unwrap()))
+        .collect()
+}
+
+/// The textured walls of cbox-tex whose maps the synthetic tests judge.
+const WALLS: [&str; 3] = ["ceiling", "left", "right"];
+
+/// Per wall of [`WALLS`], [`map_error`] of `maps` against `field`.
+fn wall_errors(
+    p: &Prepared,
+    field: &Field,
+    maps: &[Option<Image>],
+    tiles: &[(Vec<TexelGeom>, Vec<TexelState>)],
+) -> [f64; 3] {
+    WALLS.map(|id| {
+        let shape = p.scene.shapes.iter().position(|s| s.id == id).unwrap();
+        map_error(p, field, maps, tiles, shape)
+    })
+}
+
+/// cbox-tex's config with noise-free synthetic photos of its [`Field`] in the returned
+/// directory, and the photos.
+fn synthetic_cbox_tex() -> (Config, Field, tempfile::TempDir, Vec<(usize, PathBuf)>) {
+    let root = fixture("cbox-tex");
+    let mut cfg = config(&root);
+    let p = prepare(&cfg, Mode::Quiet).unwrap();
+    let field = Field::cbox_tex(&p, &root);
+    let dir = tempfile::tempdir().unwrap();
+    let photos = synthetic_photos(&p, &field, &mut cfg, dir.path(), &|_, _, v| v);
+    (cfg, field, dir, photos)
+}
+
 /// Noise-free synthetic photos of cbox-tex (the radiance is the [`Field`], box-filtered over
 /// each pixel with 8 x 8 rays) isolate the projection itself from Monte Carlo noise and
 /// lighting. The maps must give the photos back (the plain weighted mean of eq. 1 gives
@@ -406,13 +442,7 @@ fn synthetic_photos(
 /// only closer to the photos.
 #[test]
 fn synthetic_photos_of_known_textures_reproject_and_refine_towards_the_truth() {
-    let root = fixture("cbox-tex");
-    let mut cfg = config(&root);
-    let p = prepare(&cfg, Mode::Quiet).unwrap();
-    let field = Field::cbox_tex(&p, &root);
-    let photos_dir = tempfile::tempdir().unwrap();
-    let photos = synthetic_photos(&p, &field, &mut cfg, photos_dir.path(), &|_, _, v| v);
-
+    let (cfg, field, _photos_dir, photos) = synthetic_cbox_tex();
     let out = tempfile::tempdir().unwrap();
     let (_, plain) = project(&cfg, out.path(), 0);
     let out = tempfile::tempdir().unwrap();
@@ -420,16 +450,12 @@ fn synthetic_photos_of_known_textures_reproject_and_refine_towards_the_truth() {
     let res = reprojection_error("synthetic", &p, &refined, &photos);
     assert_below_1_percent("synthetic", &res);
 
-    let (geom, state) = stores(out.path());
-    let tiles: Vec<(Vec<TexelGeom>, Vec<TexelState>)> = (0..p.layout.tile_count as usize)
-        .map(|t| (geom.read_tile(t).unwrap(), state.read_tile(t).unwrap()))
-        .collect();
-    for id in ["ceiling", "left", "right"] {
-        let shape = p.scene.shapes.iter().position(|s| s.id == id).unwrap();
-        let (a, b) = (
-            map_error(&p, &field, &plain, &tiles, shape),
-            map_error(&p, &field, &refined, &tiles, shape),
-        );
+    let tiles = read_tiles(&p, out.path());
+    let (before, after) = (
+        wall_errors(&p, &field, &plain, &tiles),
+        wall_errors(&p, &field, &refined, &tiles),
+    );
+    for (id, (a, b)) in WALLS.iter().zip(before.iter().zip(&after)) {
         eprintln!(
             "synthetic {id}: map vs true field {:.2}% (weighted mean) -> {:.2}% (refined)",
             100.0 * a,
@@ -444,31 +470,16 @@ fn synthetic_photos_of_known_textures_reproject_and_refine_towards_the_truth() {
 /// the same passes than the plain step 1.
 #[test]
 fn a_larger_refinement_step_gets_closer_to_the_truth_in_the_same_passes() {
-    let root = fixture("cbox-tex");
-    let mut cfg = config(&root);
-    let p = prepare(&cfg, Mode::Quiet).unwrap();
-    let field = Field::cbox_tex(&p, &root);
-    let photos_dir = tempfile::tempdir().unwrap();
-    synthetic_photos(&p, &field, &mut cfg, photos_dir.path(), &|_, _, v| v);
+    let (cfg, field, _photos_dir, _) = synthetic_cbox_tex();
     let refined = |step: f32| {
         let mut c = cfg.clone();
         c.refine_step = step;
         let out = tempfile::tempdir().unwrap();
         let (p, maps) = project(&c, out.path(), refine_passes());
-        let (geom, state) = stores(out.path());
-        let tiles: Vec<(Vec<TexelGeom>, Vec<TexelState>)> = (0..p.layout.tile_count as usize)
-            .map(|t| (geom.read_tile(t).unwrap(), state.read_tile(t).unwrap()))
-            .collect();
-        ["ceiling", "left", "right"].map(|id| {
-            let shape = p.scene.shapes.iter().position(|s| s.id == id).unwrap();
-            map_error(&p, &field, &maps, &tiles, shape)
-        })
+        wall_errors(&p, &field, &maps, &read_tiles(&p, out.path()))
     };
     let (one, larger) = (refined(1.0), refined(1.8));
-    for (id, (a, b)) in ["ceiling", "left", "right"]
-        .iter()
-        .zip(one.iter().zip(&larger))
-    {
+    for (id, (a, b)) in WALLS.iter().zip(one.iter().zip(&larger)) {
         eprintln!(
             "synthetic {id}: map vs true field {:.2}% (step 1) -> {:.2}% (step 1.8)",
             100.0 * a,
