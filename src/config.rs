@@ -79,6 +79,8 @@ pub struct RawAtlas {
 pub struct RawProjection {
     pub refine_passes: Option<u32>,
     pub refine_step: Option<f32>,
+    pub denoise_radius: Option<u32>,
+    pub denoise_z: Option<f32>,
 }
 
 #[derive(Debug, Clone, Default, Deserialize)]
@@ -244,19 +246,32 @@ pub const MAX_REFINE_PASSES: u32 = 64;
 
 /// Default refinement passes of the projection. On cbox-tex (128 texels per unit) the mean
 /// 8x8-block re-projection error goes from 2.1/1.1/1.5% (no pass) to 1.0/0.7/0.9% (one) and
-/// 0.7/0.6/0.6% (three); each pass costs about one projection.
-pub const REFINE_PASSES: u32 = 3;
-/// Default step of the refinement passes (over-relaxation of the back-projection, see
-/// `project::apply_refinement`): 1, the plain weighted mean of the residuals. The passes
-/// converge for steps below 2, and a larger step gets about as far in three passes as step 1
-/// in six. Held-out albedo / relit 8x8 (Mitsuba 3 judge) at steps 1, 1.4 and 1.8: generated
-/// open scene 10.35/3.18, 9.58/3.01, 9.06/2.87%; lights 4.91/1.47, 4.43/1.42, 4.12/1.39%;
-/// cbox-tex 5.73/2.91, 5.40/2.93, 5.14/2.89%; envmap 5.51/0.80, -, 5.23/0.75%. But cbox
-/// 1.57/2.31, 1.65/2.32, 1.71/2.26% and mirror-cbox 4.72/2.58, 4.93/2.62, 5.11/2.64%: on
-/// uniform walls the passes fit more of the photos' noise; and a view with a highlight is
-/// outvoted less well (6.0% off at 1.8 against 4.5%). So 1 stays the default, and textured
-/// or open scenes gain from `refine_step = 1.8`.
-pub const REFINE_STEP: f32 = 1.0;
+/// 0.7/0.6/0.6% (three); each pass costs about one projection. Four since the first pass runs
+/// at step 1 (see [`REFINE_STEP`]).
+pub const REFINE_PASSES: u32 = 4;
+/// Default step of the refinement passes after the first (over-relaxation of the
+/// back-projection, see `project::apply_refinement`; 1 is the plain weighted mean of the
+/// residuals, and the first pass always takes 1, as its robust weights are judged against the
+/// plain mean). The passes converge for steps below 2; at 1.8 three passes get about as far
+/// as six at step 1. Held-out albedo / relit 8x8 (Mitsuba 3 judge), 3 passes at step 1 and
+/// no denoiser (before) -> 4 passes at 1, 1.8, 1.8, 1.8 with the denoiser (now): open
+/// 10.35/3.18 -> 8.94/2.71%, lights 4.91/1.47 -> 4.01/1.37%, cbox-tex 5.73/2.91 ->
+/// 5.05/2.99%, envmap 5.51/0.80 -> 5.34/0.77%, cbox 1.57/2.31 -> 1.62/2.34%, mirror-cbox
+/// 4.72/2.58 -> 4.79/2.64%. Without the denoiser the uniform walls fit more of the photos'
+/// noise (all passes at 1.8: cbox 1.71%, mirror-cbox 5.11%).
+pub const REFINE_STEP: f32 = 1.8;
+/// Default radius in texels of the sigma filter of the projected luminance (`denoise`;
+/// 0 = off). Held-out albedo with three passes at step 1.8, without -> with the filter at
+/// radius 2: cbox 1.71 -> 1.60%, mirror-cbox 5.11 -> 4.71%, open 9.06 -> 9.04%, lights
+/// 4.12 -> 4.07%, cbox-tex 5.14 -> 5.09%, envmap 5.23 -> 5.33%. With three passes at step 1,
+/// radius 4 gained a little more than radius 2 on the uniform walls (mirror-cbox 4.20 ->
+/// 4.03%) and lost more on the textured grounds (open 10.48 -> 10.51%, envmap 5.70 -> 5.77%).
+pub const DENOISE_RADIUS: u32 = 2;
+/// Default agreement threshold of the sigma filter, in standard errors of the difference
+/// of two texels' values (`denoise`).
+pub const DENOISE_Z: f32 = 2.0;
+/// Largest sigma-filter radius a config may ask for.
+pub const MAX_DENOISE_RADIUS: u32 = 16;
 /// Default photons per covered texel and iteration (method "photons"): about the 1e7 photons
 /// per iteration of the paper-sized runs on the 64-texels-per-unit Cornell box.
 pub const PHOTONS_PER_TEXEL: f64 = 100.0;
@@ -336,6 +351,11 @@ pub struct Config {
     pub refine_passes: u32,
     /// The passes' step, in `(0, 2)` ([`REFINE_STEP`]).
     pub refine_step: f32,
+    /// Radius in texels of the edge-preserving filter of the projected luminance (0 = off,
+    /// [`DENOISE_RADIUS`]).
+    pub denoise_radius: u32,
+    /// Its agreement threshold in standard errors ([`DENOISE_Z`]).
+    pub denoise_z: f32,
     /// First-pass interior shadow rays per area-emitter triangle (the perimeter is searched
     /// too; see `light::DirectParams`).
     pub area_samples: u32,
@@ -418,6 +438,8 @@ impl Config {
             },
             refine_passes: REFINE_PASSES,
             refine_step: REFINE_STEP,
+            denoise_radius: DENOISE_RADIUS,
+            denoise_z: DENOISE_Z,
             area_samples: 16,
             method: Method::Gather,
             gather_rays: 1024,
@@ -486,6 +508,7 @@ impl Config {
                 self.iterations = Method::Photons.default_iterations();
                 self.update = UpdateRule::Paper;
                 self.refine_passes = 0;
+                self.denoise_radius = 0;
                 self.smoothing_radius = 0;
             }
         }
@@ -594,6 +617,8 @@ impl Config {
         set(&mut c.atlas.max_texture_size, a.max_texture_size);
         set(&mut c.refine_passes, raw.projection.refine_passes);
         set(&mut c.refine_step, raw.projection.refine_step);
+        set(&mut c.denoise_radius, raw.projection.denoise_radius);
+        set(&mut c.denoise_z, raw.projection.denoise_z);
         set(&mut c.area_samples, raw.direct.area_samples);
         set(&mut c.photometric_scale, raw.units.photometric_scale);
         let p = raw.photons;
@@ -688,6 +713,18 @@ impl Config {
                 "projection.refine_step = {}: must be between 0 and 2 (exclusive; the passes \
                  diverge at 2 and beyond)",
                 self.refine_step
+            ));
+        }
+        if self.denoise_radius > MAX_DENOISE_RADIUS {
+            return Err(format!(
+                "projection.denoise_radius = {}: must be 0..={MAX_DENOISE_RADIUS} texels",
+                self.denoise_radius
+            ));
+        }
+        if !(self.denoise_z > 0.0 && self.denoise_z.is_finite()) {
+            return Err(format!(
+                "projection.denoise_z = {}: must be a positive number of standard errors",
+                self.denoise_z
             ));
         }
         if self.area_samples == 0 {
@@ -898,6 +935,14 @@ mod tests {
             c.refine_step = step;
             assert!(c.validate().unwrap_err().contains("refine_step"), "{step}");
         }
+        let mut c = Config::for_scene("s.xml".into());
+        c.denoise_radius = MAX_DENOISE_RADIUS + 1;
+        assert!(c.validate().unwrap_err().contains("denoise_radius"));
+        for z in [0.0, -1.0, f32::NAN, f32::INFINITY] {
+            let mut c = Config::for_scene("s.xml".into());
+            c.denoise_z = z;
+            assert!(c.validate().unwrap_err().contains("denoise_z"), "{z}");
+        }
     }
 
     #[test]
@@ -906,11 +951,13 @@ mod tests {
         let p = dir.path().join("run.toml");
         std::fs::write(
             &p,
-            "scene = \"s.xml\"\n[projection]\nrefine_passes = 1\nrefine_step = 1.25\n",
+            "scene = \"s.xml\"\n[projection]\nrefine_passes = 1\nrefine_step = 1.25\n\
+             denoise_radius = 3\ndenoise_z = 2.5\n",
         )
         .unwrap();
         let c = Config::load(&p, &Overrides::default()).unwrap();
         assert_eq!((c.refine_passes, c.refine_step), (1, 1.25));
+        assert_eq!((c.denoise_radius, c.denoise_z), (3, 2.5));
         std::fs::write(&p, "scene = \"s.xml\"\n[projection]\nrefine = 1\n").unwrap();
         let e = Config::load(&p, &Overrides::default())
             .unwrap_err()

@@ -5,7 +5,7 @@
 //!
 //! ```text
 //! scene (Mitsuba XML or glTF, meshes) -> atlas (geometry store) -> projection (L_orig)
-//!   -> direct light (E_d) -> E_i (photon tracing) -> per-texel update (K_d) -> outputs / checkpoint
+//!   -> denoise (L_orig) -> direct light (E_d) -> E_i (photon tracing) -> per-texel update (K_d) -> outputs / checkpoint
 //! ```
 //!
 //! # Layers
@@ -17,7 +17,8 @@
 //! L4  pipeline                       the order of the stages, start / resume / finish
 //! L3  checkpoint  confidence  output/  accuracy   what a run leaves: checkpoints, results,
 //!                                    confidence, scores
-//! L2  project/  direct  gather  photon/  solve   the stages, plain functions over tiles
+//! L2  project/  denoise  direct  gather  photon/  solve   the stages, plain functions
+//!                                    over tiles
 //! L1  config  report  scene/  scatter  image  camera  accel  light/  render  atlas/
 //!                                    settings, the scene and its physics, tiles
 //! L0  error  rng  progress  fsio  comm  interrupt  mem   no kdmap imports but L0
@@ -48,6 +49,7 @@ pub mod report;
 pub mod scatter;
 pub mod scene;
 
+pub mod denoise;
 pub mod direct;
 pub mod gather;
 pub mod photon;

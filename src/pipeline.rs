@@ -1,7 +1,8 @@
 //! The one place that knows the order of the stages:
 //!
 //! ```text
-//! scene -> atlas (geometry store) -> projection (L_orig) -> direct light (E_d)
+//! scene -> atlas (geometry store) -> projection (L_orig) -> denoise (L_orig)
+//!   -> direct light (E_d)
 //!   -> [ K_d (eqs. 3-5) -> E_i (photon pass) -> compare and update (eqs. 6-9) ] x iterations
 //!   -> final K_d -> outputs
 //! ```
@@ -21,7 +22,8 @@
 //! the direct light, batches of a photon pass, chunks of gather points, unit `u` by rank
 //! `u mod N`; `share` combines the results in unit order (a photon batch's deposits go to the
 //! rank of their tile, whose tiles are shared after the pass and before a checkpoint), so
-//! every rank's state is the same bits after each stage, whatever N. The rest (the per-texel update, smoothing, fill) runs
+//! every rank's state is the same bits after each stage, whatever N. The rest (the denoising
+//! of L_orig, the per-texel update, smoothing, fill) runs
 //! on every rank alike. Rank 0 alone writes checkpoints and outputs; a resumed run restores
 //! rank 0's checkpoint and sends it to the others, so it continues under any N.
 
@@ -203,6 +205,7 @@ pub fn run_projection(cfg: &Config, out: &Path, mode: Mode) -> Result<(Prepared,
     let stats = with_shard(world, |sh| {
         project::run_shard(&p, cfg, &hits, &geom, &mut state, mode, &scratch, sh)
     })?;
+    denoise(&p, cfg, &charts, &geom, &mut state, &scratch)?;
     debug_check(&geom, &state)?;
     if !world.is_root() {
         return Ok((p, stats));
@@ -225,6 +228,20 @@ pub fn run_projection(cfg: &Config, out: &Path, mode: Mode) -> Result<(Prepared,
         write_map(&maps, id, "coverage", &wt, &cov, true, &scratch)?;
     }
     Ok((p, stats))
+}
+
+/// The projected luminance's noise reduced (`denoise`), after the projection. Every rank runs
+/// it whole on the same synced state, so they stay the same bits.
+fn denoise(
+    p: &Prepared,
+    cfg: &Config,
+    charts: &Charts,
+    geom: &TileStore<TexelGeom>,
+    state: &mut TileStore<TexelState>,
+    scratch: &Scratch,
+) -> Result<()> {
+    let params = (cfg.denoise_radius, cfg.denoise_z);
+    crate::denoise::denoise_luminance(&p.layout, charts, geom, state, params, scratch)
 }
 
 /// The working directory of this rank: rank 0's is the run's checkpoint directory, the
@@ -445,6 +462,7 @@ impl<'a> Run<'a> {
             let (hits, geom, scratch) = (self.hits(), &self.geom, &self.scratch);
             project::run_shard(p, cfg, hits, geom, &mut state, mode, scratch, sh)
         })?;
+        denoise(p, cfg, &self.charts, &self.geom, &mut state, &self.scratch)?;
         report.timings.projection = t.elapsed().as_secs_f64();
         report.resources.after("projection");
         debug_check(&self.geom, &state)?;

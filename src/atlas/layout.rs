@@ -197,7 +197,7 @@ impl TexelGeom {
     }
 }
 
-/// The solver's per-texel state. 84 bytes. Radiance in scene units per channel, irradiance in
+/// The solver's per-texel state. 88 bytes. Radiance in scene units per channel, irradiance in
 /// scene units x sr.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, Pod, Zeroable)]
@@ -226,6 +226,9 @@ pub struct TexelState {
     /// Views whose value for this texel departed from the others by more than their noise
     /// and were down-weighted (robust fusion, see `project`).
     pub disagree: f32,
+    /// The part of `l_var` that is the photos' noise alone (propagated through the views'
+    /// weights, without their scatter): what [`crate::denoise`] judges differences against.
+    pub l_noise: f32,
 }
 
 #[cfg(test)]
@@ -279,6 +282,6 @@ mod tests {
     #[test]
     fn records_have_the_documented_sizes() {
         assert_eq!(std::mem::size_of::<TexelGeom>(), 52);
-        assert_eq!(std::mem::size_of::<TexelState>(), 84);
+        assert_eq!(std::mem::size_of::<TexelState>(), 88);
     }
 }

@@ -30,7 +30,9 @@
 //! clamp at zero. Each pass moves the map towards the least-squares solution of "render(map) =
 //! photo in every view": detail that some view resolves is restored, averaging stays where
 //! views agree. Residuals are soft-thresholded at the photos' noise level first
-//! ([`shrink_residual`]), so the passes do not fit each photo's noise into the map.
+//! ([`shrink_residual`]), so the passes do not fit each photo's noise into the map; what noise
+//! they still fit (more at the over-relaxed default step) the next stage, `denoise`, averages
+//! away where neighbouring texels agree within it.
 //!
 //! **Views that disagree.** The passes are also a robust fusion: each view's residual at a
 //! texel is judged against that view's noise there (the photo's relative noise from
@@ -432,7 +434,7 @@ pub fn fused_variance(a: &Residual, weight: f32) -> f32 {
     if weight <= 0.0 {
         return 0.0;
     }
-    let noise = a.w2var / (weight * weight);
+    let noise = photo_variance(a, weight);
     let scatter = if a.views >= 2.0 {
         a.wr2 / ((a.views - 1.0) * weight)
     } else {
@@ -441,10 +443,19 @@ pub fn fused_variance(a: &Residual, weight: f32) -> f32 {
     noise.max(scatter)
 }
 
+/// The variance of a fused luminance from the photos' noise alone: `sum w^2 var / W^2` (0 for
+/// no weight).
+pub fn photo_variance(a: &Residual, weight: f32) -> f32 {
+    if weight <= 0.0 {
+        return 0.0;
+    }
+    a.w2var / (weight * weight)
+}
+
 /// After a pass over all views: `l_orig += step * d / hw` (the weighted mean of the views'
 /// residuals, robust-weighted: an iteratively reweighted least-squares step towards the robust
 /// estimate; where every view agrees `hw` is `weight`), clamped at zero; after the last pass
-/// (`stats`) also the texel's `l_var` and `disagree`. `step` over-relaxes the passes where
+/// (`stats`) also the texel's `l_var`, `l_noise` and `disagree`. `step` over-relaxes the passes where
 /// every view agrees with the estimate within its noise (steps below 2 converge, as in
 /// SIRT); where a view is being outvoted the step stays 1, since an over-relaxed reweighting
 /// overshoots (at 1.8 the highlight test's texels end 14% off with the step everywhere, 6.0%
@@ -458,6 +469,7 @@ pub fn apply_refinement(state: &mut [TexelState], acc: &[Residual], stats: bool,
             }
             if stats {
                 s.l_var = fused_variance(a, s.weight);
+                s.l_noise = photo_variance(a, s.weight);
                 s.disagree = a.out;
             }
         }

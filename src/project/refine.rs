@@ -99,6 +99,18 @@ fn current_maps(
     Ok(maps)
 }
 
+/// The step of refinement pass `pass` (from 0): 1 in the first, whose robust weights are
+/// judged against the plain weighted mean (a view with a highlight is still in it), `step`
+/// after. Over-relaxing the first pass too left the highlight test's texels 6.0% off instead
+/// of 4.7%.
+fn pass_step(pass: u32, step: f32) -> f32 {
+    if pass == 0 {
+        1.0
+    } else {
+        step
+    }
+}
+
 /// Iterative back-projection after the weighted mean, over views prepared once.
 pub struct Refine<'a> {
     pub p: &'a Prepared,
@@ -125,10 +137,10 @@ struct Delta {
 impl Refine<'_> {
     /// `passes` times: re-render every view from the current maps, back-project the
     /// residuals `photo - render` (clean pixels only) and add `step` times their weighted
-    /// mean to `l_orig`
+    /// mean to `l_orig` (1 times in the first pass, [`pass_step`])
     /// (see the module notes). Every pass is robust (a view that departs from the estimate by
     /// more than its noise is down-weighted, see [`backproject_tile`]: from the first pass on,
-    /// as it takes all three default passes to outvote a highlight), and the last one's
+    /// as it takes the default passes to outvote a highlight), and the last one's
     /// residuals give each texel's `l_var` and `disagree`. The maps and the residuals live in scratch textures and tiles
     /// within the memory budget; casts rays only for clean pixels that straddle a chart seam.
     pub fn run(
@@ -168,7 +180,7 @@ impl Refine<'_> {
             drop(maps);
             map_tiles(state, &delta.store, self.window, |t, d, st| {
                 if delta.touched[t].load(Ordering::Relaxed) {
-                    apply_refinement(st, d, pass + 1 == passes, step);
+                    apply_refinement(st, d, pass + 1 == passes, pass_step(pass, step));
                 }
             })?;
             (self.shard.sync)(state)?;

@@ -224,7 +224,9 @@ fn check_textured(scene: &str, solver: Solver, b: TexBounds) {
         match truth.shapes[&a.shape] {
             Reflectance::Constant(_) => {
                 // Noise-free images of a uniform albedo project to that albedo.
-                assert!(f.mean_rel_error < 1e-3, "{}: floor {:?}", a.shape, f);
+                // (0.10% on envmap's cylinder: the over-relaxed refinement passes on a
+                // curved shape sampled on its texels' tangent planes)
+                assert!(f.mean_rel_error < 2e-3, "{}: floor {:?}", a.shape, f);
                 assert!(
                     a.mean_rel_error <= b.uniform_each,
                     "{}: {:.2}% > {:.2}%",
@@ -287,17 +289,19 @@ fn cbox_albedo_by_photons_is_recovered() {
 }
 
 /// The default method at its default settings: uniform shapes within 3.5% together and 6%
-/// each, textured shapes within 3 points of their resolution floor, mean colours within 3%.
-/// (The dim ceiling, lit only by the walls, is the closest: mean relative error 36.6% against
-/// a floor of 34.5%, relative L1 12.1% against 9.3%, since the density levels let its density
-/// rise from 99 to 117 texels per unit: fewer pixels, so more photo noise, per texel. It was
-/// within 2 points before; the held-out albedo judge gives 5.73% now, 5.71% before.)
+/// each, textured shapes within 3.5 points of their resolution floor, mean colours within 3%.
+/// (The dim ceiling, lit only by the walls, is the closest: relative L1 12.1% against a floor
+/// of 9.3% once the density levels let its density rise from 99 to 117 texels per unit, fewer
+/// pixels, so more photo noise, per texel; within 2 points before. With the over-relaxed
+/// refinement and the denoiser it is 11.5% against 8.5%: closer to the truth, but the floor,
+/// made by the same refinement from noise-free images, gained more. The held-out albedo judge
+/// gives 5.71%, 5.73%, and now 5.05%.)
 #[test]
 fn cbox_tex_albedo_is_recovered() {
     let b = TexBounds {
         uniform: 0.035,
         uniform_each: 0.06,
-        margin: 0.03,
+        margin: 0.035,
         bias: 0.03,
     };
     check_textured("cbox-tex", Solver::Gather, b);

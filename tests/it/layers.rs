@@ -20,7 +20,7 @@ const LAYERS: &[&[&str]] = &[
         "config", "report", "scene", "scatter", "image", "camera", "accel", "light", "render",
         "atlas",
     ],
-    &["project", "direct", "gather", "photon", "solve"],
+    &["project", "denoise", "direct", "gather", "photon", "solve"],
     &["checkpoint", "confidence", "output", "accuracy"],
     &["pipeline"],
 ];
