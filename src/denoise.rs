@@ -20,6 +20,7 @@ use crate::error::{Error, Result};
 use crate::scene::luminance;
 use glam::Vec3;
 use rayon::prelude::*;
+use std::cell::Cell;
 
 /// What the filter reads of a texel.
 #[repr(C)]
@@ -33,12 +34,24 @@ pub struct Noisy {
     pub chart: u32,
 }
 
-/// What the filter makes of a texel: its radiance, and the factor its variances shrink by.
+/// What the filter makes of a texel: its radiance, the factor its noise variance shrinks by,
+/// and how many texels it averaged (0: not filtered).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct Filtered {
     pub l: Vec3,
     pub factor: f32,
+    pub n: u32,
+}
+
+/// What the filter did, for the report.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct DenoiseStats {
+    /// Observed texels averaged with at least one neighbour.
+    pub averaged: u64,
+    /// Mean over the observed texels with a noise estimate of the factor their noise's
+    /// standard deviation shrank by (1: nothing removed).
+    pub sigma_ratio: f64,
 }
 
 /// Per channel, the standard error of a texel's value: its luminance's, scaled by the
@@ -84,6 +97,7 @@ pub fn sigma_filter(
     let keep = |t: &Noisy| Filtered {
         l: t.l,
         factor: 1.0,
+        n: 0,
     };
     let mut out: Vec<Filtered> = texels.iter().map(keep).collect();
     if radius == 0 || w == 0 {
@@ -112,6 +126,7 @@ pub fn sigma_filter(
             *o = Filtered {
                 l: sum / n as f32,
                 factor: 1.0 / independent(n),
+                n,
             };
         }
     });
@@ -141,9 +156,10 @@ pub fn denoise_luminance(
     state: &mut TileStore<TexelState>,
     (radius, z): (u32, f32),
     scratch: &Scratch,
-) -> Result<()> {
+) -> Result<DenoiseStats> {
+    let (averaged, judged, ratio_sum) = (Cell::new(0u64), Cell::new(0u64), Cell::new(0f64));
     if radius == 0 {
-        return Ok(());
+        return Ok(DenoiseStats::default());
     }
     for slot in 0..layout.slots.len() {
         let c = &charts.slots[slot];
@@ -169,10 +185,21 @@ pub fn denoise_luminance(
             }
             s.l_orig = f.l.to_array();
             s.l_noise *= f.factor;
+            if f.n > 0 {
+                judged.set(judged.get() + 1);
+                ratio_sum.set(ratio_sum.get() + (f.factor as f64).sqrt());
+                averaged.set(averaged.get() + (f.n > 1) as u64);
+            }
             true
         })?;
     }
-    Ok(())
+    Ok(DenoiseStats {
+        averaged: averaged.get(),
+        sigma_ratio: match judged.get() {
+            0 => 1.0,
+            j => ratio_sum.get() / j as f64,
+        },
+    })
 }
 
 #[cfg(test)]
@@ -338,16 +365,20 @@ mod tests {
                 .flat_map(|t| st.read_tile(t).unwrap())
                 .collect();
             let scratch = Scratch::new(dir.path(), budget);
-            denoise_luminance(&p.layout, &charts, &geom, &mut st, (2, 2.0), &scratch).unwrap();
+            let stats =
+                denoise_luminance(&p.layout, &charts, &geom, &mut st, (2, 2.0), &scratch).unwrap();
             let after: Vec<TexelState> = (0..st.tile_count())
                 .flat_map(|t| st.read_tile(t).unwrap())
                 .collect();
             let (mut shrunk, mut changed) = (0, 0);
+            let (mut ratio, mut judged) = (0.0f64, 0);
             for (b, a) in before.iter().zip(&after) {
                 if b.weight == 0.0 {
                     assert_eq!(a, b, "an unobserved texel changed");
                     continue;
                 }
+                ratio += (a.l_noise as f64 / b.l_noise as f64).sqrt();
+                judged += 1;
                 assert_eq!(a.l_var, b.l_var);
                 shrunk += (a.l_noise < b.l_noise) as u32;
                 changed += (a.l_orig != b.l_orig) as u32;
@@ -357,6 +388,18 @@ mod tests {
                 changed > shrunk,
                 "{changed} texels filtered, {shrunk} shrunk"
             );
+            // the report's figures, against a count over the stores
+            let (changed, judged) = (changed as u64, judged as u64);
+            assert!(
+                stats.averaged >= changed && stats.averaged < judged,
+                "{stats:?}"
+            );
+            let want = ratio / judged as f64;
+            assert!(
+                (stats.sigma_ratio - want).abs() < 1e-5,
+                "{stats:?} vs {want}"
+            );
+            assert!(stats.sigma_ratio < 0.8, "{stats:?}");
             runs.push(after);
         }
         assert!(runs[0] == runs[1], "whole and tiled differ");

@@ -122,6 +122,9 @@ pub struct ProjCounts {
     pub masked_pixels: usize,
     pub covered_texels: u64,
     pub observed_texels: u64,
+    /// What `denoise` did (see [`Counts::denoised_texels`]).
+    pub denoised_texels: u64,
+    pub denoise_sigma_ratio: f64,
 }
 
 /// What a checkpoint of a reconstruction stores beside the state snapshot.
@@ -239,7 +242,7 @@ fn denoise(
     geom: &TileStore<TexelGeom>,
     state: &mut TileStore<TexelState>,
     scratch: &Scratch,
-) -> Result<()> {
+) -> Result<crate::denoise::DenoiseStats> {
     let params = (cfg.denoise_radius, cfg.denoise_z);
     crate::denoise::denoise_luminance(&p.layout, charts, geom, state, params, scratch)
 }
@@ -462,7 +465,7 @@ impl<'a> Run<'a> {
             let (hits, geom, scratch) = (self.hits(), &self.geom, &self.scratch);
             project::run_shard(p, cfg, hits, geom, &mut state, mode, scratch, sh)
         })?;
-        denoise(p, cfg, &self.charts, &self.geom, &mut state, &self.scratch)?;
+        let dn = denoise(p, cfg, &self.charts, &self.geom, &mut state, &self.scratch)?;
         report.timings.projection = t.elapsed().as_secs_f64();
         report.resources.after("projection");
         debug_check(&self.geom, &state)?;
@@ -471,6 +474,8 @@ impl<'a> Run<'a> {
             masked_pixels: ps.masked_pixels,
             covered_texels: ps.covered_texels,
             observed_texels: ps.observed_texels,
+            denoised_texels: dn.averaged,
+            denoise_sigma_ratio: dn.sigma_ratio,
         };
         let t = Instant::now();
         let direct = self.direct(&mut state)?;
@@ -998,6 +1003,8 @@ impl<'a> Run<'a> {
             tiles: p.layout.tile_count,
             covered_texels: proj.covered_texels,
             observed_texels: proj.observed_texels,
+            denoised_texels: proj.denoised_texels,
+            denoise_sigma_ratio: proj.denoise_sigma_ratio,
             filled_texels: filled,
             dense_direct_texels: r.report.counts.dense_direct_texels,
             direct_first_pass_texels: r.report.counts.direct_first_pass_texels,

@@ -73,6 +73,13 @@ pub struct Counts {
     pub covered_texels: u64,
     /// Covered texels seen by at least one view.
     pub observed_texels: u64,
+    /// Observed texels whose luminance the denoiser averaged with agreeing neighbours.
+    #[serde(default)]
+    pub denoised_texels: u64,
+    /// Their mean factor of noise reduction: the standard deviation of the photos' noise in an
+    /// observed texel's luminance after the denoiser over before (1: nothing removed).
+    #[serde(default)]
+    pub denoise_sigma_ratio: f64,
     /// Covered texels no view saw (K_d filled from neighbours).
     pub filled_texels: u64,
     /// Covered texels whose direct light was estimated densely (a shadow edge or penumbra
