@@ -205,11 +205,7 @@ pub fn denoise_luminance(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::atlas::unwrap::AtlasSettings;
-    use crate::atlas::{build_geometry, Prepared};
-    use crate::progress::Mode;
-    use crate::scene::{mesh, Scene, Shape, Sides};
-    use std::path::PathBuf;
+    use crate::atlas::testing::Cube;
 
     /// A deterministic value in [-1, 1] per index.
     fn jitter(i: usize) -> f32 {
@@ -312,31 +308,12 @@ mod tests {
     /// whole or tile by tile.
     #[test]
     fn the_store_filter_is_the_same_whole_or_in_tiles() {
-        let shape = Shape {
-            id: "cube".into(),
-            kind: "test".into(),
-            file: None,
-            mesh: mesh::cube(),
-            sides: Sides::Front,
-            emission: None,
-            reflectance: None,
-            material: Default::default(),
-        };
-        let scene = Scene {
-            path: PathBuf::from("test.xml"),
-            shapes: vec![shape],
-            emitters: vec![],
-            sensors: vec![],
-            files: vec![],
-        };
-        let settings = AtlasSettings {
-            texels_per_unit: 24.0,
-            ..Default::default()
-        };
-        let p = Prepared::new(scene, vec![], &settings, 16).unwrap();
-        let dir = tempfile::tempdir().unwrap();
-        let geom = build_geometry(&p, &dir.path().join("geom.tiles"), Mode::Quiet).unwrap();
-        let charts = Charts::new(&p.scene, &p.layout, &p.atlases).unwrap();
+        let Cube {
+            p,
+            dir,
+            geom,
+            charts,
+        } = Cube::new(24.0);
         let mut runs = Vec::new();
         for budget in [1u64 << 30, 1] {
             let path = dir.path().join(format!("state-{budget}.tiles"));

@@ -10,6 +10,8 @@ pub mod hits;
 pub mod layout;
 pub mod prepared;
 pub mod slot_texture;
+#[cfg(test)]
+pub mod testing;
 pub mod texels;
 pub mod texture;
 pub mod tile_cache;

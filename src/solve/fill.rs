@@ -577,37 +577,15 @@ mod tests {
     /// photo saw; a progress stage of `2 x tiles` therefore ends at its total.
     #[test]
     fn the_fill_of_an_atlas_ticks_each_tile_read_and_written() {
+        use crate::atlas::testing::Cube;
         use crate::atlas::tiles::map_tiles;
-        use crate::atlas::unwrap::AtlasSettings;
-        use crate::atlas::{build_geometry, Prepared};
-        use crate::progress::Mode;
-        use crate::scene::{mesh, Scene, Shape, Sides};
         use std::sync::atomic::{AtomicU64, Ordering};
-        let shape = Shape {
-            id: "cube".into(),
-            kind: "test".into(),
-            file: None,
-            mesh: mesh::cube(),
-            sides: Sides::Front,
-            emission: None,
-            reflectance: None,
-            material: Default::default(),
-        };
-        let scene = Scene {
-            path: "test.xml".into(),
-            shapes: vec![shape],
-            emitters: vec![],
-            sensors: vec![],
-            files: vec![],
-        };
-        let settings = AtlasSettings {
-            texels_per_unit: 24.0,
-            ..Default::default()
-        };
-        let p = Prepared::new(scene, vec![], &settings, 16).unwrap();
-        let dir = tempfile::tempdir().unwrap();
-        let geom = build_geometry(&p, &dir.path().join("g"), Mode::Quiet).unwrap();
-        let charts = Charts::new(&p.scene, &p.layout, &p.atlases).unwrap();
+        let Cube {
+            p,
+            dir,
+            geom,
+            charts,
+        } = Cube::new(24.0);
         let tiles = p.layout.tile_count as u64;
         assert!(tiles > 4, "{tiles} tiles");
         for budget in [1u64 << 30, 1] {
