@@ -205,7 +205,7 @@ pub fn denoise_luminance(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::atlas::testing::Cube;
+    use crate::atlas::testing::Built;
 
     /// A deterministic value in [-1, 1] per index.
     fn jitter(i: usize) -> f32 {
@@ -308,12 +308,12 @@ mod tests {
     /// whole or tile by tile.
     #[test]
     fn the_store_filter_is_the_same_whole_or_in_tiles() {
-        let Cube {
+        let Built {
             p,
             dir,
             geom,
             charts,
-        } = Cube::new(24.0);
+        } = Built::cube(24.0);
         let mut runs = Vec::new();
         for budget in [1u64 << 30, 1] {
             let path = dir.path().join(format!("state-{budget}.tiles"));

@@ -1,5 +1,5 @@
-//! Test fixture shared by the stages' unit tests: a unit cube, prepared at a given density,
-//! with its geometry store and charts (built the way a run builds them).
+//! Test fixture shared by the stages' unit tests: a scene prepared at a given density, with
+//! its geometry store and charts (built the way a run builds them).
 
 use super::charts::Charts;
 use super::layout::TexelGeom;
@@ -7,19 +7,51 @@ use super::tiles::TileStore;
 use super::unwrap::AtlasSettings;
 use super::{build_geometry, Prepared};
 use crate::progress::Mode;
-use crate::scene::{mesh, Scene, Shape, Sides};
+use crate::scene::{mesh, Emitter, Scene, Shape, Sides};
 
-/// A prepared cube, its geometry store (in `dir`) and charts.
-pub struct Cube {
+/// A prepared scene, its geometry store (in `dir`, beside any other store a test makes) and
+/// charts.
+pub struct Built {
     pub p: Prepared,
     pub dir: tempfile::TempDir,
     pub geom: TileStore<TexelGeom>,
     pub charts: Charts,
 }
 
-impl Cube {
-    /// The cube (one-sided, no emitters, no views) at `texels_per_unit`.
-    pub fn new(texels_per_unit: f32) -> Cube {
+impl Built {
+    /// `shapes` and `emitters` (no views) at `texels_per_unit`, with per-triangle density
+    /// levels `levels[shape]` (missing or empty: one density).
+    pub fn new(
+        shapes: Vec<Shape>,
+        emitters: Vec<Emitter>,
+        texels_per_unit: f32,
+        levels: Vec<Vec<u8>>,
+    ) -> Built {
+        let scene = Scene {
+            path: "test.xml".into(),
+            shapes,
+            emitters,
+            sensors: vec![],
+            files: vec![],
+        };
+        let settings = AtlasSettings {
+            texels_per_unit,
+            ..Default::default()
+        };
+        let p = Prepared::with_levels(scene, &settings, levels, 16).unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let geom = build_geometry(&p, &dir.path().join("geom.tiles"), Mode::Quiet).unwrap();
+        let charts = Charts::new(&p.scene, &p.layout, &p.atlases).unwrap();
+        Built {
+            p,
+            dir,
+            geom,
+            charts,
+        }
+    }
+
+    /// A unit cube (one-sided, no emitters) at `texels_per_unit`.
+    pub fn cube(texels_per_unit: f32) -> Built {
         let shape = Shape {
             id: "cube".into(),
             kind: "test".into(),
@@ -30,26 +62,6 @@ impl Cube {
             reflectance: None,
             material: Default::default(),
         };
-        let scene = Scene {
-            path: "test.xml".into(),
-            shapes: vec![shape],
-            emitters: vec![],
-            sensors: vec![],
-            files: vec![],
-        };
-        let settings = AtlasSettings {
-            texels_per_unit,
-            ..Default::default()
-        };
-        let p = Prepared::new(scene, vec![], &settings, 16).unwrap();
-        let dir = tempfile::tempdir().unwrap();
-        let geom = build_geometry(&p, &dir.path().join("geom.tiles"), Mode::Quiet).unwrap();
-        let charts = Charts::new(&p.scene, &p.layout, &p.atlases).unwrap();
-        Cube {
-            p,
-            dir,
-            geom,
-            charts,
-        }
+        Built::new(vec![shape], vec![], texels_per_unit, vec![])
     }
 }

@@ -3,13 +3,12 @@
 
 use super::*;
 use crate::atlas::layout::TexelGeom;
-use crate::atlas::unwrap::AtlasSettings;
-use crate::atlas::{build_geometry, Prepared};
+use crate::atlas::testing::Built;
+use crate::atlas::Prepared;
 use crate::light::area::projected_solid_angle;
-use crate::progress::{no_tick, Mode};
-use crate::scene::{mesh, Mesh, Scene, Shape, Sides};
+use crate::progress::no_tick;
+use crate::scene::{mesh, Mesh, Shape, Sides};
 use glam::{DVec3, Mat4};
-use std::path::PathBuf;
 
 fn shape(id: &str, mesh: Mesh, emission: Option<Vec3>) -> Shape {
     Shape {
@@ -40,23 +39,13 @@ impl Fixture {
     }
 
     /// With per-triangle density levels per shape (`levels[shape]`; missing: uniform).
-    fn with_levels(shapes: Vec<Shape>, texels_per_unit: f32, mut levels: Vec<Vec<u8>>) -> Self {
-        levels.resize(shapes.len(), Vec::new());
-        let scene = Scene {
-            path: PathBuf::from("test.xml"),
-            shapes,
-            emitters: vec![],
-            sensors: vec![],
-            files: vec![],
-        };
-        let settings = AtlasSettings {
-            texels_per_unit,
-            ..Default::default()
-        };
-        let p = Prepared::with_levels(scene, &settings, levels, 16).unwrap();
-        let dir = tempfile::tempdir().unwrap();
-        let geom = build_geometry(&p, &dir.path().join("g"), Mode::Quiet).unwrap();
-        let charts = Charts::new(&p.scene, &p.layout, &p.atlases).unwrap();
+    fn with_levels(shapes: Vec<Shape>, texels_per_unit: f32, levels: Vec<Vec<u8>>) -> Self {
+        let Built {
+            p,
+            dir,
+            geom,
+            charts,
+        } = Built::new(shapes, vec![], texels_per_unit, levels);
         let hits = HitTable::new(&p, &charts);
         let state = p
             .create_store(dir.path().join("s"), TexelState::default())

@@ -2,14 +2,12 @@
 //! thread counts, group sizes and resumes, and the smoothing filter.
 
 use super::*;
+use crate::atlas::testing::Built;
 use crate::atlas::texture;
-use crate::atlas::unwrap::AtlasSettings;
-use crate::atlas::{build_geometry, Prepared};
-use crate::progress::Mode;
+use crate::atlas::Prepared;
 use crate::scene::{mesh, Emitter, Mesh, Shape, Sides};
 use glam::{DVec3, Mat4, Vec2, Vec3};
 use std::f64::consts::PI;
-use std::path::PathBuf;
 
 fn shape(id: &str, mesh: Mesh, sides: Sides) -> Shape {
     Shape {
@@ -43,21 +41,12 @@ struct Fixture {
 
 impl Fixture {
     fn new(shapes: Vec<Shape>, emitters: Vec<Emitter>, texels_per_unit: f32) -> Fixture {
-        let scene = Scene {
-            path: PathBuf::from("test.xml"),
-            shapes,
-            emitters,
-            sensors: vec![],
-            files: vec![],
-        };
-        let settings = AtlasSettings {
-            texels_per_unit,
-            ..Default::default()
-        };
-        let p = Prepared::new(scene, vec![], &settings, 16).unwrap();
-        let dir = tempfile::tempdir().unwrap();
-        let geom = build_geometry(&p, &dir.path().join("geom.tiles"), Mode::Quiet).unwrap();
-        let charts = Charts::new(&p.scene, &p.layout, &p.atlases).unwrap();
+        let Built {
+            p,
+            dir,
+            geom,
+            charts,
+        } = Built::new(shapes, emitters, texels_per_unit, vec![]);
         let sampler = EmitterSampler::new(&p.scene);
         let hits = HitTable::new(&p, &charts);
         Fixture {

@@ -577,15 +577,15 @@ mod tests {
     /// photo saw; a progress stage of `2 x tiles` therefore ends at its total.
     #[test]
     fn the_fill_of_an_atlas_ticks_each_tile_read_and_written() {
-        use crate::atlas::testing::Cube;
+        use crate::atlas::testing::Built;
         use crate::atlas::tiles::map_tiles;
         use std::sync::atomic::{AtomicU64, Ordering};
-        let Cube {
+        let Built {
             p,
             dir,
             geom,
             charts,
-        } = Cube::new(24.0);
+        } = Built::cube(24.0);
         let tiles = p.layout.tile_count as u64;
         assert!(tiles > 4, "{tiles} tiles");
         for budget in [1u64 << 30, 1] {
