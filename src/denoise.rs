@@ -15,6 +15,7 @@ use crate::atlas::density::OVERSAMPLE;
 use crate::atlas::layout::{Layout, TexelGeom, TexelState};
 use crate::atlas::slot_texture::{Scratch, SlotTexture};
 use crate::atlas::texels::NONE;
+use crate::atlas::texture::window;
 use crate::atlas::tiles::TileStore;
 use crate::error::{Error, Result};
 use crate::scene::luminance;
@@ -105,17 +106,15 @@ pub fn sigma_filter(
     }
     let r = radius as usize;
     out.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-        let (y0, y1) = (y.saturating_sub(r), (y + r + 1).min(h));
         for (x, o) in row.iter_mut().enumerate() {
             let c = &texels[y * w + x];
             if c.chart == NONE || c.var.is_nan() || c.var <= 0.0 {
                 continue;
             }
             let sc = channel_sigma(c);
-            let (x0, x1) = (x.saturating_sub(r), (x + r + 1).min(w));
             let (mut sum, mut n) = (Vec3::ZERO, 0u32);
-            for ny in y0..y1 {
-                for nb in &texels[ny * w + x0..ny * w + x1] {
+            for span in window(w, h, (x, y), r) {
+                for nb in &texels[span] {
                     if nb.chart == c.chart && agrees(c, sc, nb, z) {
                         sum += nb.l;
                         n += 1;
@@ -170,13 +169,8 @@ pub fn denoise_luminance(
         })?;
         let grid = tex.grid;
         let whole = |v: &[Noisy]| sigma_filter(v, grid.width, grid.height, radius, z);
-        let filtered = tex.map_blocks(radius, scratch, "denoised", whole, |b, t| {
-            let f = sigma_filter(&b.vals, b.width, b.height, radius, z)?;
-            let mut out = vec![Filtered::default(); grid.tile_texels()];
-            for (off, x, y) in grid.texels_of(t) {
-                out[off] = f[((y - b.y0) * b.width + (x - b.x0)) as usize];
-            }
-            Ok(out)
+        let filtered = tex.map_blocks(radius, scratch, "denoised", whole, |b, _| {
+            sigma_filter(&b.vals, b.width, b.height, radius, z)
         })?;
         drop(tex);
         filtered.scatter(state, |s, f| {

@@ -384,8 +384,9 @@ impl<V: Pod + Send + Sync> SlotTexture<V> {
         (0..self.grid.height).flat_map(|y| self.row(y)).collect()
     }
 
-    /// A new texture of `f(block of local tile t with halo r, t)` per tile (records in tile
-    /// order); `whole(all values)` computes the same thing on a texture held whole.
+    /// A new texture of `f(block of local tile t with halo r, t)` per tile: `f` gives a value
+    /// per texel of the block (row-major, its size), of which the tile's own are kept;
+    /// `whole(all values)` computes the same thing on a texture held whole.
     pub fn map_blocks<W: Pod + Send + Sync>(
         &self,
         r: u32,
@@ -409,7 +410,24 @@ impl<V: Pod + Send + Sync> SlotTexture<V> {
                 data: Data::Whole(out),
             });
         }
-        let out = SlotTexture::build(self.grid, scratch, name, |t| f(&self.block(t, r), t))?;
+        let grid = self.grid;
+        let out = SlotTexture::build(grid, scratch, name, |t| {
+            let b = self.block(t, r);
+            let vals = f(&b, t)?;
+            if vals.len() != b.vals.len() {
+                return Err(Error::internal(format!(
+                    "{name}: {} values for a {}x{} block",
+                    vals.len(),
+                    b.width,
+                    b.height
+                )));
+            }
+            let mut out = vec![W::zeroed(); grid.tile_texels()];
+            for (off, x, y) in grid.texels_of(t) {
+                out[off] = vals[((y - b.y0) * b.width + (x - b.x0)) as usize];
+            }
+            Ok(out)
+        })?;
         self.check()?;
         Ok(out)
     }
@@ -436,17 +454,12 @@ where
             dilate(&mut v, &m, w, h, passes)?;
             Ok(v)
         };
-        let grid = self.grid;
         self.map_blocks(passes, scratch, "dilated", whole, |b, t| {
             let mb = mask.block(t, passes);
             let m: Vec<bool> = mb.vals.iter().map(|&x| x != 0).collect();
             let mut v = b.vals.clone();
             dilate(&mut v, &m, b.width, b.height, passes)?;
-            let mut out = vec![V::zeroed(); grid.tile_texels()];
-            for (off, x, y) in grid.texels_of(t) {
-                out[off] = v[((y - b.y0) * b.width + (x - b.x0)) as usize];
-            }
-            Ok(out)
+            Ok(v)
         })
         .and_then(|t| mask.check().map(|_| t))
     }

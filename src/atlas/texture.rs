@@ -63,6 +63,18 @@ where
     Ok(changed)
 }
 
+/// The texels within `r` of `(x, y)` in a row-major `width x height` texture, clipped to it:
+/// one range of indices per row (the window of the texture-space filters).
+pub fn window(
+    width: usize,
+    height: usize,
+    (x, y): (usize, usize),
+    r: usize,
+) -> impl Iterator<Item = std::ops::Range<usize>> {
+    let (x0, x1) = (x.saturating_sub(r), (x + r + 1).min(width));
+    (y.saturating_sub(r)..(y + r + 1).min(height)).map(move |ny| ny * width + x0..ny * width + x1)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -7,6 +7,7 @@ use crate::atlas::charts::Charts;
 use crate::atlas::layout::{Layout, TexelGeom, TexelState};
 use crate::atlas::slot_texture::{Scratch, SlotTexture};
 use crate::atlas::texels::NONE;
+use crate::atlas::texture::window;
 use crate::atlas::tiles::TileStore;
 use crate::{Error, Result};
 use glam::{DVec3, Vec3};
@@ -41,16 +42,14 @@ pub fn smooth_within_charts(
     }
     let r = radius as usize;
     out.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-        let (y0, y1) = (y.saturating_sub(r), (y + r + 1).min(h));
         for (x, o) in row.iter_mut().enumerate() {
             let c = charts[y * w + x];
             if c == NONE {
                 continue;
             }
-            let (x0, x1) = (x.saturating_sub(r), (x + r + 1).min(w));
             let (mut s, mut sw) = (DVec3::ZERO, 0.0f64);
-            for ny in y0..y1 {
-                for j in ny * w + x0..ny * w + x1 {
+            for span in window(w, h, (x, y), r) {
+                for j in span {
                     if charts[j] == c {
                         let wt = weights[j] as f64;
                         s += values[j].as_dvec3() * wt;
@@ -111,14 +110,9 @@ pub fn smooth_accum(
             let (a, w, ch) = split(v);
             smooth_within_charts(&a, &w, &ch, grid.width, grid.height, radius)
         };
-        let smoothed = tex.map_blocks(radius, scratch, "smoothed", whole, |b, t| {
+        let smoothed = tex.map_blocks(radius, scratch, "smoothed", whole, |b, _| {
             let (a, w, ch) = split(&b.vals);
-            let sm = smooth_within_charts(&a, &w, &ch, b.width, b.height, radius)?;
-            let mut out = vec![Vec3::ZERO; grid.tile_texels()];
-            for (off, x, y) in grid.texels_of(t) {
-                out[off] = sm[((y - b.y0) * b.width + (x - b.x0)) as usize];
-            }
-            Ok(out)
+            smooth_within_charts(&a, &w, &ch, b.width, b.height, radius)
         })?;
         drop(tex);
         smoothed.scatter(state, |s, v| {
