@@ -102,7 +102,7 @@ fn current_maps(
 /// The step of refinement pass `pass` (from 0): 1 in the first, whose robust weights are
 /// judged against the plain weighted mean (a view with a highlight is still in it), `step`
 /// after. Over-relaxing the first pass too left the highlight test's texels 6.0% off instead
-/// of 4.7%.
+/// of 4.7% (three passes; 4.5% over the four default ones).
 fn pass_step(pass: u32, step: f32) -> f32 {
     if pass == 0 {
         1.0
