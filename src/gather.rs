@@ -4,12 +4,15 @@
 //! already, every bounce included (the idea of Inverse Global Illumination, Yu, Debevec, Malik
 //! and Hawkins, SIGGRAPH 1999). So from a point, cosine-weighted rays: a hit on an observed
 //! texel returns its observed radiance `L_orig`, a hit on an unobserved one its current
-//! estimate `K_d (E_d + E_i) / pi`, a hit on an emitter (its light is `E_d`), on nothing, or on
-//! the back of a one-sided surface returns 0; `E_i = pi * mean`. A ray that meets a known
-//! material (mirror, glass) goes on through it (`scatter::sample`, at most [`scatter::MAX_SPECULAR`]
-//! times) with its throughput, and there an emitter counts: light by way of a mirror or
-//! through glass is not in `E_d`. Observed surfaces need no
-//! `K_d`, so it converges in one or two passes where photon tracing needs many.
+//! estimate `K_d (E_d + E_i) / pi`, a hit on an emitter, on nothing, or on the back of a
+//! one-sided surface returns 0; `E_i = pi * mean`. A ray that meets a known material (mirror,
+//! glass) goes on through it (`scatter::sample`, at most [`scatter::MAX_SPECULAR`] times) with
+//! its throughput to the surface it sees there; an emitter seen through them returns 0 too:
+//! that light (a caustic) is in `E_d`, from the caustic photon pass (`photon::Paths::Caustic`),
+//! because a small bright light in a mirror or through glass is a rare, heavy hit for a gather
+//! ray (mirror-cbox's walls were blotched by it) and a point or directional one is never hit.
+//! Observed surfaces need no `K_d`, so it converges in one or two passes where photon tracing
+//! needs many.
 //!
 //! `E_i` varies slowly, so it is gathered on a coarser set of points and interpolated: each
 //! texture is cut into cells of `stride x stride` texels (`stride` from the scene-unit
@@ -630,7 +633,6 @@ fn trace_point(ctx: &GatherContext, index: u64, pt: &Point) -> (Vec3, f32, Vec<C
                     (l, true) => add(l * h.weight),
                     (_, false) => cached.push(h),
                 },
-                Seen::Light(l) => add(l),
                 Seen::Nothing => {}
             }
         }
@@ -642,24 +644,18 @@ fn trace_point(ctx: &GatherContext, index: u64, pt: &Point) -> (Vec3, f32, Vec<C
 enum Seen {
     /// A reconstructed surface (directly, or through mirrors and glass: `weight`).
     Surface(CachedHit),
-    /// Emitted light seen through at least one known material (the light itself seen
-    /// directly is `E_d`), already weighted.
-    Light(Vec3),
     Nothing,
 }
 
 /// Follows a gather ray from `o` along `d` through known materials (sampled by `scatter`)
-/// to the reconstructed surface or the light it sees. Emitters seen directly, misses and the
-/// back of one-sided surfaces bring nothing.
+/// to the reconstructed surface it sees. Emitters (seen directly: `E_d`; through mirrors and
+/// glass: the caustic pass's, also in `E_d`), misses and the back of one-sided surfaces bring
+/// nothing.
 fn walk(ctx: &GatherContext, mut o: Vec3, mut d: Vec3, rng: &mut Rng) -> Seen {
     let mut weight = Vec3::ONE;
-    for bounce in 0..=scatter::MAX_SPECULAR {
+    for _ in 0..=scatter::MAX_SPECULAR {
         let Some((hit, prim)) = ctx.hits.trace(ctx.accel, o, d, f32::INFINITY) else {
-            // the sky seen straight is E_d; through glass or in a mirror it is E_i
-            return match bounce {
-                0 => Seen::Nothing,
-                _ => Seen::Light(ctx.hits.environment(d) * weight),
-            };
+            return Seen::Nothing;
         };
         let back = d.dot(hit.ns) >= 0.0;
         if prim.slot != NONE {
@@ -672,12 +668,6 @@ fn walk(ctx: &GatherContext, mut o: Vec3, mut d: Vec3, rng: &mut Rng) -> Seen {
                 uv: hit.uv,
                 weight,
             });
-        }
-        if let Some(e) = ctx.hits.emitted(prim, hit.ns, d) {
-            return match bounce {
-                0 => Seen::Nothing,
-                _ => Seen::Light(e * weight),
-            };
         }
         let Some(b) = ctx.hits.known(prim) else {
             return Seen::Nothing;

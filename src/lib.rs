@@ -5,7 +5,7 @@
 //!
 //! ```text
 //! scene (Mitsuba XML or glTF, meshes) -> atlas (geometry store) -> projection (L_orig)
-//!   -> denoise (L_orig) -> direct light (E_d) -> E_i (photon tracing) -> per-texel update (K_d) -> outputs / checkpoint
+//!   -> denoise (L_orig) -> direct light (E_d, caustics included) -> E_i (photon tracing) -> per-texel update (K_d) -> outputs / checkpoint
 //! ```
 //!
 //! # Layers

@@ -54,6 +54,9 @@ pub struct Timings {
     pub photons: f64,
     #[serde(default)]
     pub gather: f64,
+    /// The caustic photon pass (light by way of mirrors and glass, part of `E_d`).
+    #[serde(default)]
+    pub caustics: f64,
     pub update: f64,
     pub output: f64,
     pub total: f64,
@@ -73,6 +76,9 @@ pub struct Counts {
     pub covered_texels: u64,
     /// Covered texels seen by at least one view.
     pub observed_texels: u64,
+    /// Photons of the caustic pass (0: no mirror or glass in the scene).
+    #[serde(default)]
+    pub caustic_photons: u64,
     /// Observed texels whose luminance the denoiser averaged with agreeing neighbours.
     #[serde(default)]
     pub denoised_texels: u64,

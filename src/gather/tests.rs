@@ -247,18 +247,8 @@ fn square_above_a_floor_matches_the_configuration_factor() {
     assert!(mean_err < 0.003, "mean over the floor off by {mean_err}");
 }
 
-/// A mirror doubles what a floor sees: the square of the test above at `x = -0.3`, and a
-/// perfect mirror in the plane `x = 0` (facing the floor, which ends at it): `E_i` is `L`
-/// times the projected solid angle of the square plus that of its mirror image at `x = +0.3`.
-#[test]
-fn a_square_and_its_mirror_image_match_two_configuration_factors() {
-    let mut floor = mesh::rectangle();
-    floor.transform(&Mat4::from_translation(Vec3::new(-1.0, 0.0, 0.0)));
-    let mut top = mesh::rectangle();
-    mesh::flip_normals(&mut top);
-    top.transform(
-        &(Mat4::from_translation(Vec3::new(-0.3, 0.0, 1.0)) * Mat4::from_scale(Vec3::splat(0.25))),
-    );
+/// A perfect mirror in the plane `x = 0`, facing `-x`, 6 x 6 from `z = 0`.
+fn mirror_wall() -> Shape {
     let mut mirror = mesh::rectangle();
     mirror.transform(
         &(Mat4::from_translation(Vec3::new(0.0, 0.0, 3.0))
@@ -275,8 +265,48 @@ fn a_square_and_its_mirror_image_match_two_configuration_factors() {
             rough: None,
         },
     }));
+    mirror
+}
+
+/// A light seen in a mirror brings a gather nothing: that light is a caustic, in `E_d` from
+/// the caustic photon pass (`photon::Paths::Caustic`). The floor of the test below under an
+/// emitting square and the mirror gathers exactly 0 (it gathered the image before).
+#[test]
+fn a_light_in_a_mirror_is_not_gathered() {
+    let mut floor = mesh::rectangle();
+    floor.transform(&Mat4::from_translation(Vec3::new(-1.0, 0.0, 0.0)));
+    let mut lamp = mesh::rectangle();
+    mesh::flip_normals(&mut lamp);
+    lamp.transform(
+        &(Mat4::from_translation(Vec3::new(-0.3, 0.0, 1.0)) * Mat4::from_scale(Vec3::splat(0.25))),
+    );
+    let lamp = shape("lamp", lamp, Some(Vec3::splat(5.0)));
+    let mut fx = Fixture::new(vec![shape("floor", floor, None), lamp, mirror_wall()], 8.0);
+    fx.observe("floor", Vec3::ZERO);
+    let (pts, vals) = fx.gather(0.25, 1024);
+    let floor_pts = slot_points(&fx, &pts, &vals, fx.slot_of("floor"));
+    assert!(floor_pts.len() > 10);
+    assert!(floor_pts.iter().all(|(_, v)| *v == Vec3::ZERO));
+}
+
+/// A mirror doubles what a floor sees: the square of the test above at `x = -0.3`, and a
+/// perfect mirror in the plane `x = 0` (facing the floor, which ends at it): `E_i` is `L`
+/// times the projected solid angle of the square plus that of its mirror image at `x = +0.3`.
+#[test]
+fn a_square_and_its_mirror_image_match_two_configuration_factors() {
+    let mut floor = mesh::rectangle();
+    floor.transform(&Mat4::from_translation(Vec3::new(-1.0, 0.0, 0.0)));
+    let mut top = mesh::rectangle();
+    mesh::flip_normals(&mut top);
+    top.transform(
+        &(Mat4::from_translation(Vec3::new(-0.3, 0.0, 1.0)) * Mat4::from_scale(Vec3::splat(0.25))),
+    );
     let mut fx = Fixture::new(
-        vec![shape("floor", floor, None), shape("top", top, None), mirror],
+        vec![
+            shape("floor", floor, None),
+            shape("top", top, None),
+            mirror_wall(),
+        ],
         8.0,
     );
     let l = Vec3::new(1.0, 2.0, 3.0);

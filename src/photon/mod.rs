@@ -1,7 +1,9 @@
 //! Secondary illuminance `E_i` by forward light (photon) tracing with the current `K_d`
 //! (method step 6): photons leave the emitters in proportion to their power, bounce
-//! diffusely off the reconstructed surfaces, and every hit after at least one bounce deposits
-//! its flux into the atlas texel under it. Direct light is not traced here (step 3 fixed it).
+//! diffusely off the reconstructed surfaces, and every hit after at least one diffuse bounce
+//! deposits its flux into the atlas texel under it. Direct light is not traced here (step 3
+//! fixed it), nor light that reached a surface by mirrors and glass alone: a caustic pass
+//! ([`Paths::Caustic`], once per run) traces that into `E_d`.
 //!
 //! # A pass, for the caller
 //!
@@ -230,11 +232,24 @@ pub struct PassContext<'a> {
     pub batch_size: u32,
     /// Most diffuse bounces per path (0 = nothing is deposited).
     pub max_depth: u32,
+    /// Which light paths deposit (a solver pass: [`Paths::Indirect`]).
+    pub paths: Paths,
     /// Tiles per mapped window of the state store.
     pub window: usize,
     /// Batches traced before their deposits are added (bounds memory; the checkpoint
     /// granularity). 0 = `max(16, 2 x threads)`. Never changes the result.
     pub group_batches: usize,
+}
+
+/// The light paths a pass deposits.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Paths {
+    /// Light that met at least one reconstructed (diffuse) surface on its way: `E_i`, which
+    /// depends on the current `K_d`.
+    Indirect,
+    /// Light that reached a reconstructed surface by way of mirrors and glass alone
+    /// (caustics): independent of every `K_d`, so traced once and added to `E_d`.
+    Caustic,
 }
 
 impl<'a> PassContext<'a> {
@@ -266,6 +281,7 @@ impl<'a> PassContext<'a> {
             photons: cfg.photons,
             batch_size: cfg.batch_size,
             max_depth: cfg.max_depth,
+            paths: Paths::Indirect,
             // the albedo textures hold the other half of the budget through the pass
             window: p.window::<TexelState>(cfg),
             group_batches: 0,

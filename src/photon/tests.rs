@@ -74,6 +74,7 @@ impl Fixture {
             photons,
             batch_size: batch,
             max_depth: 64,
+            paths: Paths::Indirect,
             window: 5,
             group_batches: 0,
         }
@@ -393,6 +394,77 @@ fn open_floor_and_backside_receiver_get_nothing() {
         &[0.9, 0.0],
     );
     assert!(f[0] == Vec3::ZERO && f[1].min_element() > 0.0, "{f:?}");
+}
+
+/// Caustics against the closed form of a mirror image: a point light 1 above a floor (side
+/// 4) under a perfect mirror at height 2. A caustic pass deposits exactly the light of the
+/// light's image at height 3, `E(x) = 3 I / r^3`: over the floor `I Omega / A`, with `Omega`
+/// the floor's solid angle from the image, and per region the same; the direct light is not
+/// in it. A solver pass (`Indirect`) over a black floor deposits nothing: that light is the
+/// caustic pass's, not `E_i`.
+#[test]
+fn a_caustic_pass_deposits_the_mirror_image_of_the_light() {
+    let quad = |z: f32, down: bool, scale: f32| {
+        let mut m = mesh::rectangle();
+        m.transform(&(Mat4::from_translation(Vec3::Z * z) * Mat4::from_scale(Vec3::splat(scale))));
+        if down {
+            mesh::flip_normals(&mut m);
+        }
+        m
+    };
+    let mut mirror = shape("mirror", quad(2.0, true, 8.0), Sides::Front);
+    mirror.material = crate::scene::Material::Known(Box::new(crate::scene::KnownMaterial {
+        plugin: "conductor".into(),
+        bsdf: crate::scene::KnownBsdf::Conductor {
+            eta: Vec3::ZERO,
+            k: Vec3::ONE,
+            tint: Vec3::ONE,
+            rough: None,
+        },
+    }));
+    let floor = shape("floor", quad(0.0, false, 2.0), Sides::Front);
+    let i = Vec3::new(2.0, 1.0, 0.5);
+    let fx = Fixture::new(vec![floor, mirror], vec![point(Vec3::Z, i)], 8.0);
+    let n = 400_000u64;
+    let black = fx.uniform(Vec3::ZERO);
+    let mut ctx = fx.ctx(&black, n, 8192);
+    ctx.paths = Paths::Caustic;
+    let (s, stats) = fx.pass(&ctx, "caustic.tiles");
+    let texels = fx.texels(&s);
+    // the floor's solid angle from the image at height 3
+    let omega = 4.0 * (4.0f64 / 13.0).asin();
+    let want = i.as_dvec3() * (omega / 16.0);
+    let got = area_mean(&texels).as_dvec3();
+    let rel = (got / want - 1.0).abs().max_element();
+    eprintln!("caustic: mean {got:.5} vs {want:.5}; {stats:?}");
+    assert!(rel < 0.01, "{got} vs {want}");
+    // every photon that reached the mirror and then the floor, and nothing else
+    let share = (stats.deposits + stats.dropped) as f64 / n as f64;
+    assert!((share - omega / (4.0 * PI)).abs() < 0.005, "{share}");
+    // the profile: a central square against the edge band
+    let region = |inner: bool| -> (f64, f64) {
+        let (mut got, mut want) = (0.0f64, 0.0f64);
+        for (g, e) in texels.iter().filter(|(g, _)| g.covered()) {
+            let p = Vec3::from_array(g.position).as_dvec3();
+            if (p.x.abs().max(p.y.abs()) < 0.75) != inner {
+                continue;
+            }
+            let r = (p.x * p.x + p.y * p.y + 9.0).sqrt();
+            got += e.x as f64 * g.bin_area as f64;
+            want += 3.0 * i.x as f64 / r.powi(3) * g.bin_area as f64;
+        }
+        (got, want)
+    };
+    for inner in [true, false] {
+        let (g, w) = region(inner);
+        assert!((g / w - 1.0).abs() < 0.03, "inner {inner}: {g} vs {w}");
+    }
+    // the same light paths in a solver pass: no diffuse bounce before the floor, no deposit
+    let mut ctx = fx.ctx(&black, n / 4, 8192);
+    ctx.paths = Paths::Indirect;
+    let (s, stats) = fx.pass(&ctx, "indirect.tiles");
+    assert_eq!(stats.deposits + stats.dropped, 0, "{stats:?}");
+    assert!(fx.texels(&s).iter().all(|(_, e)| *e == Vec3::ZERO));
 }
 
 /// The albedo a photon sees is the texel under the hit; `gather` ignores uncovered texels'

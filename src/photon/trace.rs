@@ -1,8 +1,10 @@
 //! One photon's path, a pure function of (seed, iteration, batch, index): emission, diffuse
-//! bounces with Russian roulette on `K_d`, and a deposit at every hit after the first bounce.
-//! Kept apart from the batching so a single photon can be replayed and tested.
+//! bounces with Russian roulette on `K_d`, and a deposit at every hit after the first diffuse
+//! bounce ([`Paths::Indirect`]), or only the first diffuse hit after mirrors and glass
+//! ([`Paths::Caustic`]). Kept apart from the batching so a single photon can be replayed and
+//! tested.
 
-use super::{Deposit, PassContext};
+use super::{Deposit, PassContext, Paths};
 use crate::accel::offset_origin;
 use crate::atlas::texels::NONE;
 use crate::rng::Rng;
@@ -33,12 +35,15 @@ impl AddAssign for PathCounts {
 ///
 /// At each hit, in order:
 /// 1. A known material (mirror, glass, ...) scatters the photon on (`scatter::sample`,
-///    Russian roulette on its weight; it counts as a bounce, so light reaching a diffuse
-///    surface through it is `E_i`); an emitter absorbs. So does a one-sided (`Sides::Front`)
-///    surface hit from behind its shading normal, and any hit where the shading and
-///    geometric normals disagree about the side (grazing; a shading-normal artifact).
-/// 2. After at least one bounce, the flux is deposited into the texel under the hit (if that
-///    texel's center is on the hit's chart; dropped otherwise).
+///    Russian roulette on its weight; it counts as a bounce); an emitter absorbs. So does a
+///    one-sided (`Sides::Front`) surface hit from behind its shading normal, and any hit
+///    where the shading and geometric normals disagree about the side (grazing; a
+///    shading-normal artifact).
+/// 2. [`Paths::Indirect`]: after at least one diffuse bounce, the flux is deposited into the
+///    texel under the hit (if that texel's center is on the hit's chart; dropped otherwise).
+///    Light that reached the surface by mirrors and glass alone is the caustic pass's.
+///    [`Paths::Caustic`]: the first diffuse hit ends the path, with a deposit if mirrors or
+///    glass came before it.
 /// 3. After `max_depth` bounces the path ends.
 /// 4. Russian roulette with survival `q = clamp(max K_d, MIN_SURVIVAL, 1)`, flux `*= K_d / q`.
 /// 5. A cosine-weighted direction about the shading normal on the incident side; a direction
@@ -56,7 +61,7 @@ pub fn trace_photon(
     };
     let mut flux = ph.flux * (1.0 / ctx.photons as f64) as f32;
     let (mut o, mut d) = (ph.origin, ph.dir);
-    let mut bounces = 0u32;
+    let (mut bounces, mut diffuse) = (0u32, 0u32);
     loop {
         counts.rays += 1;
         let Some((hit, prim)) = ctx.hits.trace(ctx.accel, o, d, f32::INFINITY) else {
@@ -94,7 +99,11 @@ pub fn trace_photon(
             break;
         }
         let (texel, inside) = ctx.albedo.texel(slot, hit.uv);
-        if bounces > 0 {
+        let deposit = match ctx.paths {
+            Paths::Indirect => diffuse > 0,
+            Paths::Caustic => bounces > 0,
+        };
+        if deposit {
             // Binned only where the texel's center is on the hit's chart (module doc of
             // `photon`, "Unbiased bins").
             if inside && prim.chart != NONE && texel.chart == prim.chart {
@@ -105,7 +114,7 @@ pub fn trace_photon(
                 counts.dropped += 1;
             }
         }
-        if bounces >= ctx.max_depth {
+        if bounces >= ctx.max_depth || ctx.paths == Paths::Caustic {
             break;
         }
         let kd = texel.kd;
@@ -126,6 +135,7 @@ pub fn trace_photon(
         o = offset_origin(hit.p, ng, dir);
         d = dir;
         bounces += 1;
+        diffuse += 1;
     }
     counts
 }
