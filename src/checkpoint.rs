@@ -43,7 +43,9 @@ static CHECKPOINT_WRITES: AtomicU64 = AtomicU64::new(0);
 
 /// Manifest format version this build reads and writes. 6: the automatic atlas has density
 /// levels per triangle, so a run of version 5 has another texel layout for the same inputs.
-pub const VERSION: u32 = 7;
+/// 8: `E_d` holds the caustics (light by way of mirrors and glass), which a version-7 state
+/// of a scene with such materials has in none of its irradiance.
+pub const VERSION: u32 = 8;
 const MAGIC: &str = "KDMCKPT";
 /// The current manifest.
 pub const MANIFEST: &str = "progress.kdm";
