@@ -535,9 +535,9 @@ impl<'a> Run<'a> {
         }
         let sampler = EmitterSampler::new(&p.scene);
         let keep = self.scratch.with_budget(2 * self.scratch.budget);
-        let padding = cfg.atlas.padding + 2;
-        // only the charts are read: the first diffuse hit ends every path
-        let albedo = AlbedoTextures::gather(&p.layout, charts, state, &self.geom, padding, &keep)?;
+        // only the charts are read: the first diffuse hit ends every path, whatever its K_d
+        let albedo =
+            AlbedoTextures::uniform(&p.layout, charts, &self.geom, glam::Vec3::ZERO, &keep)?;
         let hits = self.hits();
         let mut ctx = PassContext::new(p, cfg, (&sampler, charts, hits, &albedo), CAUSTIC_PASS);
         ctx.paths = Paths::Caustic;
@@ -556,12 +556,7 @@ impl<'a> Run<'a> {
             interrupt::check(interrupt::NOTHING_SAVED)
         })?;
         stage.finish();
-        share::share_tiles(world, state)?;
-        finish_pass(&self.geom, state, self.window)?;
-        if cfg.smoothing_radius > 0 {
-            let r = cfg.smoothing_radius;
-            smooth_accum(&p.layout, charts, &self.geom, state, r, &self.scratch)?;
-        }
+        self.finish_accum(state)?;
         map_tiles(state, &self.geom, self.window, |_, _, recs| {
             for s in recs.iter_mut() {
                 for c in 0..3 {
@@ -765,7 +760,7 @@ impl<'a> Run<'a> {
         pass: &mut PassResume,
         sampler: &EmitterSampler,
     ) -> Result<Estimate> {
-        let (cfg, p, window, charts) = (&self.cfg, &self.p, self.window, &self.charts);
+        let (cfg, p, charts) = (&self.cfg, &self.p, &self.charts);
         let t = Instant::now();
         let padding = cfg.atlas.padding + 2;
         // the textures stay through the pass, beside the pass's own mapped window
@@ -776,25 +771,25 @@ impl<'a> Run<'a> {
         let mut ctx = PassContext::new(p, cfg, (sampler, charts, self.hits(), &albedo), n as u64);
         ctx.group_batches = self.group_batches();
         let traced = self.photon_pass(r, &ctx, n, pass)?;
-        // the deposits went to their tiles' ranks: every tile current everywhere
-        share::share_tiles(self.world, &mut r.state)?;
-        finish_pass(&self.geom, &mut r.state, window)?;
-        if cfg.smoothing_radius > 0 {
-            let radius = cfg.smoothing_radius;
-            smooth_accum(
-                &p.layout,
-                charts,
-                &self.geom,
-                &mut r.state,
-                radius,
-                &self.scratch,
-            )?;
-        }
+        self.finish_accum(&mut r.state)?;
         Ok(Estimate {
             photons: ctx.photons_in(pass.batches_done) + traced.photons,
             photon_seconds: pass.photon_seconds + traced.seconds,
             ..Default::default()
         })
+    }
+
+    /// A photon pass's `accum` (summed flux) made the irradiance it deposited: the deposits
+    /// went to their tiles' ranks, so every tile is first made current everywhere; then
+    /// flux / bin area ([`finish_pass`]) and the box filter of `smoothing_radius`.
+    fn finish_accum(&self, state: &mut TileStore<TexelState>) -> Result<()> {
+        let (p, r) = (&self.p, self.cfg.smoothing_radius);
+        share::share_tiles(self.world, state)?;
+        finish_pass(&self.geom, state, self.window)?;
+        if r > 0 {
+            smooth_accum(&p.layout, &self.charts, &self.geom, state, r, &self.scratch)?;
+        }
+        Ok(())
     }
 
     /// E_i gathered from the observed radiance into `accum`: the rays are cast in the first

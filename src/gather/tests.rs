@@ -247,6 +247,19 @@ fn square_above_a_floor_matches_the_configuration_factor() {
     assert!(mean_err < 0.003, "mean over the floor off by {mean_err}");
 }
 
+/// The floor `[-2, 0] x [-1, 1]` facing up, and a 0.5 x 0.5 square facing down, 1 above
+/// it centred at `x = -0.3`: the mirror tests' scene beside [`mirror_wall`].
+fn floor_and_square() -> (Mesh, Mesh) {
+    let mut floor = mesh::rectangle();
+    floor.transform(&Mat4::from_translation(Vec3::new(-1.0, 0.0, 0.0)));
+    let mut square = mesh::rectangle();
+    mesh::flip_normals(&mut square);
+    square.transform(
+        &(Mat4::from_translation(Vec3::new(-0.3, 0.0, 1.0)) * Mat4::from_scale(Vec3::splat(0.25))),
+    );
+    (floor, square)
+}
+
 /// A perfect mirror in the plane `x = 0`, facing `-x`, 6 x 6 from `z = 0`.
 fn mirror_wall() -> Shape {
     let mut mirror = mesh::rectangle();
@@ -256,15 +269,8 @@ fn mirror_wall() -> Shape {
             * Mat4::from_scale(Vec3::splat(3.0))),
     );
     let mut mirror = shape("mirror", mirror, None);
-    mirror.material = crate::scene::Material::Known(Box::new(crate::scene::KnownMaterial {
-        plugin: "conductor".into(),
-        bsdf: crate::scene::KnownBsdf::Conductor {
-            eta: Vec3::ZERO,
-            k: Vec3::ONE,
-            tint: Vec3::ONE,
-            rough: None,
-        },
-    }));
+    mirror.material =
+        crate::scene::Material::Known(Box::new(crate::scene::KnownMaterial::perfect_mirror()));
     mirror
 }
 
@@ -273,13 +279,7 @@ fn mirror_wall() -> Shape {
 /// emitting square and the mirror gathers exactly 0 (it gathered the image before).
 #[test]
 fn a_light_in_a_mirror_is_not_gathered() {
-    let mut floor = mesh::rectangle();
-    floor.transform(&Mat4::from_translation(Vec3::new(-1.0, 0.0, 0.0)));
-    let mut lamp = mesh::rectangle();
-    mesh::flip_normals(&mut lamp);
-    lamp.transform(
-        &(Mat4::from_translation(Vec3::new(-0.3, 0.0, 1.0)) * Mat4::from_scale(Vec3::splat(0.25))),
-    );
+    let (floor, lamp) = floor_and_square();
     let lamp = shape("lamp", lamp, Some(Vec3::splat(5.0)));
     let mut fx = Fixture::new(vec![shape("floor", floor, None), lamp, mirror_wall()], 8.0);
     fx.observe("floor", Vec3::ZERO);
@@ -294,13 +294,7 @@ fn a_light_in_a_mirror_is_not_gathered() {
 /// times the projected solid angle of the square plus that of its mirror image at `x = +0.3`.
 #[test]
 fn a_square_and_its_mirror_image_match_two_configuration_factors() {
-    let mut floor = mesh::rectangle();
-    floor.transform(&Mat4::from_translation(Vec3::new(-1.0, 0.0, 0.0)));
-    let mut top = mesh::rectangle();
-    mesh::flip_normals(&mut top);
-    top.transform(
-        &(Mat4::from_translation(Vec3::new(-0.3, 0.0, 1.0)) * Mat4::from_scale(Vec3::splat(0.25))),
-    );
+    let (floor, top) = floor_and_square();
     let mut fx = Fixture::new(
         vec![
             shape("floor", floor, None),

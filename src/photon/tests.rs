@@ -413,15 +413,8 @@ fn a_caustic_pass_deposits_the_mirror_image_of_the_light() {
         m
     };
     let mut mirror = shape("mirror", quad(2.0, true, 8.0), Sides::Front);
-    mirror.material = crate::scene::Material::Known(Box::new(crate::scene::KnownMaterial {
-        plugin: "conductor".into(),
-        bsdf: crate::scene::KnownBsdf::Conductor {
-            eta: Vec3::ZERO,
-            k: Vec3::ONE,
-            tint: Vec3::ONE,
-            rough: None,
-        },
-    }));
+    mirror.material =
+        crate::scene::Material::Known(Box::new(crate::scene::KnownMaterial::perfect_mirror()));
     let floor = shape("floor", quad(0.0, false, 2.0), Sides::Front);
     let i = Vec3::new(2.0, 1.0, 0.5);
     let fx = Fixture::new(vec![floor, mirror], vec![point(Vec3::Z, i)], 8.0);

@@ -87,6 +87,22 @@ pub struct KnownMaterial {
     pub bsdf: KnownBsdf,
 }
 
+#[cfg(test)]
+impl KnownMaterial {
+    /// Mitsuba's `conductor` with `material = "none"`: a perfect mirror (Fresnel factor 1).
+    pub fn perfect_mirror() -> Self {
+        KnownMaterial {
+            plugin: "conductor".into(),
+            bsdf: KnownBsdf::Conductor {
+                eta: Vec3::ZERO,
+                k: Vec3::ONE,
+                tint: Vec3::ONE,
+                rough: None,
+            },
+        }
+    }
+}
+
 /// Mitsuba's named indices of refraction (`src/core/..` `lookup_ior`), as it spells them.
 pub const IOR_PRESETS: &[(&str, f32)] = &[
     ("vacuum", 1.0),
