@@ -29,10 +29,12 @@
 //! residual `photo - render` with the same lookups and weights, add `sum w_i r_i / sum w_i`,
 //! clamp at zero. Each pass moves the map towards the least-squares solution of "render(map) =
 //! photo in every view": detail that some view resolves is restored, averaging stays where
-//! views agree. Residuals are soft-thresholded at the photos' noise level first
-//! ([`shrink_residual`]), so the passes do not fit each photo's noise into the map; what noise
-//! they still fit (more at the over-relaxed default step) the next stage, `denoise`, averages
-//! away where neighbouring texels agree within it.
+//! views agree. Residuals are shrunk first where their 7 x 7-pixel neighbourhood holds no more
+//! than the photo's noise ([`shrink_residual`], James-Stein over the window), so the passes do
+//! not fit each photo's noise into the map, yet pass a blurred edge's residual almost whole
+//! even where each of its pixels is within the noise; what noise they still fit (more at the
+//! over-relaxed default step) the next stage, `denoise`, averages away where neighbouring
+//! texels agree within it.
 //!
 //! **Views that disagree.** The passes are also a robust fusion: each view's residual at a
 //! texel is judged against that view's noise there (the photo's relative noise from
@@ -45,9 +47,11 @@
 //! scatter where larger), from which `confidence` makes the standard error of `K_d`.
 
 mod refine;
+mod shrink;
 mod view;
 
-pub use refine::{noise_sigma, shrink_residual, Refine, REFINE_SUPERSAMPLE};
+pub use refine::{Refine, REFINE_SUPERSAMPLE};
+pub use shrink::{noise_sigma, shrink_residual, SHRINK_RADIUS};
 pub use view::{classify_pixels, Pair, PixelInfo, Value, View};
 
 use crate::atlas::hits::HitTable;
@@ -71,9 +75,6 @@ pub const MAX_SUBSAMPLES: u32 = 8;
 const SUBSAMPLES_PER_PIXEL: f32 = 1.0;
 /// Texels seen more grazing than this cosine are not used.
 pub const MIN_COS: f32 = 0.05;
-/// Residuals are soft-thresholded at this many noise standard deviations before they are
-/// back-projected (see [`shrink_residual`]).
-pub const RESIDUAL_SHRINK: f32 = 1.0;
 
 /// Statistics of the projection stage.
 #[derive(Debug, Clone, Default, serde::Serialize)]

@@ -2,9 +2,9 @@
 //! current maps, back-project the residuals `photo - render` with the projection's own lookups
 //! and weights, add their weighted mean (see the module notes of [`super`]).
 
-use super::view::{PixelInfo, View};
+use super::view::View;
 use super::{
-    apply_refinement, backproject_tile, Pair, Residual, ResidualViews, Shard, RESIDUAL_SHRINK,
+    apply_refinement, backproject_tile, shrink_residual, Pair, Residual, ResidualViews, Shard,
     ROW_BAND,
 };
 use crate::atlas::hits::HitTable;
@@ -24,49 +24,6 @@ use std::sync::Mutex;
 pub const REFINE_SUPERSAMPLE: u32 = 4;
 /// Texels of dilation around observed texels before re-rendering, as for written maps.
 const REFINE_DILATE: u32 = 4;
-
-/// A photo's relative per-pixel noise, estimated from a residual image: the median relative
-/// residual over clean pixels (judged on the channel sum) scaled to a standard deviation
-/// (1.4826 x MAD), a robust estimate since most pixels are noise-dominated. 0 when no clean
-/// pixel has light.
-pub fn noise_sigma(residual: &[Vec3], photo: &[Vec3], pixels: &[PixelInfo]) -> f32 {
-    let rel = |r: &Vec3, p: &Vec3| r.element_sum().abs() / p.element_sum();
-    let mut rels: Vec<f32> = residual
-        .iter()
-        .zip(photo)
-        .zip(pixels)
-        .filter(|((_, p), px)| px.clean && p.element_sum() > 0.0)
-        .map(|((r, p), _)| rel(r, p))
-        .filter(|v| v.is_finite())
-        .collect();
-    if rels.is_empty() {
-        return 0.0;
-    }
-    let mid = rels.len() / 2;
-    1.4826 * *rels.select_nth_unstable_by(mid, f32::total_cmp).1
-}
-
-/// Soft-threshold a residual image at `RESIDUAL_SHRINK` times its noise level: every clean
-/// pixel's residual `r` (judged on its channel sum, relative to the photo's) shrinks towards
-/// zero by `RESIDUAL_SHRINK * sigma * photo`, `sigma` from [`noise_sigma`]. Refinement then
-/// corrects disagreements larger than the noise (blurred texture edges) without fitting each
-/// photo's noise, which would make the map grainier with every pass. Photos without noise get
-/// `sigma` near zero and are left as they are. Returns `sigma`.
-pub fn shrink_residual(residual: &mut [Vec3], photo: &[Vec3], pixels: &[PixelInfo]) -> f32 {
-    let sigma = noise_sigma(residual, photo, pixels);
-    for (r, p) in residual.iter_mut().zip(photo) {
-        let (a, t) = (
-            r.element_sum().abs(),
-            RESIDUAL_SHRINK * sigma * p.element_sum().abs(),
-        );
-        *r = if a > t && a > 0.0 {
-            *r * ((a - t) / a)
-        } else {
-            Vec3::ZERO
-        };
-    }
-    sigma
-}
 
 /// Every reconstructed shape's current luminance map (unobserved and gutter texels filled by
 /// dilation, as written maps are), indexed by shape; together within `scratch`'s budget
@@ -243,7 +200,7 @@ impl Refine<'_> {
             })
             .collect();
         let raw = residual.clone();
-        let sigma = shrink_residual(&mut residual, &photo.pixels, &view.pixels);
+        let sigma = shrink_residual(&mut residual, &photo.pixels, &view.pixels, w as usize);
         let both: Vec<Pair> = raw
             .into_iter()
             .zip(residual)
@@ -277,39 +234,5 @@ impl Refine<'_> {
             Some(e) => Err(e),
             None => Ok(()),
         }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn shrinking_drops_noise_sized_residuals_and_keeps_large_ones() {
-        let clean = PixelInfo {
-            shape: 0,
-            normal: Vec3::Y,
-            plane: 0.0,
-            clean: true,
-        };
-        let n = 101;
-        let photo = vec![Vec3::splat(2.0); n];
-        // relative residuals +-1% on 100 pixels (sigma = 1.4826%), one of 50%
-        let mut r: Vec<Vec3> = (0..n)
-            .map(|i| Vec3::splat(if i % 2 == 0 { 0.02 } else { -0.02 }))
-            .collect();
-        r[7] = Vec3::splat(1.0);
-        let mut pixels = vec![clean; n];
-        pixels[3].clean = false;
-        shrink_residual(&mut r, &photo, &pixels);
-        assert_eq!(r[0], Vec3::ZERO);
-        assert_eq!(r[1], Vec3::ZERO);
-        let want = 1.0 - RESIDUAL_SHRINK * 0.014826 * 2.0;
-        assert!((r[7].x - want).abs() < 1e-4, "{}", r[7]);
-        // noise-free photos: residuals left alone
-        let mut r = vec![Vec3::ZERO; n];
-        r[7] = Vec3::splat(1.0);
-        shrink_residual(&mut r, &photo, &pixels);
-        assert_eq!(r[7], Vec3::splat(1.0));
     }
 }

@@ -39,7 +39,8 @@ fn rgb_off(a: &ShapeAccuracy) -> f64 {
 /// within 3% of the truth and the per-texel error at the photo-noise level. The light the
 /// walls get by way of the spheres (the caustic under the glass, the light's and the walls'
 /// images in the mirror) is in `E_i`; a solver blind to it would overestimate the albedo
-/// where the caustic falls and underestimate nothing, so the floor is checked on its own.
+/// where the caustic falls and underestimate nothing, so every wall but the grazing ceiling
+/// is held to 8% per texel (the floor under the glass sphere included).
 /// The re-rendered scene keeps both spheres' materials.
 #[test]
 fn mirror_cbox_recovers_its_diffuse_walls() {
@@ -58,14 +59,18 @@ fn mirror_cbox_recovers_its_diffuse_walls() {
             100.0 * rgb_off(a)
         );
         assert!(rgb_off(a) < 0.03, "{}: {:.2}%", a.shape, 100.0 * rgb_off(a));
-        assert!(a.mean_rel_error < 0.15, "{}", a.shape);
+        // the ceiling is seen only at grazing angles, each pixel smeared over many texels:
+        // 14.0% per texel with the per-pixel residual threshold, 16.1% with the windowed
+        // shrinkage (which gained 0.3-1.2 points of held-out albedo on the textured scenes);
+        // the walls the cameras face stay at 2.5-5.2%
+        let limit = if a.shape == "ceiling" { 0.18 } else { 0.08 };
+        assert!(
+            a.mean_rel_error < limit,
+            "{}: {:.2}%",
+            a.shape,
+            100.0 * a.mean_rel_error
+        );
     }
-    let floor = acc.iter().find(|a| a.shape == "floor").unwrap();
-    assert!(
-        floor.mean_rel_error < 0.08,
-        "floor {:.2}%",
-        100.0 * floor.mean_rel_error
-    );
     let xml = std::fs::read_to_string(out.path().join("scene.xml")).unwrap();
     assert!(xml.contains("<bsdf type=\"conductor\">"), "{xml}");
     assert!(xml.contains("<bsdf type=\"dielectric\">"), "{xml}");
