@@ -37,8 +37,8 @@
 //! texels agree within it.
 //!
 //! **Views that disagree.** The passes are also a robust fusion: each view's residual at a
-//! texel is judged against that view's noise there (the photo's relative noise from
-//! [`noise_sigma`], averaged over the pixels the texel covers) plus a [`MODEL_FLOOR`] for
+//! texel is judged against that view's noise there (the photo's relative noise, as
+//! [`shrink_residual`] estimates it, averaged over the pixels the texel covers) plus a [`MODEL_FLOOR`] for
 //! differences that are expected; a view more than [`DISAGREE_Z`] such deviations away (a
 //! specular highlight, a misregistered pixel, something that moved) is down-weighted
 //! ([`robust_weight`]) and, in the last pass, counted (`TexelState::disagree`, the
@@ -51,7 +51,7 @@ mod shrink;
 mod view;
 
 pub use refine::{Refine, REFINE_SUPERSAMPLE};
-pub use shrink::{noise_sigma, shrink_residual, SHRINK_RADIUS};
+pub use shrink::shrink_residual;
 pub use view::{classify_pixels, Pair, PixelInfo, Value, View};
 
 use crate::atlas::hits::HitTable;
