@@ -81,6 +81,7 @@ pub struct RawProjection {
     pub refine_step: Option<f32>,
     pub denoise_radius: Option<u32>,
     pub denoise_z: Option<f32>,
+    pub tv_weight: Option<f32>,
 }
 
 #[derive(Debug, Clone, Default, Deserialize)]
@@ -270,6 +271,9 @@ pub const DENOISE_RADIUS: u32 = 2;
 /// Default agreement threshold of the sigma filter, in standard errors of the difference
 /// of two texels' values (`denoise`).
 pub const DENOISE_Z: f32 = 2.0;
+/// Largest total-variation weight a config may ask for (at 2 the checkerboard of the
+/// generated open scene is washed out: held-out albedo 30%).
+pub const MAX_TV_WEIGHT: f32 = 2.0;
 /// Largest sigma-filter radius a config may ask for.
 pub const MAX_DENOISE_RADIUS: u32 = 16;
 /// Default photons per covered texel and iteration (method "photons"): about the 1e7 photons
@@ -356,6 +360,9 @@ pub struct Config {
     pub denoise_radius: u32,
     /// Its agreement threshold in standard errors ([`DENOISE_Z`]).
     pub denoise_z: f32,
+    /// Weight of the total-variation step after each refinement pass, in units of the
+    /// photos' relative noise (0 = off, the default; see `project::tv`).
+    pub tv_weight: f32,
     /// First-pass interior shadow rays per area-emitter triangle (the perimeter is searched
     /// too; see `light::DirectParams`).
     pub area_samples: u32,
@@ -440,6 +447,7 @@ impl Config {
             refine_step: REFINE_STEP,
             denoise_radius: DENOISE_RADIUS,
             denoise_z: DENOISE_Z,
+            tv_weight: 0.0,
             area_samples: 16,
             method: Method::Gather,
             gather_rays: 1024,
@@ -619,6 +627,7 @@ impl Config {
         set(&mut c.refine_step, raw.projection.refine_step);
         set(&mut c.denoise_radius, raw.projection.denoise_radius);
         set(&mut c.denoise_z, raw.projection.denoise_z);
+        set(&mut c.tv_weight, raw.projection.tv_weight);
         set(&mut c.area_samples, raw.direct.area_samples);
         set(&mut c.photometric_scale, raw.units.photometric_scale);
         let p = raw.photons;
@@ -725,6 +734,12 @@ impl Config {
             return Err(format!(
                 "projection.denoise_z = {}: must be a positive number of standard errors",
                 self.denoise_z
+            ));
+        }
+        if !(0.0..=MAX_TV_WEIGHT).contains(&self.tv_weight) {
+            return Err(format!(
+                "projection.tv_weight = {}: must be 0..={MAX_TV_WEIGHT} (0 = off)",
+                self.tv_weight
             ));
         }
         if self.area_samples == 0 {
@@ -943,6 +958,11 @@ mod tests {
             c.denoise_z = z;
             assert!(c.validate().unwrap_err().contains("denoise_z"), "{z}");
         }
+        for w in [-0.1, MAX_TV_WEIGHT + 0.1, f32::NAN] {
+            let mut c = Config::for_scene("s.xml".into());
+            c.tv_weight = w;
+            assert!(c.validate().unwrap_err().contains("tv_weight"), "{w}");
+        }
     }
 
     #[test]
@@ -952,12 +972,13 @@ mod tests {
         std::fs::write(
             &p,
             "scene = \"s.xml\"\n[projection]\nrefine_passes = 1\nrefine_step = 1.25\n\
-             denoise_radius = 3\ndenoise_z = 2.5\n",
+             denoise_radius = 3\ndenoise_z = 2.5\ntv_weight = 0.2\n",
         )
         .unwrap();
         let c = Config::load(&p, &Overrides::default()).unwrap();
         assert_eq!((c.refine_passes, c.refine_step), (1, 1.25));
         assert_eq!((c.denoise_radius, c.denoise_z), (3, 2.5));
+        assert_eq!(c.tv_weight, 0.2);
         std::fs::write(&p, "scene = \"s.xml\"\n[projection]\nrefine = 1\n").unwrap();
         let e = Config::load(&p, &Overrides::default())
             .unwrap_err()

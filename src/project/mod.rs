@@ -48,6 +48,7 @@
 
 mod refine;
 mod shrink;
+pub mod tv;
 mod view;
 
 pub use refine::{Refine, REFINE_SUPERSAMPLE};
@@ -193,7 +194,11 @@ pub fn run_shard(
         scratch,
         shard,
     };
-    ctx.run(state, (cfg.refine_passes, cfg.refine_step), mode)?;
+    ctx.run(
+        state,
+        (cfg.refine_passes, cfg.refine_step, cfg.tv_weight),
+        mode,
+    )?;
     stage.finish();
     let counts = map_tiles(state, geom, window, |_, g, st| {
         let c = g.iter().filter(|g| g.covered()).count() as u64;

@@ -2,11 +2,13 @@
 //! current maps, back-project the residuals `photo - render` with the projection's own lookups
 //! and weights, add their weighted mean (see the module notes of [`super`]).
 
+use super::tv::tv_luminance;
 use super::view::View;
 use super::{
     apply_refinement, backproject_tile, shrink_residual, Pair, Residual, ResidualViews, Shard,
     ROW_BAND,
 };
+use crate::atlas::charts::Charts;
 use crate::atlas::hits::HitTable;
 use crate::atlas::layout::{TexelGeom, TexelState};
 use crate::atlas::slot_texture::{Scratch, SlotTexture};
@@ -98,17 +100,23 @@ impl Refine<'_> {
     /// (see the module notes). Every pass is robust (a view that departs from the estimate by
     /// more than its noise is down-weighted, see [`backproject_tile`]: from the first pass on,
     /// as it takes the default passes to outvote a highlight), and the last one's
-    /// residuals give each texel's `l_var` and `disagree`. The maps and the residuals live in scratch textures and tiles
+    /// residuals give each texel's `l_var` and `disagree`. With `tv > 0` each pass ends with
+    /// the TV step of [`tv_luminance`] at `tv` times the views' mean relative noise. The maps and the residuals live in scratch textures and tiles
     /// within the memory budget; casts rays only for clean pixels that straddle a chart seam.
     pub fn run(
         &self,
         state: &mut TileStore<TexelState>,
-        (passes, step): (u32, f32),
+        (passes, step, tv): (u32, f32, f32),
         mode: Mode,
     ) -> Result<()> {
-        if passes == 0 {
+        if passes == 0 || self.views.is_empty() {
             return Ok(());
         }
+        let p = self.p;
+        let charts = match tv > 0.0 {
+            true => Some(Charts::new(&p.scene, &p.layout, &p.atlases)?),
+            false => None,
+        };
         let total = passes as u64 * self.views.len() as u64;
         let stage = Stage::new(mode, "refinement", total, "views");
         let path = self.scratch.dir.join("refine-delta.tiles");
@@ -125,8 +133,9 @@ impl Refine<'_> {
                 )?,
                 touched: (0..n).map(|_| AtomicBool::new(false)).collect(),
             };
+            let mut sigma = 0.0;
             for view in self.views {
-                self.backproject(view, &textures, state, &mut delta)?;
+                sigma += self.backproject(view, &textures, state, &mut delta)?;
                 stage.inc(1);
                 crate::interrupt::check(crate::interrupt::NOTHING_SAVED)?;
             }
@@ -141,6 +150,10 @@ impl Refine<'_> {
                 }
             })?;
             (self.shard.sync)(state)?;
+            if let Some(charts) = &charts {
+                let rel = tv * sigma / self.views.len() as f32;
+                tv_luminance(&self.p.layout, charts, self.geom, state, rel, self.scratch)?;
+            }
         }
         std::fs::remove_file(&path).map_err(|e| Error::io(&path, e))?;
         stage.finish();
@@ -162,14 +175,14 @@ impl Refine<'_> {
     }
 
     /// One view's residual, back-projected into `delta` (per tile, allocated on first use),
-    /// judged against the current `state`.
+    /// judged against the current `state`; returns the photo's relative noise.
     fn backproject(
         &self,
         view: &View,
         textures: &[Option<Texture>],
         state: &TileStore<TexelState>,
         delta: &mut Delta,
-    ) -> Result<()> {
+    ) -> Result<f32> {
         let (p, photo) = (self.p, view.image);
         let w = photo.width;
         // A blurring film needs the neighbours of clean pixels within its reach too.
@@ -232,7 +245,7 @@ impl Refine<'_> {
         })?;
         match err.into_inner().unwrap_or_else(|e| e.into_inner()) {
             Some(e) => Err(e),
-            None => Ok(()),
+            None => Ok(sigma),
         }
     }
 }
