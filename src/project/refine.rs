@@ -101,8 +101,9 @@ impl Refine<'_> {
     /// more than its noise is down-weighted, see [`backproject_tile`]: from the first pass on,
     /// as it takes the default passes to outvote a highlight), and the last one's
     /// residuals give each texel's `l_var` and `disagree`. With `tv > 0` each pass ends with
-    /// the TV step of [`tv_luminance`] at `tv` times the views' mean relative noise. The maps and the residuals live in scratch textures and tiles
-    /// within the memory budget; casts rays only for clean pixels that straddle a chart seam.
+    /// the TV step of [`tv_luminance`] at `tv` times the views' mean relative noise. The maps
+    /// and the residuals live in scratch textures and tiles within the memory budget; casts
+    /// rays only for clean pixels that straddle a chart seam.
     pub fn run(
         &self,
         state: &mut TileStore<TexelState>,
