@@ -32,9 +32,17 @@ fn bench(c: &mut Criterion) {
         let mut st = p
             .create_store(dir.path().join("probe.tiles"), TexelState::default())
             .expect("store");
-        kdmap::project::run(&p, &cfg, &hits, &geom, &mut st, Mode::Quiet, &scratch)
-            .expect("project")
-            .covered_texels
+        kdmap::project::run(
+            &p,
+            &cfg,
+            (&hits, &charts),
+            &geom,
+            &mut st,
+            Mode::Quiet,
+            &scratch,
+        )
+        .expect("project")
+        .covered_texels
     };
     let mut g = c.benchmark_group("projection");
     g.sample_size(10).measurement_time(Duration::from_secs(10));
@@ -61,7 +69,7 @@ fn bench(c: &mut Criterion) {
                             kdmap::project::run(
                                 &p,
                                 &cfg,
-                                &hits,
+                                (&hits, &charts),
                                 &geom,
                                 &mut st,
                                 Mode::Quiet,

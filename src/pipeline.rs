@@ -206,7 +206,16 @@ pub fn run_projection(cfg: &Config, out: &Path, mode: Mode) -> Result<(Prepared,
     let hits = HitTable::new(&p, &charts);
     let scratch = open_scratch(&dir, cfg.memory_budget_mib << 20)?;
     let stats = with_shard(world, |sh| {
-        project::run_shard(&p, cfg, &hits, &geom, &mut state, mode, &scratch, sh)
+        project::run_shard(
+            &p,
+            cfg,
+            (&hits, &charts),
+            &geom,
+            &mut state,
+            mode,
+            &scratch,
+            sh,
+        )
     })?;
     denoise(&p, cfg, &charts, &geom, &mut state, &scratch)?;
     debug_check(&geom, &state)?;
@@ -462,7 +471,7 @@ impl<'a> Run<'a> {
         let mut state = p.create_store(&self.state_path, TexelState::default())?;
         let t = Instant::now();
         let ps = with_shard(world, |sh| {
-            let (hits, geom, scratch) = (self.hits(), &self.geom, &self.scratch);
+            let (hits, geom, scratch) = ((self.hits(), &self.charts), &self.geom, &self.scratch);
             project::run_shard(p, cfg, hits, geom, &mut state, mode, scratch, sh)
         })?;
         let dn = denoise(p, cfg, &self.charts, &self.geom, &mut state, &self.scratch)?;

@@ -55,6 +55,7 @@ pub use refine::{Refine, REFINE_SUPERSAMPLE};
 pub use shrink::shrink_residual;
 pub use view::{classify_pixels, Pair, PixelInfo, Value, View};
 
+use crate::atlas::charts::Charts;
 use crate::atlas::hits::HitTable;
 use crate::atlas::layout::{flags, TexelGeom, TexelState};
 use crate::atlas::slot_texture::Scratch;
@@ -131,13 +132,13 @@ impl Shard<'static> {
 pub fn run(
     p: &Prepared,
     cfg: &Config,
-    hits: &HitTable,
+    lookups: (&HitTable, &Charts),
     geom: &TileStore<TexelGeom>,
     state: &mut TileStore<TexelState>,
     mode: Mode,
     scratch: &Scratch,
 ) -> Result<ProjectionStats> {
-    run_shard(p, cfg, hits, geom, state, mode, scratch, &Shard::whole())
+    run_shard(p, cfg, lookups, geom, state, mode, scratch, &Shard::whole())
 }
 
 /// [`run`] shared by several processes: only the tiles `shard` owns are projected and refined
@@ -146,7 +147,7 @@ pub fn run(
 pub fn run_shard(
     p: &Prepared,
     cfg: &Config,
-    hits: &HitTable,
+    (hits, charts): (&HitTable, &Charts),
     geom: &TileStore<TexelGeom>,
     state: &mut TileStore<TexelState>,
     mode: Mode,
@@ -187,6 +188,7 @@ pub fn run_shard(
     let ctx = refine::Refine {
         p,
         hits,
+        charts,
         geom,
         views: &views,
         bounds: &bounds,

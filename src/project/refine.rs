@@ -74,6 +74,8 @@ fn pass_step(pass: u32, step: f32) -> f32 {
 pub struct Refine<'a> {
     pub p: &'a Prepared,
     pub hits: &'a HitTable,
+    /// Each texel's chart (for the TV step).
+    pub charts: &'a Charts,
     pub geom: &'a TileStore<TexelGeom>,
     /// Every view, its photo and pixel classification.
     pub views: &'a [View<'a>],
@@ -113,11 +115,6 @@ impl Refine<'_> {
         if passes == 0 || self.views.is_empty() {
             return Ok(());
         }
-        let p = self.p;
-        let charts = match tv > 0.0 {
-            true => Some(Charts::new(&p.scene, &p.layout, &p.atlases)?),
-            false => None,
-        };
         let total = passes as u64 * self.views.len() as u64;
         let stage = Stage::new(mode, "refinement", total, "views");
         let path = self.scratch.dir.join("refine-delta.tiles");
@@ -151,9 +148,16 @@ impl Refine<'_> {
                 }
             })?;
             (self.shard.sync)(state)?;
-            if let Some(charts) = &charts {
+            if tv > 0.0 {
                 let rel = tv * sigma / self.views.len() as f32;
-                tv_luminance(&self.p.layout, charts, self.geom, state, rel, self.scratch)?;
+                tv_luminance(
+                    &self.p.layout,
+                    self.charts,
+                    self.geom,
+                    state,
+                    rel,
+                    self.scratch,
+                )?;
             }
         }
         std::fs::remove_file(&path).map_err(|e| Error::io(&path, e))?;

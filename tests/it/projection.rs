@@ -67,8 +67,16 @@ fn project(cfg: &Config, out: &Path, passes: u32) -> (Prepared, Vec<Option<Image
     let charts = Charts::new(&p.scene, &p.layout, &p.atlases).unwrap();
     let hits = HitTable::new(&p, &charts);
     let scratch = Scratch::new(&dir, 1 << 30);
-    let stats =
-        kdmap::project::run(&p, &cfg, &hits, &geom, &mut state, Mode::Quiet, &scratch).unwrap();
+    let stats = kdmap::project::run(
+        &p,
+        &cfg,
+        (&hits, &charts),
+        &geom,
+        &mut state,
+        Mode::Quiet,
+        &scratch,
+    )
+    .unwrap();
     assert!(stats.views >= 1);
     assert!(
         stats.observed_texels > stats.covered_texels / 2,
