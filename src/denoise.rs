@@ -167,10 +167,8 @@ pub fn denoise_luminance(
             var: s.l_noise,
             chart: if s.weight > 0.0 { c.texel(g) } else { NONE },
         })?;
-        let grid = tex.grid;
-        let whole = |v: &[Noisy]| sigma_filter(v, grid.width, grid.height, radius, z);
-        let filtered = tex.map_blocks(radius, scratch, "denoised", whole, |b, _| {
-            sigma_filter(&b.vals, b.width, b.height, radius, z)
+        let filtered = tex.map_windows(radius, scratch, "denoised", |v, w, h| {
+            sigma_filter(v, w, h, radius, z)
         })?;
         drop(tex);
         filtered.scatter(state, |s, f| {

@@ -384,6 +384,23 @@ impl<V: Pod + Send + Sync> SlotTexture<V> {
         (0..self.grid.height).flat_map(|y| self.row(y)).collect()
     }
 
+    /// [`Self::map_blocks`] of one local filter `f(values, width, height)`, run on the whole
+    /// texture or on each tile's block with halo `r` (the same values wherever every texel's
+    /// result depends only on texels within `r` of it).
+    pub fn map_windows<W: Pod + Send + Sync>(
+        &self,
+        r: u32,
+        scratch: &Scratch,
+        name: &str,
+        f: impl Fn(&[V], u32, u32) -> Result<Vec<W>> + Sync,
+    ) -> Result<SlotTexture<W>> {
+        let grid = self.grid;
+        let whole = |v: &[V]| f(v, grid.width, grid.height);
+        self.map_blocks(r, scratch, name, whole, |b, _| {
+            f(&b.vals, b.width, b.height)
+        })
+    }
+
     /// A new texture of `f(block of local tile t with halo r, t)` per tile: `f` gives a value
     /// per texel of the block (row-major, its size), of which the tile's own are kept;
     /// `whole(all values)` computes the same thing on a texture held whole.

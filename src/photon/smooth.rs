@@ -105,14 +105,9 @@ pub fn smooth_accum(
                 v.iter().map(|t| t.chart).collect(),
             )
         };
-        let grid = tex.grid;
-        let whole = |v: &[SmoothTexel]| {
+        let smoothed = tex.map_windows(radius, scratch, "smoothed", |v, width, height| {
             let (a, w, ch) = split(v);
-            smooth_within_charts(&a, &w, &ch, grid.width, grid.height, radius)
-        };
-        let smoothed = tex.map_blocks(radius, scratch, "smoothed", whole, |b, _| {
-            let (a, w, ch) = split(&b.vals);
-            smooth_within_charts(&a, &w, &ch, b.width, b.height, radius)
+            smooth_within_charts(&a, &w, &ch, width, height, radius)
         })?;
         drop(tex);
         smoothed.scatter(state, |s, v| {

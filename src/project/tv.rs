@@ -158,10 +158,8 @@ pub fn tv_luminance(
                 chart: if s.weight > 0.0 { c.texel(g) } else { NONE },
             }
         })?;
-        let grid = tex.grid;
-        let whole = |v: &[TvTexel]| tv_prox(v, grid.width, grid.height, ITERATIONS);
-        let out = tex.map_blocks(reach(ITERATIONS), scratch, "tv-out", whole, |b, _| {
-            tv_prox(&b.vals, b.width, b.height, ITERATIONS)
+        let out = tex.map_windows(reach(ITERATIONS), scratch, "tv-out", |v, w, h| {
+            tv_prox(v, w, h, ITERATIONS)
         })?;
         drop(tex);
         out.scatter(state, |s, v| {
