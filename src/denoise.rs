@@ -197,14 +197,7 @@ pub fn denoise_luminance(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::atlas::testing::Built;
-
-    /// A deterministic value in [-1, 1] per index.
-    fn jitter(i: usize) -> f32 {
-        let h = (i as u64 + 1).wrapping_mul(0x9e37_79b9_7f4a_7c15);
-        let h = (h ^ (h >> 29)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        ((h >> 40) as f32 / (1u64 << 24) as f32) * 2.0 - 1.0
-    }
+    use crate::atlas::testing::{all_records, jitter, Built};
 
     fn texel(l: Vec3, rel_sigma: f32, chart: u32) -> Noisy {
         Noisy {
@@ -330,15 +323,11 @@ mod tests {
                 }
                 st.write_tile(t, &recs).unwrap();
             }
-            let before: Vec<TexelState> = (0..st.tile_count())
-                .flat_map(|t| st.read_tile(t).unwrap())
-                .collect();
+            let before = all_records(&st);
             let scratch = Scratch::new(dir.path(), budget);
             let stats =
                 denoise_luminance(&p.layout, &charts, &geom, &mut st, (2, 2.0), &scratch).unwrap();
-            let after: Vec<TexelState> = (0..st.tile_count())
-                .flat_map(|t| st.read_tile(t).unwrap())
-                .collect();
+            let after = all_records(&st);
             let (mut shrunk, mut changed) = (0, 0);
             let (mut ratio, mut judged) = (0.0f64, 0);
             for (b, a) in before.iter().zip(&after) {

@@ -65,3 +65,17 @@ impl Built {
         Built::new(vec![shape], vec![], texels_per_unit, vec![])
     }
 }
+
+/// A deterministic value in [-1, 1] per index (test noise).
+pub fn jitter(i: usize) -> f32 {
+    let h = (i as u64 + 1).wrapping_mul(0x9e37_79b9_7f4a_7c15);
+    let h = (h ^ (h >> 29)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    ((h >> 40) as f32 / (1u64 << 24) as f32) * 2.0 - 1.0
+}
+
+/// Every record of `store`, tile after tile.
+pub fn all_records<T: bytemuck::Pod + Send + Sync>(store: &TileStore<T>) -> Vec<T> {
+    (0..store.tile_count())
+        .flat_map(|t| store.read_tile(t).unwrap())
+        .collect()
+}

@@ -176,14 +176,7 @@ pub fn tv_luminance(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::atlas::testing::Built;
-
-    /// A deterministic value in [-1, 1] per index.
-    fn jitter(i: usize) -> f32 {
-        let h = (i as u64 + 1).wrapping_mul(0x9e37_79b9_7f4a_7c15);
-        let h = (h ^ (h >> 29)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        ((h >> 40) as f32 / (1u64 << 24) as f32) * 2.0 - 1.0
-    }
+    use crate::atlas::testing::{all_records, jitter, Built};
 
     /// `w x h` texels, left half `a` and right half `b`, charts from `chart(x)`.
     fn halves(
@@ -294,15 +287,10 @@ mod tests {
                 }
                 st.write_tile(t, &recs).unwrap();
             }
-            let all = |st: &TileStore<TexelState>| -> Vec<TexelState> {
-                (0..st.tile_count())
-                    .flat_map(|t| st.read_tile(t).unwrap())
-                    .collect()
-            };
-            let before = all(&st);
+            let before = all_records(&st);
             let scratch = Scratch::new(dir.path(), budget);
             tv_luminance(&p.layout, &charts, &geom, &mut st, 0.05, &scratch).unwrap();
-            let after = all(&st);
+            let after = all_records(&st);
             let mut changed = 0;
             for (b, a) in before.iter().zip(&after) {
                 if b.weight == 0.0 {
