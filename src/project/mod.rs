@@ -46,6 +46,7 @@
 //! fused luminance ([`fused_variance`]: the photo noise through the weights, or the views'
 //! scatter where larger), from which `confidence` makes the standard error of `K_d`.
 
+mod noise;
 mod refine;
 mod shrink;
 pub mod tv;

@@ -6,10 +6,13 @@
 //! `max(0, 1 - sigma^2 / mean(e^2))`, `e` the relative residuals in the window. A blurred texture
 //! edge leaves a residual that is coherent over a few pixels, so its window holds more energy
 //! than noise and most of it passes, even where each pixel is within the noise; a window of
-//! noise alone holds about `sigma^2` and is zeroed or nearly so. The per-pixel soft threshold it
+//! noise alone holds about `sigma^2` and is zeroed or nearly so. `sigma^2` is the mean over the
+//! window of each pixel's noise variance ([`super::noise`]): the view's level, or more where
+//! the photo is locally noisier and the render smooth. The per-pixel soft threshold it
 //! replaced (`|e|` shrunk by `sigma`) dropped exactly those edge residuals, so the passes
 //! restored less detail. It is a median and a separable box sum, so it is written here.
 
+use super::noise::pixel_noise;
 use super::view::PixelInfo;
 use glam::Vec3;
 
@@ -65,15 +68,11 @@ pub fn shrink_residual(
         .iter()
         .map(|v| v.map_or(0.0, |v| (v * v) as f64))
         .collect();
-    let count: Vec<f64> = e.iter().map(|v| v.is_some() as u8 as f64).collect();
-    let (energy, count) = (
-        box_sum(&energy, width, SHRINK_RADIUS),
-        box_sum(&count, width, SHRINK_RADIUS),
-    );
-    let s2 = (sigma * sigma) as f64;
+    let energy = box_sum(&energy, width, SHRINK_RADIUS);
+    let noise = window_noise(residual, photo, &e, width, sigma);
     for (i, r) in residual.iter_mut().enumerate() {
         // the window's noise energy against its residuals' energy
-        let (noise, total) = (s2 * count[i], energy[i]);
+        let (noise, total) = (noise[i], energy[i]);
         let keep = match e[i] {
             Some(_) if total > noise => (1.0 - noise / total) as f32,
             _ => 0.0,
@@ -81,6 +80,34 @@ pub fn shrink_residual(
         *r *= keep;
     }
     sigma
+}
+
+/// Per pixel, the noise energy its window holds: the sum over the window's pixels with a
+/// relative residual of their local noise variance ([`pixel_noise`]: the view's `sigma`, or
+/// more where the photo is locally noisier and the render smooth).
+fn window_noise(
+    residual: &[Vec3],
+    photo: &[Vec3],
+    e: &[Option<f32>],
+    width: usize,
+    sigma: f32,
+) -> Vec<f64> {
+    let log_render: Vec<Option<f32>> = residual
+        .iter()
+        .zip(photo)
+        .zip(e)
+        .map(|((r, p), e)| {
+            let v = p.element_sum() - r.element_sum();
+            (e.is_some() && v > 0.0).then(|| v.ln())
+        })
+        .collect();
+    let level = pixel_noise(e, &log_render, width, sigma);
+    let var: Vec<f64> = e
+        .iter()
+        .zip(&level)
+        .map(|(e, s)| e.map_or(0.0, |_| (s * s) as f64))
+        .collect();
+    box_sum(&var, width, SHRINK_RADIUS)
 }
 
 /// The sum of `v` (an image `width` wide) over the `(2 radius + 1)^2` window around every
@@ -197,6 +224,53 @@ mod tests {
         r[7] = Vec3::splat(1.0);
         shrink_residual(&mut r, &photo, &pixels, 20);
         assert_eq!(r[7], Vec3::splat(1.0));
+    }
+
+    /// A 48 x 48 view whose residual is 6% relative noise on the left half and 1% on the
+    /// right, over a render that is flat (`texture` 0) or carries a random pixel texture of
+    /// that relative amplitude; returns the share of the left half's residual energy the shrinkage
+    /// keeps and the view's level.
+    fn noisy_left_half(texture: f32) -> (f32, f32) {
+        let n = 48;
+        let mut r = Vec::new();
+        let mut photo = Vec::new();
+        for i in 0..n * n {
+            let mut g = crate::rng::Rng::new(3, 0, 0, i as u64);
+            let (u, v) = (1.0 - g.f64(), g.f64());
+            let z = ((-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()) as f32;
+            let t = 1.0 + texture * (2.0 * g.f32() - 1.0);
+            let e = if i % n < n / 2 { 0.06 * z } else { 0.01 * z };
+            let render = Vec3::splat(t);
+            r.push(render * e);
+            photo.push(render * (1.0 + e));
+        }
+        let before: f32 = (0..n * n)
+            .filter(|i| i % n < n / 2)
+            .map(|i| r[i].x.powi(2))
+            .sum();
+        let sigma = shrink_residual(&mut r, &photo, &vec![clean(); n * n], n);
+        let after: f32 = (0..n * n)
+            .filter(|i| i % n < n / 2)
+            .map(|i| r[i].x.powi(2))
+            .sum();
+        (after / before, sigma)
+    }
+
+    #[test]
+    fn a_noisier_region_over_a_smooth_render_is_judged_by_its_own_noise() {
+        let (kept, sigma) = noisy_left_half(0.0);
+        // under the view's level alone the left half's windows would keep about
+        // 1 - sigma^2 / 0.06^2 of their energy
+        assert!(1.0 - (sigma / 0.06).powi(2) > 0.6, "{sigma}");
+        // judged by its own 6%, noise windows keep only what chance lends them
+        assert!(kept < 0.3, "{kept}");
+    }
+
+    #[test]
+    fn a_rough_residual_over_a_textured_render_keeps_the_views_level() {
+        // the same residual over a render with a 30% pixel texture may be unresolved texture
+        let (kept, sigma) = noisy_left_half(0.3);
+        assert!(kept > 0.5, "{kept} (sigma {sigma})");
     }
 
     #[test]
