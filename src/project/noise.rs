@@ -15,6 +15,8 @@
 //! smooth, the median the pixels of a few edges, the least direction a straight edge. It is
 //! a few medians, so it is written here.
 
+use rayon::prelude::*;
+
 /// Side of the square blocks of pixels that share one local level.
 pub const NOISE_BLOCK: usize = 8;
 /// Pixels beyond a block's sides on each side of the window its level is taken over
@@ -52,15 +54,18 @@ pub fn pixel_noise(
 pub fn roughness(v: &[Option<f32>], width: usize) -> Vec<f32> {
     let height = v.len() / width.max(1);
     let (bw, bh) = (width.div_ceil(NOISE_BLOCK), height.div_ceil(NOISE_BLOCK));
-    let mut diffs = Vec::new();
-    let mut block = Vec::with_capacity(bw * bh);
-    for by in 0..bh {
-        for bx in 0..bw {
-            let x = window(bx, width);
+    // rows of blocks in parallel, each block on its own: the same numbers for any threads
+    let rows: Vec<Vec<f32>> = (0..bh)
+        .into_par_iter()
+        .map(|by| {
+            let mut diffs = Vec::new();
             let y = window(by, height);
-            block.push(least_direction(v, width, height, (x, y), &mut diffs));
-        }
-    }
+            (0..bw)
+                .map(|bx| least_direction(v, width, height, (window(bx, width), y), &mut diffs))
+                .collect()
+        })
+        .collect();
+    let block = rows.concat();
     (0..v.len())
         .map(|i| block[(i / width / NOISE_BLOCK) * bw + (i % width) / NOISE_BLOCK])
         .collect()
@@ -80,25 +85,26 @@ fn least_direction(
     width: usize,
     height: usize,
     ((x0, x1), (y0, y1)): ((i64, i64), (i64, i64)),
-    diffs: &mut Vec<f32>,
+    diffs: &mut Vec<u32>,
 ) -> f32 {
-    let at = |x: i64, y: i64| {
-        let inside = x >= 0 && y >= 0 && x < width as i64 && y < height as i64;
-        inside.then(|| v[y as usize * width + x as usize]).flatten()
-    };
+    let (w, h) = (width as i64, height as i64);
     let mut best = f32::INFINITY;
     for (dx, dy) in DIRECTIONS {
         diffs.clear();
-        for y in y0..y1 {
-            for x in x0..x1 {
-                if let (Some(a), Some(b)) = (at(x, y), at(x + dx, y + dy)) {
-                    diffs.push((a - b).abs());
+        // pairs whose second pixel lies inside the image too
+        let (xa, xb) = (x0.max(-dx), x1.min(w - dx));
+        for y in y0.max(-dy)..y1.min(h - dy) {
+            let (row, next) = ((y * w) as usize, ((y + dy) * w + dx) as usize);
+            for x in xa..xb {
+                if let (Some(a), Some(b)) = (v[row + x as usize], v[next + x as usize]) {
+                    // the bits of a non-negative float order as the float does
+                    diffs.push((a - b).abs().to_bits());
                 }
             }
         }
         if diffs.len() >= MIN_PAIRS {
             let mid = diffs.len() / 2;
-            let m = *diffs.select_nth_unstable_by(mid, f32::total_cmp).1;
+            let m = f32::from_bits(*diffs.select_nth_unstable(mid).1);
             best = best.min(1.4826 * m / std::f32::consts::SQRT_2);
         }
     }
