@@ -18,10 +18,10 @@
 use rayon::prelude::*;
 
 /// Side of the square blocks of pixels that share one local level.
-pub const NOISE_BLOCK: usize = 8;
+const NOISE_BLOCK: usize = 8;
 /// Pixels beyond a block's sides on each side of the window its level is taken over
 /// (24 x 24 pixels in all).
-pub const NOISE_REACH: usize = 8;
+const NOISE_REACH: usize = 8;
 /// Fewest pixel pairs a direction needs to give a level.
 const MIN_PAIRS: usize = 32;
 /// The four pixel directions whose differences are compared.
@@ -31,27 +31,33 @@ const DIRECTIONS: [(i64, i64); 4] = [(1, 0), (0, 1), (1, 1), (1, -1)];
 /// (the view's level), or the residual's local roughness where that is larger and the
 /// render's local roughness is smaller than it. `e` is the relative residual and `log_render`
 /// the logarithm of the render (so its differences are relative too), both per pixel and
-/// `None` where there is none; `width` pixels per row.
+/// `None` where there is none; `width` pixels per row. The render's roughness is taken only
+/// for blocks whose residual is rougher than `sigma` (elsewhere the level is `sigma` anyway).
 pub fn pixel_noise(
     e: &[Option<f32>],
     log_render: &[Option<f32>],
     width: usize,
     sigma: f32,
 ) -> Vec<f32> {
-    let rough = roughness(e, width);
-    let smooth = roughness(log_render, width);
-    rough
+    let rough = roughness(e, width, &|_| true);
+    let smooth = roughness(log_render, width, &|b| rough[b] > sigma);
+    let level: Vec<f32> = rough
         .iter()
         .zip(&smooth)
-        .map(|(&r, &s)| if s < r { r.max(sigma) } else { sigma })
+        .map(|(&r, &s)| if r > sigma && s < r { r } else { sigma })
+        .collect();
+    let bw = width.div_ceil(NOISE_BLOCK);
+    (0..e.len())
+        .map(|i| level[(i / width / NOISE_BLOCK) * bw + (i % width) / NOISE_BLOCK])
         .collect()
 }
 
-/// Per pixel, the roughness of `v` (an image `width` wide) over the window around its block:
-/// for each of [`DIRECTIONS`] the median `|v(p) - v(p + d)|` over the pairs that both have a
-/// value, as a standard deviation of `v` (`1.4826 / sqrt 2` x, exact for Gaussian noise), and
-/// the least of the four. 0 where no direction has [`MIN_PAIRS`] pairs.
-pub fn roughness(v: &[Option<f32>], width: usize) -> Vec<f32> {
+/// Per block of [`NOISE_BLOCK`] x [`NOISE_BLOCK`] pixels (row by row), the roughness of `v`
+/// (an image `width` wide) over the window around it: for each of [`DIRECTIONS`] the median
+/// `|v(p) - v(p + d)|` over the pairs that both have a value, as a standard deviation of `v`
+/// (`1.4826 / sqrt 2` x, exact for Gaussian noise), and the least of the four. 0 where no
+/// direction has [`MIN_PAIRS`] pairs, and for the blocks `wanted` refuses.
+fn roughness(v: &[Option<f32>], width: usize, wanted: &(dyn Fn(usize) -> bool + Sync)) -> Vec<f32> {
     let height = v.len() / width.max(1);
     let (bw, bh) = (width.div_ceil(NOISE_BLOCK), height.div_ceil(NOISE_BLOCK));
     // rows of blocks in parallel, each block on its own: the same numbers for any threads
@@ -61,14 +67,14 @@ pub fn roughness(v: &[Option<f32>], width: usize) -> Vec<f32> {
             let mut diffs = Vec::new();
             let y = window(by, height);
             (0..bw)
-                .map(|bx| least_direction(v, width, height, (window(bx, width), y), &mut diffs))
+                .map(|bx| match wanted(by * bw + bx) {
+                    true => least_direction(v, width, height, (window(bx, width), y), &mut diffs),
+                    false => 0.0,
+                })
                 .collect()
         })
         .collect();
-    let block = rows.concat();
-    (0..v.len())
-        .map(|i| block[(i / width / NOISE_BLOCK) * bw + (i % width) / NOISE_BLOCK])
-        .collect()
+    rows.concat()
 }
 
 /// The pixel range of block `b`'s window along an axis of `n` pixels.
@@ -120,14 +126,10 @@ mod tests {
     use super::*;
     use crate::rng::Rng;
 
-    /// Standard normal numbers, a pure function of `stream` and the index (Box-Muller).
+    /// Standard normal numbers, a pure function of `stream` and the index.
     fn gauss(stream: u64, n: usize) -> Vec<f32> {
         (0..n)
-            .map(|i| {
-                let mut r = Rng::new(11, stream, 0, i as u64);
-                let (u, v) = (1.0 - r.f64(), r.f64());
-                ((-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()) as f32
-            })
+            .map(|i| Rng::new(11, stream, 0, i as u64).normal())
             .collect()
     }
 
@@ -149,7 +151,7 @@ mod tests {
 
     #[test]
     fn white_noise_gives_its_standard_deviation() {
-        let r = roughness(&noise(1, 0.03), N);
+        let r = roughness(&noise(1, 0.03), N, &|_| true);
         let (lo, hi) = spread(&r);
         // the least of four medians of 300-576 pairs sits a little below the truth
         assert!(lo > 0.8 * 0.03 && hi < 1.1 * 0.03, "{lo} {hi}");
@@ -166,7 +168,7 @@ mod tests {
             let step = if px >= 29 { 0.5 } else { 0.0 };
             *x = x.map(|x| x + 0.02 * px as f32 + step);
         }
-        let (lo, hi) = spread(&roughness(&v, N));
+        let (lo, hi) = spread(&roughness(&v, N, &|_| true));
         assert!(lo > 0.008 && hi < 0.012, "{lo} {hi}");
     }
 
@@ -177,9 +179,11 @@ mod tests {
             *x = None;
         }
         // only the vertical pairs are left, so the least of four is no longer biased low
-        let (lo, hi) = spread(&roughness(&v, N));
+        let (lo, hi) = spread(&roughness(&v, N, &|_| true));
         assert!(lo > 0.75 * 0.02 && hi < 1.25 * 0.02, "{lo} {hi}");
-        assert!(roughness(&[None; 100], 10).iter().all(|&s| s == 0.0));
+        assert!(roughness(&[None; 100], 10, &|_| true)
+            .iter()
+            .all(|&s| s == 0.0));
     }
 
     #[test]

@@ -236,8 +236,7 @@ mod tests {
         let mut photo = Vec::new();
         for i in 0..n * n {
             let mut g = crate::rng::Rng::new(3, 0, 0, i as u64);
-            let (u, v) = (1.0 - g.f64(), g.f64());
-            let z = ((-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()) as f32;
+            let z = g.normal();
             let t = 1.0 + texture * (2.0 * g.f32() - 1.0);
             let e = if i % n < n / 2 { 0.06 * z } else { 0.01 * z };
             let render = Vec3::splat(t);
