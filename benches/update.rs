@@ -9,16 +9,22 @@
 //! a radiance, direct and traced irradiance of the scene's order of magnitude, a few percent of
 //! texels above the K_d bound. Throughput counts covered texels.
 //!
+//! `fill`: the fill of unobserved texels (`solve::fill_unobserved_all`: the wave, then the
+//! harmonic relaxation by conjugate gradients) over the same atlas with every fourth tile
+//! unobserved (tile-sized holes), on 1 and 2 threads; throughput counts the filled texels.
+//!
 //! Run with `cargo bench --bench update`.
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
+use kdmap::atlas::charts::Charts;
 use kdmap::atlas::layout::{flags, TexelGeom, TexelState};
+use kdmap::atlas::slot_texture::Scratch;
 use kdmap::atlas::tiles::map_tiles;
 use kdmap::atlas::{build_geometry, prepare};
 use kdmap::config::{Config, UpdateRule};
 use kdmap::progress::Mode;
 use kdmap::rng::Rng;
-use kdmap::solve::{compare_update_tile, kd_tile};
+use kdmap::solve::{compare_update_tile, fill_unobserved_all, kd_tile};
 use std::path::Path;
 use std::time::Duration;
 
@@ -126,6 +132,62 @@ fn bench(c: &mut Criterion) {
                             compare_update_tile(s, gt, rule, alpha, beta)
                         })
                         .expect("update")
+                    })
+                })
+            },
+        );
+    }
+    g.finish();
+    bench_fill(c, &p, &geom, &state, window, dir.path());
+}
+
+/// The fill over the same atlas with every fourth tile unobserved.
+fn bench_fill(
+    c: &mut Criterion,
+    p: &kdmap::atlas::prepared::Prepared,
+    geom: &kdmap::atlas::tiles::TileStore<TexelGeom>,
+    state: &kdmap::atlas::tiles::TileStore<TexelState>,
+    window: usize,
+    dir: &Path,
+) {
+    let charts = Charts::new(&p.scene, &p.layout, &p.atlases).expect("charts");
+    let mut holes = p
+        .create_store(dir.join("holes.tiles"), TexelState::default())
+        .expect("hole store");
+    let unobserved: u64 = map_tiles(&mut holes, geom, window, |t, g, s| {
+        let src = state.read_tile(t).expect("state tile");
+        let mut n = 0;
+        for ((g, s), src) in g.iter().zip(s.iter_mut()).zip(src) {
+            *s = src;
+            if t % 4 == 0 && g.covered() {
+                s.flags &= !flags::OBSERVED;
+                n += 1;
+            }
+        }
+        n
+    })
+    .expect("holes")
+    .iter()
+    .sum();
+    let scratch = Scratch::new(dir, 1 << 30);
+    let mut g = c.benchmark_group("fill/cbox");
+    g.sample_size(10)
+        .warm_up_time(Duration::from_secs(1))
+        .measurement_time(Duration::from_secs(5))
+        .throughput(Throughput::Elements(unobserved));
+    for threads in [1usize, 2] {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .expect("pool");
+        g.bench_with_input(
+            BenchmarkId::new("every_4th_tile", threads),
+            &threads,
+            |b, _| {
+                b.iter(|| {
+                    pool.install(|| {
+                        fill_unobserved_all(&p.layout, &charts, geom, &mut holes, &scratch, &|_| {})
+                            .expect("fill")
                     })
                 })
             },

@@ -10,6 +10,9 @@
 //! them (distance and value); a tile is recomputed only when its ring changed, and passes
 //! repeat until nothing changes. Distances only decrease from pass to pass, so this ends, and
 //! where it ends every texel satisfies the wave's equations, whose solution is unique.
+//!
+//! The wave's values are then relaxed to the harmonic fill ([`harmonic`]): the smoothest
+//! interpolant of each hole's observed border, in place of the wave's streaks.
 
 use crate::atlas::charts::Charts;
 use crate::atlas::layout::{flags, Layout, TexelGeom, TexelState};
@@ -21,6 +24,8 @@ use crate::progress::Tick;
 use glam::Vec3;
 use rayon::prelude::*;
 use std::collections::BTreeMap;
+
+mod harmonic;
 
 /// Fill the K_d of unobserved surface texels of one texture from observed neighbours of the
 /// same chart (repeated 8-neighbour averaging, chart by chart), and any texel still without a
@@ -40,6 +45,20 @@ pub fn fill_unobserved(
     width: u32,
     height: u32,
 ) -> Vec<bool> {
+    let (known, mut filled) = wave_fill(kd, observed, chart, width, height);
+    fill_with_mean(kd, observed, chart, &known, &mut filled);
+    filled
+}
+
+/// The waves of [`fill_unobserved`]: returns which texels are known after them (observed or
+/// reached) and which of those were filled.
+fn wave_fill(
+    kd: &mut [Vec3],
+    observed: &[bool],
+    chart: &[Option<u32>],
+    width: u32,
+    height: u32,
+) -> (Vec<bool>, Vec<bool>) {
     let (w, h) = (width as i64, height as i64);
     let mut known: Vec<bool> = observed.to_vec();
     let mut filled = vec![false; kd.len()];
@@ -92,8 +111,7 @@ pub fn fill_unobserved(
         }
         front = changes.into_iter().map(|(i, _)| i).collect();
     }
-    fill_with_mean(kd, observed, chart, &known, &mut filled);
-    filled
+    (known, filled)
 }
 
 /// Charts with no observed texel at all: the shape's mean (0.5 if nothing is observed).
@@ -152,6 +170,8 @@ pub fn fill_unobserved_all(
 ) -> Result<u64> {
     // A texture filled whole is copied about five times over (its records, K_d, masks,
     // charts, the result); the budget is for all of them, the tiled path keeps three caches.
+    // The relaxation's system lives beside the texture: it may take the whole scratch budget.
+    let relax_budget = scratch.budget;
     let scratch = &scratch.share(1, FILL_COPIES);
     let mut filled_total = 0u64;
     for slot in 0..layout.slots.len() {
@@ -167,11 +187,11 @@ pub fn fill_unobserved_all(
         };
         let tex = SlotTexture::gather_ticking(sources, scratch, "fill", read, tick)?;
         let out = match tex.is_whole() {
-            true => fill_whole(&tex, scratch)?,
-            false => fill_tiled(tex, scratch)?,
+            true => fill_whole(&tex, scratch, relax_budget)?,
+            false => fill_tiled(tex, scratch, relax_budget)?,
         };
         let write = |r: &mut TexelState, v: &FillTexel| match v.round {
-            FILLED_MARK => {
+            FILLED_MARK | MEAN_MARK => {
                 r.k_d = v.kd.to_array();
                 r.flags |= flags::FILLED;
                 true
@@ -188,11 +208,18 @@ pub fn fill_unobserved_all(
 /// [`FillTexel`] (a 12M-texel wall held whole once took 1.4 GB beside a 256 MB budget).
 const FILL_COPIES: u64 = 6;
 
-/// Marks a filled texel in the fill's result.
+/// Marks a texel filled by the wave in the fill's result.
 const FILLED_MARK: u32 = FAR - 1;
 
-/// A texture held whole: [`fill_unobserved`] on its arrays.
-fn fill_whole(tex: &SlotTexture<FillTexel>, scratch: &Scratch) -> Result<SlotTexture<FillTexel>> {
+/// Marks a texel the wave never reached, filled with the shape's mean (its chart nobody saw).
+const MEAN_MARK: u32 = FAR - 2;
+
+/// A texture held whole: [`fill_unobserved`] on its arrays, then the harmonic relaxation.
+fn fill_whole(
+    tex: &SlotTexture<FillTexel>,
+    scratch: &Scratch,
+    relax_budget: u64,
+) -> Result<SlotTexture<FillTexel>> {
     let g = tex.grid;
     let v = tex.to_vec();
     let mut kd: Vec<Vec3> = v.iter().map(|t| t.kd).collect();
@@ -201,28 +228,37 @@ fn fill_whole(tex: &SlotTexture<FillTexel>, scratch: &Scratch) -> Result<SlotTex
         .iter()
         .map(|t| (t.chart != NONE).then_some(t.chart))
         .collect();
-    let filled = fill_unobserved(&mut kd, &observed, &chart, g.width, g.height);
+    let (known, mut filled) = wave_fill(&mut kd, &observed, &chart, g.width, g.height);
+    fill_with_mean(&mut kd, &observed, &chart, &known, &mut filled);
     let result: Vec<FillTexel> = (0..v.len())
         .map(|i| FillTexel {
             kd: kd[i],
             chart: v[i].chart,
-            round: if filled[i] { FILLED_MARK } else { 0 },
+            round: match (filled[i], known[i]) {
+                (false, _) => 0,
+                (true, true) => FILLED_MARK,
+                (true, false) => MEAN_MARK,
+            },
         })
         .collect();
-    SlotTexture::build(g, scratch, "filled", |t| {
+    let mut out = SlotTexture::build(g, scratch, "filled", |t| {
         let mut out = vec![FillTexel::default(); g.tile_texels()];
         for (off, x, y) in g.texels_of(t) {
             out[off] = result[(y * g.width + x) as usize];
         }
         Ok(out)
-    })
+    })?;
+    harmonic::relax(&mut out, relax_budget)?;
+    Ok(out)
 }
 
 /// A texture held in tiles: passes over the tiles whose ring changed until nothing changes,
-/// then the shape's mean for what the wave never reached (see the module docs).
+/// then the shape's mean for what the wave never reached and the harmonic relaxation (see the
+/// module docs).
 pub fn fill_tiled(
     mut cur: SlotTexture<FillTexel>,
     scratch: &Scratch,
+    relax_budget: u64,
 ) -> Result<SlotTexture<FillTexel>> {
     let g = cur.grid;
     let mean = observed_mean(&cur);
@@ -262,7 +298,7 @@ pub fn fill_tiled(
         active = again.into_iter().collect();
     }
     // the unreached take the mean; every reached unobserved texel is marked filled
-    let out = SlotTexture::build(g, scratch, "filled", |t| {
+    let mut out = SlotTexture::build(g, scratch, "filled", |t| {
         Ok(cur
             .tile(t)?
             .into_iter()
@@ -270,7 +306,7 @@ pub fn fill_tiled(
                 (NONE, _) | (_, 0) => FillTexel { round: 0, ..v },
                 (_, FAR) => FillTexel {
                     kd: mean,
-                    round: FILLED_MARK,
+                    round: MEAN_MARK,
                     ..v
                 },
                 _ => FillTexel {
@@ -281,6 +317,7 @@ pub fn fill_tiled(
             .collect())
     })?;
     cur.check()?;
+    harmonic::relax(&mut out, relax_budget)?;
     Ok(out)
 }
 
@@ -518,6 +555,7 @@ mod tests {
             Scratch::new(dir.path(), 1),
         );
         let mut rng = crate::rng::Rng::new(11, 0, 0, 0);
+        let mut by_mean = 0;
         for case in 0..12u32 {
             let (w, h, ts) = (17 + case * 9, 11 + (case % 4) * 13, 4 + (case % 3) * 4);
             let g = Grid {
@@ -557,8 +595,8 @@ mod tests {
             };
             let (a, b) = (make(&big), make(&tiny));
             assert!(a.is_whole() && !b.is_whole());
-            let a = fill_whole(&a, &big).unwrap().to_vec();
-            let b = fill_tiled(b, &tiny).unwrap().to_vec();
+            let a = fill_whole(&a, &big, u64::MAX).unwrap().to_vec();
+            let b = fill_tiled(b, &tiny, u64::MAX).unwrap().to_vec();
             let bits = |v: &[FillTexel]| {
                 v.iter()
                     .map(|t| (t.kd.to_array().map(f32::to_bits), t.round))
@@ -569,7 +607,9 @@ mod tests {
                 a.iter().filter(|t| t.round == FILLED_MARK).count() > n / 4,
                 "case {case}"
             );
+            by_mean += a.iter().filter(|t| t.round == MEAN_MARK).count();
         }
+        assert!(by_mean > 0, "no chart left to the shape's mean");
     }
 
     /// The fill over a prepared atlas ticks every tile twice (read and written back), in a
