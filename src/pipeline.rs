@@ -53,7 +53,7 @@ use crate::photon::{
 use crate::progress::{self, note, Mode, Stage};
 use crate::project::{ProjectionStats, Shard};
 use crate::report::{Counts, IterationStats, Report};
-use crate::solve::{init_indirect_tile, kd_step, update_step};
+use crate::solve::{init_indirect_tile, kd_step, update_step, Filled};
 use crate::{direct, project};
 use serde::{Deserialize, Serialize};
 use share::GATHER_CHUNK;
@@ -879,8 +879,8 @@ impl<'a> Run<'a> {
     }
 
     /// Steps 3-5 (`solve::kd_step`) with a progress stage `name` over the tiles: `(clamped
-    /// texels, filled texels)`.
-    fn kd_step(&self, r: &mut Running, name: &str) -> Result<(u64, u64)> {
+    /// texels, what the fill filled)`.
+    fn kd_step(&self, r: &mut Running, name: &str) -> Result<(u64, Filled)> {
         // the K_d pass, then the fill's read and write of every tile
         let stage = self.tile_stage(name, 3);
         let p = &self.p;
@@ -1062,7 +1062,8 @@ impl<'a> Run<'a> {
             observed_texels: proj.observed_texels,
             denoised_texels: proj.denoised_texels,
             denoise_sigma_ratio: proj.denoise_sigma_ratio,
-            filled_texels: filled,
+            filled_texels: filled.texels,
+            fill_unrelaxed_texels: filled.unrelaxed,
             dense_direct_texels: r.report.counts.dense_direct_texels,
             caustic_photons: r.report.counts.caustic_photons,
             direct_first_pass_texels: r.report.counts.direct_first_pass_texels,

@@ -88,6 +88,10 @@ pub struct Counts {
     pub denoise_sigma_ratio: f64,
     /// Covered texels no view saw (K_d filled from neighbours).
     pub filled_texels: u64,
+    /// Of those, the ones left with the wave's fill because their texture's harmonic
+    /// relaxation did not fit in the scratch budget (`run.memory_budget_mib / 4`).
+    #[serde(default)]
+    pub fill_unrelaxed_texels: u64,
     /// Covered texels whose direct light was estimated densely (a shadow edge or penumbra
     /// crosses them or a neighbour).
     #[serde(default)]

@@ -16,7 +16,7 @@ use glam::Vec3;
 use std::f32::consts::PI;
 
 mod fill;
-pub use fill::{fill_unobserved, fill_unobserved_all};
+pub use fill::{fill_unobserved, fill_unobserved_all, Filled};
 
 /// The physical upper bound of K_d used by the correction of eq. (5).
 pub const KD_MAX: f32 = 1.0;
@@ -206,7 +206,7 @@ pub fn alpha(alpha0: f32, n: u32) -> f32 {
 
 /// Steps 3-5 over every tile, then the fill of unobserved texels: `K_d` from the current
 /// `E_i` everywhere, except in the slots `pinned` gives an albedo (known diffuse shapes),
-/// which keep it. Returns `(clamped texels, filled texels)`.
+/// which keep it. Returns `(clamped texels, what the fill filled)`.
 pub fn kd_step(
     layout: &Layout,
     charts: &Charts,
@@ -215,7 +215,7 @@ pub fn kd_step(
     pinned: &[Option<Vec3>],
     scratch: &Scratch,
     tick: Tick,
-) -> Result<(u64, u64)> {
+) -> Result<(u64, Filled)> {
     let clamped: u64 = map_tiles(state, geom, window, |_, g, s| {
         let c = kd_tile(s, g);
         tick(1);

@@ -155,11 +155,21 @@ pub struct FillTexel {
 /// Not reached by the wave (yet).
 const FAR: u32 = u32::MAX;
 
+/// What [`fill_unobserved_all`] filled.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Filled {
+    /// Covered texels no view saw, given a `K_d`.
+    pub texels: u64,
+    /// Of those, the ones in textures whose harmonic relaxation did not fit in the scratch
+    /// budget (they keep the wave's values).
+    pub unrelaxed: u64,
+}
+
 /// [`fill_unobserved`] over every texture of the layout, one texture at a time: unobserved
 /// covered texels get `K_d` from observed neighbours of their chart (else the shape's mean)
 /// and the `FILLED` flag, a texture whole if it fits in `scratch`'s budget, else tile by tile
-/// (the same values). Returns how many texels were filled. `tick` gets every tile read and
-/// every tile written back (two per tile in all; the waves between are not counted).
+/// (the same values), then the harmonic relaxation. `tick` gets every tile read and every
+/// tile written back (two per tile in all; the waves between are not counted).
 pub fn fill_unobserved_all(
     layout: &Layout,
     charts: &Charts,
@@ -167,13 +177,13 @@ pub fn fill_unobserved_all(
     state: &mut TileStore<TexelState>,
     scratch: &Scratch,
     tick: Tick,
-) -> Result<u64> {
+) -> Result<Filled> {
     // A texture filled whole is copied about five times over (its records, K_d, masks,
     // charts, the result); the budget is for all of them, the tiled path keeps three caches.
     // The relaxation's system lives beside the texture: it may take the whole scratch budget.
     let relax_budget = scratch.budget;
     let scratch = &scratch.share(1, FILL_COPIES);
-    let mut filled_total = 0u64;
+    let mut filled = Filled::default();
     for slot in 0..layout.slots.len() {
         let c = &charts.slots[slot];
         let sources = (layout, slot, &*state, geom);
@@ -186,7 +196,7 @@ pub fn fill_unobserved_all(
             }
         };
         let tex = SlotTexture::gather_ticking(sources, scratch, "fill", read, tick)?;
-        let out = match tex.is_whole() {
+        let (out, relaxed) = match tex.is_whole() {
             true => fill_whole(&tex, scratch, relax_budget)?,
             false => fill_tiled(tex, scratch, relax_budget)?,
         };
@@ -198,9 +208,13 @@ pub fn fill_unobserved_all(
             }
             _ => false,
         };
-        filled_total += out.scatter_ticking(state, write, tick)?;
+        let n = out.scatter_ticking(state, write, tick)?;
+        filled.texels += n;
+        if !relaxed {
+            filled.unrelaxed += n;
+        }
     }
-    Ok(filled_total)
+    Ok(filled)
 }
 
 /// Share of the scratch budget a texture may take as one copy in [`fill_unobserved_all`]:
@@ -219,7 +233,7 @@ fn fill_whole(
     tex: &SlotTexture<FillTexel>,
     scratch: &Scratch,
     relax_budget: u64,
-) -> Result<SlotTexture<FillTexel>> {
+) -> Result<(SlotTexture<FillTexel>, bool)> {
     let g = tex.grid;
     let v = tex.to_vec();
     let mut kd: Vec<Vec3> = v.iter().map(|t| t.kd).collect();
@@ -248,8 +262,8 @@ fn fill_whole(
         }
         Ok(out)
     })?;
-    harmonic::relax(&mut out, relax_budget)?;
-    Ok(out)
+    let relaxed = harmonic::relax(&mut out, relax_budget)?;
+    Ok((out, relaxed))
 }
 
 /// A texture held in tiles: passes over the tiles whose ring changed until nothing changes,
@@ -259,7 +273,7 @@ pub fn fill_tiled(
     mut cur: SlotTexture<FillTexel>,
     scratch: &Scratch,
     relax_budget: u64,
-) -> Result<SlotTexture<FillTexel>> {
+) -> Result<(SlotTexture<FillTexel>, bool)> {
     let g = cur.grid;
     let mean = observed_mean(&cur);
     let mut next = SlotTexture::build(g, scratch, "fill-next", |_| {
@@ -317,8 +331,8 @@ pub fn fill_tiled(
             .collect())
     })?;
     cur.check()?;
-    harmonic::relax(&mut out, relax_budget)?;
-    Ok(out)
+    let relaxed = harmonic::relax(&mut out, relax_budget)?;
+    Ok((out, relaxed))
 }
 
 /// The mean `K_d` of the observed texels in row-major order (as [`fill_with_mean`] sums).
@@ -595,8 +609,8 @@ mod tests {
             };
             let (a, b) = (make(&big), make(&tiny));
             assert!(a.is_whole() && !b.is_whole());
-            let a = fill_whole(&a, &big, u64::MAX).unwrap().to_vec();
-            let b = fill_tiled(b, &tiny, u64::MAX).unwrap().to_vec();
+            let a = fill_whole(&a, &big, u64::MAX).unwrap().0.to_vec();
+            let b = fill_tiled(b, &tiny, u64::MAX).unwrap().0.to_vec();
             let bits = |v: &[FillTexel]| {
                 v.iter()
                     .map(|t| (t.kd.to_array().map(f32::to_bits), t.round))
@@ -665,7 +679,12 @@ mod tests {
                 fill_unobserved_all(&p.layout, &charts, &geom, &mut state, &scratch, &tick)
                     .unwrap();
             assert_eq!(ticks.load(Ordering::Relaxed), 2 * tiles, "budget {budget}");
-            assert_eq!(filled, covered - observed, "budget {budget}");
+            assert_eq!(filled.texels, covered - observed, "budget {budget}");
+            // a 1-byte budget holds no relaxation: the wave's values stay, and are counted
+            match budget {
+                1 => assert!(filled.unrelaxed > 0, "nothing counted unrelaxed"),
+                _ => assert_eq!(filled.unrelaxed, 0, "budget {budget}"),
+            }
         }
     }
 }

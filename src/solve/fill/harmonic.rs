@@ -62,8 +62,8 @@ struct System {
 const BYTES_PER_UNKNOWN: u64 = 160;
 
 /// Relaxes the texels of `tex` the wave filled (marked [`FILLED_MARK`]) to the harmonic fill,
-/// if their system fits in `budget` bytes; returns whether it did (a texture with more
-/// unobserved texels than that keeps the wave's values).
+/// if their system fits in `budget` bytes; returns false if it did not fit (the texture keeps
+/// the wave's values), true otherwise (also when there was nothing to relax).
 pub(super) fn relax(tex: &mut SlotTexture<FillTexel>, budget: u64) -> Result<bool> {
     let g = tex.grid;
     let counts: Vec<u64> = (0..g.tiles())
@@ -77,8 +77,11 @@ pub(super) fn relax(tex: &mut SlotTexture<FillTexel>, budget: u64) -> Result<boo
         })
         .collect::<Result<_>>()?;
     let unknowns: u64 = counts.iter().sum();
-    if unknowns == 0 || unknowns.saturating_mul(BYTES_PER_UNKNOWN) > budget {
+    if unknowns.saturating_mul(BYTES_PER_UNKNOWN) > budget {
         return Ok(false);
+    }
+    if unknowns == 0 {
+        return Ok(true);
     }
     let sys = assemble(tex)?;
     let x = solve(&sys);
