@@ -80,12 +80,14 @@ pub(super) fn relax(tex: &mut SlotTexture<FillTexel>, budget: u64) -> Result<boo
     if unknowns.saturating_mul(BYTES_PER_UNKNOWN) > budget {
         return Ok(false);
     }
-    if unknowns == 0 {
+    // only the tiles that hold unknowns are read again and written back
+    let busy: Vec<u32> = (0..g.tiles()).filter(|&t| counts[t as usize] > 0).collect();
+    if busy.is_empty() {
         return Ok(true);
     }
-    let sys = assemble(tex)?;
+    let sys = assemble(tex, &busy)?;
     let x = solve(&sys);
-    write_back(tex, &sys.index, &x)?;
+    write_back(tex, &busy, &sys.index, &x)?;
     Ok(true)
 }
 
@@ -93,11 +95,12 @@ pub(super) fn relax(tex: &mut SlotTexture<FillTexel>, budget: u64) -> Result<boo
 /// its unknown neighbours (`u64::MAX` where none).
 type Row = (u64, Vec3, f32, Vec3, [u64; 4]);
 
-fn assemble(tex: &SlotTexture<FillTexel>) -> Result<System> {
+/// The system over the unknowns of tiles `busy`.
+fn assemble(tex: &SlotTexture<FillTexel>, busy: &[u32]) -> Result<System> {
     let g = tex.grid;
-    let per_tile: Vec<Vec<Row>> = (0..g.tiles())
-        .into_par_iter()
-        .map(|t| tile_rows(&g, &tex.block(t, 1), t))
+    let per_tile: Vec<Vec<Row>> = busy
+        .par_iter()
+        .map(|&t| tile_rows(&g, &tex.block(t, 1), t))
         .collect();
     tex.check()?;
     let mut rows: Vec<Row> = per_tile.into_iter().flatten().collect();
@@ -276,24 +279,25 @@ fn solve(sys: &System) -> Vec<Vec3> {
         .collect()
 }
 
-/// Writes the relaxed values into the tiles that hold unknowns.
-fn write_back(tex: &mut SlotTexture<FillTexel>, index: &[u64], x: &[Vec3]) -> Result<()> {
+/// Writes the relaxed values into the tiles `busy` (those that hold unknowns).
+fn write_back(
+    tex: &mut SlotTexture<FillTexel>,
+    busy: &[u32],
+    index: &[u64],
+    x: &[Vec3],
+) -> Result<()> {
     let g = tex.grid;
-    for t in 0..g.tiles() {
+    for &t in busy {
         let mut tile = tex.tile(t)?;
-        let mut any = false;
         for (off, px, py) in g.texels_of(t) {
             if tile[off].round != FILLED_MARK {
                 continue;
             }
             if let Ok(i) = index.binary_search(&(py as u64 * g.width as u64 + px as u64)) {
                 tile[off].kd = x[i];
-                any = true;
             }
         }
-        if any {
-            tex.set_tile(t, tile)?;
-        }
+        tex.set_tile(t, tile)?;
     }
     Ok(())
 }
