@@ -106,11 +106,8 @@ fn bench(c: &mut Criterion) {
             n
         })
     });
-    for threads in [1usize, 2] {
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .expect("pool");
+    let pools = pools();
+    for (threads, pool) in &pools {
         g.bench_with_input(
             BenchmarkId::new("kd_tile_store", threads),
             &threads,
@@ -138,12 +135,24 @@ fn bench(c: &mut Criterion) {
         );
     }
     g.finish();
-    bench_fill(c, &p, &geom, &state, window, dir.path());
+    bench_fill(c, &pools, &p, &geom, &state, window, dir.path());
+}
+
+/// Pools of 1 and 2 threads, with their sizes.
+fn pools() -> Vec<(usize, rayon::ThreadPool)> {
+    [1usize, 2]
+        .into_iter()
+        .map(|n| {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(n).build();
+            (n, pool.expect("pool"))
+        })
+        .collect()
 }
 
 /// The fill over the same atlas with every fourth tile unobserved.
 fn bench_fill(
     c: &mut Criterion,
+    pools: &[(usize, rayon::ThreadPool)],
     p: &kdmap::atlas::prepared::Prepared,
     geom: &kdmap::atlas::tiles::TileStore<TexelGeom>,
     state: &kdmap::atlas::tiles::TileStore<TexelState>,
@@ -175,11 +184,7 @@ fn bench_fill(
         .warm_up_time(Duration::from_secs(1))
         .measurement_time(Duration::from_secs(5))
         .throughput(Throughput::Elements(unobserved));
-    for threads in [1usize, 2] {
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .expect("pool");
+    for (threads, pool) in pools {
         g.bench_with_input(
             BenchmarkId::new("every_4th_tile", threads),
             &threads,

@@ -523,32 +523,7 @@ mod tests {
     use super::*;
     use glam::Vec3;
 
-    fn grid(w: u32, h: u32, ts: u32) -> Grid {
-        Grid {
-            width: w,
-            height: h,
-            tile_size: ts,
-            tiles_x: w.div_ceil(ts),
-            tiles_y: h.div_ceil(ts),
-            first_tile: 0,
-        }
-    }
-
-    /// A texture of `f(x, y)`, whole or tiled (a budget of one byte forces tiles).
-    fn tex<V: Pod + Send + Sync>(
-        g: Grid,
-        s: &Scratch,
-        f: impl Fn(u32, u32) -> V + Sync,
-    ) -> SlotTexture<V> {
-        SlotTexture::build(g, s, "t", |t| {
-            let mut out = vec![V::zeroed(); g.tile_texels()];
-            for (off, x, y) in g.texels_of(t) {
-                out[off] = f(x, y);
-            }
-            Ok(out)
-        })
-        .unwrap()
-    }
+    use crate::atlas::testing::{grid, texture as tex};
 
     #[test]
     fn whole_and_tiled_textures_read_the_same() {

@@ -3,6 +3,7 @@
 
 use super::charts::Charts;
 use super::layout::TexelGeom;
+use super::slot_texture::{Grid, Scratch, SlotTexture};
 use super::tiles::TileStore;
 use super::unwrap::AtlasSettings;
 use super::{build_geometry, Prepared};
@@ -71,6 +72,35 @@ pub fn jitter(i: usize) -> f32 {
     let h = (i as u64 + 1).wrapping_mul(0x9e37_79b9_7f4a_7c15);
     let h = (h ^ (h >> 29)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
     ((h >> 40) as f32 / (1u64 << 24) as f32) * 2.0 - 1.0
+}
+
+/// The grid of a lone `w x h` texture in tiles of `ts x ts` texels.
+pub fn grid(w: u32, h: u32, ts: u32) -> Grid {
+    Grid {
+        width: w,
+        height: h,
+        tile_size: ts,
+        tiles_x: w.div_ceil(ts),
+        tiles_y: h.div_ceil(ts),
+        first_tile: 0,
+    }
+}
+
+/// A texture of `f(x, y)` on grid `g`, whole or tiled as `s`'s budget allows (a budget of one
+/// byte forces tiles).
+pub fn texture<V: bytemuck::Pod + Send + Sync>(
+    g: Grid,
+    s: &Scratch,
+    f: impl Fn(u32, u32) -> V + Sync,
+) -> SlotTexture<V> {
+    SlotTexture::build(g, s, "t", |t| {
+        let mut out = vec![V::zeroed(); g.tile_texels()];
+        for (off, x, y) in g.texels_of(t) {
+            out[off] = f(x, y);
+        }
+        Ok(out)
+    })
+    .unwrap()
 }
 
 /// Every record of `store`, tile after tile.

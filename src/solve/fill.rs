@@ -572,14 +572,7 @@ mod tests {
         let mut by_mean = 0;
         for case in 0..12u32 {
             let (w, h, ts) = (17 + case * 9, 11 + (case % 4) * 13, 4 + (case % 3) * 4);
-            let g = Grid {
-                width: w,
-                height: h,
-                tile_size: ts,
-                tiles_x: w.div_ceil(ts),
-                tiles_y: h.div_ceil(ts),
-                first_tile: 0,
-            };
+            let g = crate::atlas::testing::grid(w, h, ts);
             let n = (w * h) as usize;
             let vals: Vec<FillTexel> = (0..n)
                 .map(|i| {
@@ -598,14 +591,7 @@ mod tests {
                 })
                 .collect();
             let make = |s: &Scratch| {
-                SlotTexture::build(g, s, "t", |t| {
-                    let mut out = vec![FillTexel::default(); g.tile_texels()];
-                    for (off, x, y) in g.texels_of(t) {
-                        out[off] = vals[(y * w + x) as usize];
-                    }
-                    Ok(out)
-                })
-                .unwrap()
+                crate::atlas::testing::texture(g, s, |x, y| vals[(y * w + x) as usize])
             };
             let (a, b) = (make(&big), make(&tiny));
             assert!(a.is_whole() && !b.is_whole());

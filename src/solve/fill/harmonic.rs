@@ -308,26 +308,11 @@ mod tests {
     use crate::atlas::slot_texture::Scratch;
     use crate::atlas::texels::NONE;
 
-    fn texture(g: Grid, s: &Scratch, vals: &[FillTexel]) -> SlotTexture<FillTexel> {
-        SlotTexture::build(g, s, "t", |t| {
-            let mut out = vec![FillTexel::default(); g.tile_texels()];
-            for (off, x, y) in g.texels_of(t) {
-                out[off] = vals[(y * g.width + x) as usize];
-            }
-            Ok(out)
-        })
-        .unwrap()
-    }
+    use crate::atlas::testing::grid;
 
-    fn grid(w: u32, h: u32, ts: u32) -> Grid {
-        Grid {
-            width: w,
-            height: h,
-            tile_size: ts,
-            tiles_x: w.div_ceil(ts),
-            tiles_y: h.div_ceil(ts),
-            first_tile: 0,
-        }
+    /// A texture holding `vals` (row-major).
+    fn texture(g: Grid, s: &Scratch, vals: &[FillTexel]) -> SlotTexture<FillTexel> {
+        crate::atlas::testing::texture(g, s, |x, y| vals[(y * g.width + x) as usize])
     }
 
     fn texel(kd: Vec3, chart: u32, filled: bool) -> FillTexel {
