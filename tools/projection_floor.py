@@ -1,0 +1,156 @@
+#!/usr/bin/env python3
+"""The projection floor of a kdmap run on the held-out albedo judge.
+
+    .venv/bin/python tools/projection_floor.py <out dir> <scene dir> [--config run.toml]
+        [--spp 64] [--kdmap target/release/kdmap]
+
+Splits a run's held-out albedo error into what the lighting (E_i) costs and what the photos'
+resolution and the projection cost. The training photos are replaced by noise-free images of
+the true albedo alone, as the same cameras see it (Mitsuba's `albedo` AOV,
+`<scene>/albedo/<sensor>.exr`, rendered by `render_albedo_aov.py` when missing), and projected
+by `kdmap project` with the run's own settings (`--config`, the run config; without it the
+defaults). Where the light is known exactly (here: the albedo *is* the radiance) the projected
+luminance is the recovered albedo, so those maps, put in place of the run's
+`textures/<shape>_albedo.exr` in a copy `<out>-projfloor`, are scored by `heldout.py
+--albedo-only`: the error left by the photos' resolution and the projection's deconvolution
+alone. Beside `repr_floor.py` (the atlas holding the true texels: what the texel density
+costs), a run's figure splits three ways: representational floor <= projection floor <= run.
+
+The atlas must be the run's: the same scene and atlas settings (the tool checks that every
+projected map has the size of the texture it replaces).
+"""
+
+import argparse
+import glob
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tomllib
+
+TOOLS = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(TOOLS)
+
+
+def toml_value(v):
+    """A TOML literal for a string, bool, int or float (the values a run config holds)."""
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (int, float)):
+        return repr(v)
+    if isinstance(v, str):
+        return json.dumps(v)  # a JSON string is a valid TOML basic string
+    raise ValueError(f"unsupported config value {v!r}")
+
+
+def floor_config(cfg, scene_xml, albedo):
+    """The text of the run config `cfg` (parsed TOML, may be empty) with its scene set to
+    `scene_xml` and its views to `albedo` ({sensor id: EXR path}). Only the flat tables of a
+    kdmap run config are written; a config with its own `[views]` is refused (its photos are
+    what the floor replaces)."""
+    if "views" in cfg:
+        raise ValueError("the run config has its own [views]; give one without them")
+    lines = [f"scene = {toml_value(scene_xml)}"]
+    for k, v in cfg.items():
+        if k != "scene" and not isinstance(v, dict):
+            lines.append(f"{k} = {toml_value(v)}")
+    for table, kv in cfg.items():
+        if isinstance(kv, dict):
+            lines.append(f"[{table}]")
+            for k, v in kv.items():
+                if isinstance(v, dict):
+                    raise ValueError(f"[{table}.{k}]: nested tables are not supported")
+                lines.append(f"{k} = {toml_value(v)}")
+    lines.append("[views]")
+    for sensor, path in sorted(albedo.items()):
+        lines.append(f"{sensor} = {toml_value(path)}")
+    return "\n".join(lines) + "\n"
+
+
+def albedo_images(scene_dir, spp):
+    """{sensor id: path} of the noise-free training albedo images, rendered when missing."""
+    found = sorted(glob.glob(os.path.join(scene_dir, "albedo", "cam_train_*.exr")))
+    if not found:
+        r = subprocess.run([sys.executable, os.path.join(TOOLS, "render_albedo_aov.py"),
+                            scene_dir, "--spp", str(spp)], capture_output=True, text=True)
+        if r.returncode != 0:
+            sys.exit(f"render_albedo_aov.py failed: {r.stderr.strip().splitlines()[-1:]}")
+        found = sorted(glob.glob(os.path.join(scene_dir, "albedo", "cam_train_*.exr")))
+    if not found:
+        sys.exit(f"{scene_dir}/albedo: no cam_train_*.exr after rendering")
+    return {os.path.basename(p)[: -len(".exr")]: os.path.abspath(p) for p in found}
+
+
+def exr_size(path):
+    """(height, width) of an EXR."""
+    sys.path.insert(0, TOOLS)
+    import exrio
+
+    return exrio.read_exr_rgb(path).shape[:2]
+
+
+def swap_textures(out, proj, dst):
+    """Copy run `out` to `dst` with each `textures/<shape>_albedo.exr` replaced by the
+    projection's `maps/<shape>_luminance.exr`; exits when a map is missing or of another size."""
+    shutil.rmtree(dst, ignore_errors=True)
+    shutil.copytree(out, dst, ignore=shutil.ignore_patterns("heldout", "checkpoint"))
+    textures = sorted(glob.glob(os.path.join(dst, "textures", "*_albedo.exr")))
+    if not textures:
+        sys.exit(f"{out}/textures: no *_albedo.exr (not a finished kdmap run?)")
+    for t in textures:
+        shape = os.path.basename(t)[: -len("_albedo.exr")]
+        m = os.path.join(proj, "maps", f"{shape}_luminance.exr")
+        if not os.path.exists(m):
+            sys.exit(f"{m}: missing (the projection's scene differs from the run's)")
+        if exr_size(m) != exr_size(t):
+            sys.exit(f"{m}: {exr_size(m)} texels, the run's {shape} texture "
+                     f"{exr_size(t)}: give the run's config (--config)")
+        shutil.copyfile(m, t)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("out")
+    ap.add_argument("scene_dir")
+    ap.add_argument("--config", help="the run config (TOML) the run was made with")
+    ap.add_argument("--spp", type=int, default=64)
+    ap.add_argument("--kdmap", default=os.path.join(ROOT, "target", "release", "kdmap"))
+    a = ap.parse_args()
+    scene_dir = os.path.abspath(a.scene_dir)
+    cfg = {}
+    if a.config:
+        try:
+            with open(a.config, "rb") as f:
+                cfg = tomllib.load(f)
+        except (OSError, tomllib.TOMLDecodeError) as e:
+            sys.exit(f"{a.config}: {e}")
+    dst = a.out.rstrip("/") + "-projfloor"
+    try:
+        text = floor_config(cfg, os.path.join(scene_dir, "input.xml"),
+                            albedo_images(scene_dir, 256))
+    except ValueError as e:
+        sys.exit(f"{a.config}: {e}")
+    toml_path = dst + ".toml"
+    with open(toml_path, "w") as f:
+        f.write(text)
+    proj = dst + "-proj"
+    shutil.rmtree(proj, ignore_errors=True)
+    r = subprocess.run([a.kdmap, "project", toml_path, "--out", proj, "--progress", "never"],
+                       capture_output=True, text=True)
+    if r.returncode != 0:
+        sys.exit(f"kdmap project failed: {r.stderr.strip().splitlines()[-1:]}")
+    swap_textures(a.out, proj, dst)
+    r = subprocess.run([sys.executable, os.path.join(TOOLS, "heldout.py"), dst, scene_dir,
+                        "--spp", str(a.spp), "--albedo-only"], capture_output=True, text=True)
+    if r.returncode != 0:
+        sys.exit(f"heldout.py failed: {r.stderr.strip().splitlines()[-1:]}")
+    j = json.loads(r.stdout[r.stdout.index("{"):])["albedo"]
+    shapes = ", ".join(f"{k} {100 * v['albedo_mean_rel_error']:.2f}%"
+                       for k, v in sorted(j["shapes"].items()))
+    print(f"projection floor (held-out albedo, noise-free albedo photos projected with the "
+          f"run's settings): {100 * j['albedo_mean_rel_error']:.2f}% ({dst}; {shapes})")
+
+
+if __name__ == "__main__":
+    main()
