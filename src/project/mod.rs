@@ -37,8 +37,9 @@
 //! texels agree within it.
 //!
 //! **Views that disagree.** The passes are also a robust fusion: each view's residual at a
-//! texel is judged against that view's noise there (the photo's relative noise, as
-//! [`shrink_residual`] estimates it, averaged over the pixels the texel covers) plus a [`MODEL_FLOOR`] for
+//! texel is judged against that view's noise there (the photo's local relative noise level,
+//! as [`shrink_residual_levels`] estimates it, interpolated over the pixels the texel covers,
+//! never below the view's median level: [`texel_noise_variance`]) plus a [`MODEL_FLOOR`] for
 //! differences that are expected; a view more than [`DISAGREE_Z`] such deviations away (a
 //! specular highlight, a misregistered pixel, something that moved) is down-weighted
 //! ([`robust_weight`]) and, in the last pass, counted (`TexelState::disagree`, the
@@ -53,7 +54,7 @@ pub mod tv;
 mod view;
 
 pub use refine::{Refine, REFINE_SUPERSAMPLE};
-pub use shrink::shrink_residual;
+pub use shrink::{shrink_residual, shrink_residual_levels};
 pub use view::{classify_pixels, Pair, PixelInfo, Value, View};
 
 use crate::atlas::charts::Charts;
@@ -388,10 +389,20 @@ pub fn robust_weight(z: f32) -> f32 {
     }
 }
 
+/// The noise variance of one view's luminance `l` at a texel it observes with weight `w`:
+/// the photo's relative noise where the texel's pixels are (`level`, interpolated like the
+/// residual) or the view's `sigma` if that is larger. The view's level alone (its median)
+/// understates dim, noisy regions (cbox-tex's short box: 5-7% per pixel against 1-2% on the
+/// back wall), so the sigma filter averaged half as many texels there as on the tall box.
+pub fn texel_noise_variance(level: f32, sigma: f32, l: f32, w: f32) -> f32 {
+    view_variance(level.max(sigma), l, w)
+}
+
 /// The residual of one view for back-projection, per pixel of its photo: raw (`photo -
 /// render`, judged against the noise) and shrunk (what is added, see [`shrink_residual`]) as
 /// one [`Pair`], so a texel's sub-samples are looked up once for both; with the view (its
-/// camera and pixel classification) and the photo's relative noise `sigma`.
+/// camera and pixel classification) and the photo's relative noise `sigma` (its median level;
+/// each [`Pair`] carries the local level at its pixel).
 pub struct ResidualViews<'a> {
     pub view: &'a View<'a>,
     pub residual: &'a [Pair],
@@ -415,11 +426,11 @@ pub fn backproject_tile(
         }
         let width = rv.view.camera.width();
         let get = |x: u32, y: u32| rv.residual[(y * width + x) as usize];
-        let Some((Pair(raw, r), w)) = observe_texel_from(rv.view, shape, g, &get) else {
+        let Some((Pair(raw, r, level), w)) = observe_texel_from(rv.view, shape, g, &get) else {
             continue;
         };
         let l = luminance(Vec3::from_array(s.l_orig)).max(0.0);
-        let var = view_variance(rv.sigma, l, w);
+        let var = texel_noise_variance(level, rv.sigma, l, w);
         let y = luminance(raw);
         let spread = (var + (MODEL_FLOOR * l).powi(2)).sqrt();
         let z = if spread > 0.0 { y.abs() / spread } else { 0.0 };
@@ -540,6 +551,23 @@ mod tests {
         };
         apply_refinement(&mut st, &[outvoted], false, 1.8);
         assert_eq!(st[0].l_orig, [1.5, 0.75, 1.0]);
+    }
+
+    /// A texel's noise is the local level where that is above the view's, never below.
+    #[test]
+    fn texel_noise_follows_the_local_level_above_the_views() {
+        let (l, w) = (2.0f32, 4.0f32);
+        let v = texel_noise_variance(0.05, 0.01, l, w);
+        assert!((v - (0.05f32 * 2.0).powi(2) / 4.0).abs() < 1e-8, "{v}");
+        assert_eq!(
+            texel_noise_variance(0.002, 0.01, l, w),
+            view_variance(0.01, l, w)
+        );
+        assert_eq!(
+            texel_noise_variance(0.0, 0.0, l, w),
+            0.0,
+            "noise-free photos"
+        );
     }
 
     #[test]

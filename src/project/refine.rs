@@ -5,8 +5,8 @@
 use super::tv::tv_luminance;
 use super::view::View;
 use super::{
-    apply_refinement, backproject_tile, shrink_residual, Pair, Residual, ResidualViews, Shard,
-    ROW_BAND,
+    apply_refinement, backproject_tile, shrink_residual_levels, Pair, Residual, ResidualViews,
+    Shard, ROW_BAND,
 };
 use crate::atlas::charts::Charts;
 use crate::atlas::hits::HitTable;
@@ -218,11 +218,13 @@ impl Refine<'_> {
             })
             .collect();
         let raw = residual.clone();
-        let sigma = shrink_residual(&mut residual, &photo.pixels, &view.pixels, w as usize);
+        let (sigma, level) =
+            shrink_residual_levels(&mut residual, &photo.pixels, &view.pixels, w as usize);
         let both: Vec<Pair> = raw
             .into_iter()
             .zip(residual)
-            .map(|(a, b)| Pair(a, b))
+            .zip(level)
+            .map(|((a, b), s)| Pair(a, b, s))
             .collect();
         let rv = ResidualViews {
             view,

@@ -59,17 +59,29 @@ pub fn shrink_residual(
     pixels: &[PixelInfo],
     width: usize,
 ) -> f32 {
+    shrink_residual_levels(residual, photo, pixels, width).0
+}
+
+/// [`shrink_residual`], also returning each pixel's relative noise level (the view's `sigma`
+/// or more where the photo is locally noisier, see [`pixel_noise`]; `sigma` everywhere, 0 for a
+/// noise-free photo): what a texel's noise variance is judged by.
+pub fn shrink_residual_levels(
+    residual: &mut [Vec3],
+    photo: &[Vec3],
+    pixels: &[PixelInfo],
+    width: usize,
+) -> (f32, Vec<f32>) {
     let e: Vec<Option<f32>> = relative(residual, photo, pixels).collect();
     let sigma = noise_sigma(&e);
     if sigma <= 0.0 {
-        return sigma;
+        return (sigma, vec![sigma; residual.len()]);
     }
     let energy: Vec<f64> = e
         .iter()
         .map(|v| v.map_or(0.0, |v| (v * v) as f64))
         .collect();
     let energy = box_sum(&energy, width, SHRINK_RADIUS);
-    let noise = window_noise(residual, photo, &e, width, sigma);
+    let (noise, level) = window_noise(residual, photo, &e, width, sigma);
     for (i, r) in residual.iter_mut().enumerate() {
         // the window's noise energy against its residuals' energy
         let (noise, total) = (noise[i], energy[i]);
@@ -79,7 +91,7 @@ pub fn shrink_residual(
         };
         *r *= keep;
     }
-    sigma
+    (sigma, level)
 }
 
 /// Per pixel, the noise energy its window holds: the sum over the window's pixels with a
@@ -91,7 +103,7 @@ fn window_noise(
     e: &[Option<f32>],
     width: usize,
     sigma: f32,
-) -> Vec<f64> {
+) -> (Vec<f64>, Vec<f32>) {
     let log_render: Vec<Option<f32>> = residual
         .iter()
         .zip(photo)
@@ -107,7 +119,7 @@ fn window_noise(
         .zip(&level)
         .map(|(e, s)| e.map_or(0.0, |_| (s * s) as f64))
         .collect();
-    box_sum(&var, width, SHRINK_RADIUS)
+    (box_sum(&var, width, SHRINK_RADIUS), level)
 }
 
 /// The sum of `v` (an image `width` wide) over the `(2 radius + 1)^2` window around every
@@ -174,6 +186,33 @@ mod tests {
             .collect();
         let sigma = shrink_residual(&mut r, &photo, &[clean(); 6], 6);
         assert!((sigma - 1.4826 * 0.02).abs() < 1e-6, "{sigma}");
+    }
+
+    /// A flat render under a photo with 1% noise on its left half and 4% on its right: the
+    /// levels are the view's `sigma` on the left and the right half's own noise there; a
+    /// photo the render matches exactly has no noise and levels of zero.
+    #[test]
+    fn levels_follow_the_local_noise() {
+        let n = 64;
+        let g: Vec<f32> = (0..n * n)
+            .map(|i| crate::rng::Rng::new(3, 1, 0, i as u64).normal())
+            .collect();
+        let rel = |i: usize| g[i] * if i % n < n / 2 { 0.01 } else { 0.04 };
+        let photo: Vec<Vec3> = (0..n * n)
+            .map(|i| Vec3::splat(2.0 * (1.0 + rel(i))))
+            .collect();
+        let mut r: Vec<Vec3> = (0..n * n).map(|i| Vec3::splat(2.0 * rel(i))).collect();
+        let (sigma, level) = shrink_residual_levels(&mut r, &photo, &vec![clean(); n * n], n);
+        assert!(sigma > 0.01 && sigma < 0.04, "{sigma}");
+        for y in 0..n {
+            let (left, right) = (level[y * n + 4], level[y * n + n - 4]);
+            assert_eq!(left, sigma);
+            assert!(right > 0.032 && right < 0.045, "{right}");
+        }
+        let mut quiet = vec![Vec3::ZERO; n * n];
+        let (sigma, level) = shrink_residual_levels(&mut quiet, &photo, &vec![clean(); n * n], n);
+        assert_eq!(sigma, 0.0);
+        assert!(level.iter().all(|&l| l == 0.0));
     }
 
     #[test]

@@ -329,14 +329,15 @@ impl<T> Value for T where
 {
 }
 
-/// Two images' values at one pixel, sampled together (one set of lookups for both).
+/// Two images' values at one pixel and a level (the photo's relative noise there), sampled
+/// together (one set of lookups for all three).
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
-pub struct Pair(pub Vec3, pub Vec3);
+pub struct Pair(pub Vec3, pub Vec3, pub f32);
 
 impl std::ops::Add for Pair {
     type Output = Pair;
     fn add(self, o: Pair) -> Pair {
-        Pair(self.0 + o.0, self.1 + o.1)
+        Pair(self.0 + o.0, self.1 + o.1, self.2 + o.2)
     }
 }
 
@@ -344,20 +345,21 @@ impl std::ops::AddAssign for Pair {
     fn add_assign(&mut self, o: Pair) {
         self.0 += o.0;
         self.1 += o.1;
+        self.2 += o.2;
     }
 }
 
 impl std::ops::Mul<f32> for Pair {
     type Output = Pair;
     fn mul(self, k: f32) -> Pair {
-        Pair(self.0 * k, self.1 * k)
+        Pair(self.0 * k, self.1 * k, self.2 * k)
     }
 }
 
 impl std::ops::Div<f32> for Pair {
     type Output = Pair;
     fn div(self, k: f32) -> Pair {
-        Pair(self.0 / k, self.1 / k)
+        Pair(self.0 / k, self.1 / k, self.2 / k)
     }
 }
 
