@@ -267,7 +267,12 @@ pub const REFINE_STEP: f32 = 1.8;
 /// 4.12 -> 4.07%, cbox-tex 5.14 -> 5.09%, envmap 5.23 -> 5.33%. With three passes at step 1,
 /// radius 4 gained a little more than radius 2 on the uniform walls (mirror-cbox 4.20 ->
 /// 4.03%) and lost more on the textured grounds (open 10.48 -> 10.51%, envmap 5.70 -> 5.77%).
-pub const DENOISE_RADIUS: u32 = 2;
+/// Since texels are judged by their pixels' local noise level (`project::texel_noise_variance`)
+/// rather than the view's median, radius 2 / 4 / 8 (four passes, Mitsuba 3 judge at 64 spp):
+/// mirror-cbox 3.27 / 3.04 / 3.01%, cbox 1.33 / 1.32%, cbox-tex 4.89 / 4.88 / 4.92%, lights
+/// 3.65 / 3.63%, envmap 5.11 / 5.11 / 5.11%, open 7.72 / 7.67 / 7.67%; relit 8x8 within 0.01
+/// points. Hence 4.
+pub const DENOISE_RADIUS: u32 = 4;
 /// Default agreement threshold of the sigma filter, in standard errors of the difference
 /// of two texels' values (`denoise`).
 pub const DENOISE_Z: f32 = 2.0;
