@@ -275,9 +275,35 @@ def run_scene(scene, args, kdmap, logs):
         except Exception as e:  # a Mitsuba failure is a finding, not a crash of the harness
             rec["failures"].append(f"{scene}: Mitsuba held-out scoring failed: "
                                    f"{type(e).__name__}: {e}")
+    if args.projection_floor and not args.no_mitsuba:
+        rec["projection_floor"] = run_projection_floor(scene, scene_dir, out, args, kdmap, rec)
     if args.anchor:
         rec["anchor"] = run_anchor(scene, scene_dir, args, rec, logs)
     return rec
+
+
+def run_projection_floor(scene, scene_dir, out, args, kdmap, rec):
+    """Issue 17: the run's held-out albedo against its projection floor (noise-free albedo
+    photos projected with the same settings, `projection_floor.py`), or None. Fixtures without
+    `albedo/` images are skipped rather than written into."""
+    import projection_floor
+
+    in_cache = os.path.abspath(scene_dir).startswith(os.path.abspath(args.cache))
+    if not in_cache and not os.path.isdir(os.path.join(scene_dir, "albedo")):
+        log(f"{scene}: projection floor skipped (no albedo/ images; "
+            f"tools/render_albedo_aov.py makes them)")
+        return None
+    t0 = time.perf_counter()
+    try:
+        j = projection_floor.measure(out, scene_dir, None, args.spp or DEFAULT_SPP, kdmap)
+    except projection_floor.FloorError as e:
+        rec["failures"].append(f"{scene}: projection floor failed: {e}")
+        return None
+    f = {"albedo_mean_rel_error": j["albedo_mean_rel_error"],
+         "albedo_rel_l1": j["albedo_rel_l1"], "seconds": time.perf_counter() - t0}
+    log(f"{scene}: projection floor (held-out albedo of noise-free albedo photos) "
+        f"{100 * f['albedo_mean_rel_error']:.2f}% [{f['seconds']:.0f} s]")
+    return f
 
 
 HELDOUT_FIGURES = [("albedo", "albedo_mean_rel_error"), ("albedo", "albedo_rel_l1"),
@@ -389,6 +415,10 @@ def main():
     ap.add_argument("--floor", action="store_true",
                     help="also render the true scenes in Mitsuba (noise floor of the held-out error)")
     ap.add_argument("--no-mitsuba", action="store_true", help="skip the held-out renders")
+    ap.add_argument("--projection-floor", action="store_true",
+                    help="also score the projection floor (tools/projection_floor.py: the "
+                    "held-out albedo of noise-free albedo photos projected with the same "
+                    "settings; scenes with albedo/ images or generated ones)")
     ap.add_argument("--no-build", action="store_true", help="use the existing release binary")
     ap.add_argument("--kdmap", help="kdmap binary to measure (default: target/release/kdmap; "
                     "implies --no-build)")
@@ -544,6 +574,15 @@ def print_summary(records):
                   f"{num(a.get('speedup'), 'x{:.1f}')} | {both('albedo.albedo_mean_rel_error')} | "
                   f"{both('albedo.albedo_rel_l1')} | {both('original.rel_l1_error')} | "
                   f"{both('relit.rel_l1_error')} |")
+    floored = [r for r in records if r.get("projection_floor")]
+    if floored:
+        print("\n| scene | held-out albedo mean rel. | projection floor | the rest (light, noise) |")
+        print("|---|---|---|---|")
+        for r in floored:
+            run = g(r, "mitsuba", "albedo", "albedo_mean_rel_error")
+            fl = r["projection_floor"]["albedo_mean_rel_error"]
+            rest = None if run is None else run - fl
+            print(f"| {r['scene']} | {pct(run)} | {pct(fl)} | {pct(rest)} |")
     for r in records:
         acc = r.get("accuracy")
         if not acc:

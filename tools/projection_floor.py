@@ -68,6 +68,15 @@ def floor_config(cfg, scene_xml, albedo):
     return "\n".join(lines) + "\n"
 
 
+class FloorError(Exception):
+    """What stopped the measurement, one line naming the file or step."""
+
+
+def last_line(text):
+    lines = text.strip().splitlines()
+    return lines[-1] if lines else "(no output)"
+
+
 def albedo_images(scene_dir, spp):
     """{sensor id: path} of the noise-free training albedo images, rendered when missing."""
     found = sorted(glob.glob(os.path.join(scene_dir, "albedo", "cam_train_*.exr")))
@@ -75,10 +84,10 @@ def albedo_images(scene_dir, spp):
         r = subprocess.run([sys.executable, os.path.join(TOOLS, "render_albedo_aov.py"),
                             scene_dir, "--spp", str(spp)], capture_output=True, text=True)
         if r.returncode != 0:
-            sys.exit(f"render_albedo_aov.py failed: {r.stderr.strip().splitlines()[-1:]}")
+            raise FloorError(f"render_albedo_aov.py failed: {last_line(r.stderr)}")
         found = sorted(glob.glob(os.path.join(scene_dir, "albedo", "cam_train_*.exr")))
     if not found:
-        sys.exit(f"{scene_dir}/albedo: no cam_train_*.exr after rendering")
+        raise FloorError(f"{scene_dir}/albedo: no cam_train_*.exr after rendering")
     return {os.path.basename(p)[: -len(".exr")]: os.path.abspath(p) for p in found}
 
 
@@ -92,21 +101,55 @@ def exr_size(path):
 
 def swap_textures(out, proj, dst):
     """Copy run `out` to `dst` with each `textures/<shape>_albedo.exr` replaced by the
-    projection's `maps/<shape>_luminance.exr`; exits when a map is missing or of another size."""
+    projection's `maps/<shape>_luminance.exr`; fails when a map is missing or of another size."""
     shutil.rmtree(dst, ignore_errors=True)
     shutil.copytree(out, dst, ignore=shutil.ignore_patterns("heldout", "checkpoint"))
     textures = sorted(glob.glob(os.path.join(dst, "textures", "*_albedo.exr")))
     if not textures:
-        sys.exit(f"{out}/textures: no *_albedo.exr (not a finished kdmap run?)")
+        raise FloorError(f"{out}/textures: no *_albedo.exr (not a finished kdmap run?)")
     for t in textures:
         shape = os.path.basename(t)[: -len("_albedo.exr")]
         m = os.path.join(proj, "maps", f"{shape}_luminance.exr")
         if not os.path.exists(m):
-            sys.exit(f"{m}: missing (the projection's scene differs from the run's)")
+            raise FloorError(f"{m}: missing (the projection's scene differs from the run's)")
         if exr_size(m) != exr_size(t):
-            sys.exit(f"{m}: {exr_size(m)} texels, the run's {shape} texture "
-                     f"{exr_size(t)}: give the run's config (--config)")
+            raise FloorError(f"{m}: {exr_size(m)} texels, the run's {shape} texture "
+                             f"{exr_size(t)}: give the run's config (--config)")
         shutil.copyfile(m, t)
+
+
+def measure(out, scene_dir, cfg=None, spp=64, kdmap=None, cfg_name="the run config"):
+    """The projection floor of run `out` of the scene in `scene_dir` made with run config `cfg`
+    (parsed TOML, None for the defaults): `heldout.py`'s albedo figures for `<out>-projfloor`
+    (`albedo_mean_rel_error`, `albedo_rel_l1`, per shape under `shapes`). Raises FloorError."""
+    scene_dir = os.path.abspath(scene_dir)
+    kdmap = kdmap or os.path.join(ROOT, "target", "release", "kdmap")
+    dst = out.rstrip("/") + "-projfloor"
+    if not glob.glob(os.path.join(out, "textures", "*_albedo.exr")):
+        raise FloorError(f"{out}/textures: no *_albedo.exr (not a finished kdmap run?)")
+    try:
+        text = floor_config(cfg or {}, os.path.join(scene_dir, "input.xml"), {})
+    except ValueError as e:
+        raise FloorError(f"{cfg_name}: {e}") from e
+    text = floor_config(cfg or {}, os.path.join(scene_dir, "input.xml"),
+                        albedo_images(scene_dir, 256))
+    toml_path = dst + ".toml"
+    with open(toml_path, "w") as f:
+        f.write(text)
+    proj = dst + "-proj"
+    shutil.rmtree(proj, ignore_errors=True)
+    r = subprocess.run([kdmap, "project", toml_path, "--out", proj, "--progress", "never"],
+                       capture_output=True, text=True)
+    if r.returncode != 0:
+        raise FloorError(f"kdmap project failed: {last_line(r.stderr)}")
+    swap_textures(out, proj, dst)
+    r = subprocess.run([sys.executable, os.path.join(TOOLS, "heldout.py"), dst, scene_dir,
+                        "--spp", str(spp), "--albedo-only"], capture_output=True, text=True)
+    if r.returncode != 0:
+        raise FloorError(f"heldout.py failed: {last_line(r.stderr)}")
+    j = json.loads(r.stdout[r.stdout.index("{"):])["albedo"]
+    j["dir"] = dst
+    return j
 
 
 def main():
@@ -117,7 +160,6 @@ def main():
     ap.add_argument("--spp", type=int, default=64)
     ap.add_argument("--kdmap", default=os.path.join(ROOT, "target", "release", "kdmap"))
     a = ap.parse_args()
-    scene_dir = os.path.abspath(a.scene_dir)
     cfg = {}
     if a.config:
         try:
@@ -125,31 +167,14 @@ def main():
                 cfg = tomllib.load(f)
         except (OSError, tomllib.TOMLDecodeError) as e:
             sys.exit(f"{a.config}: {e}")
-    dst = a.out.rstrip("/") + "-projfloor"
     try:
-        text = floor_config(cfg, os.path.join(scene_dir, "input.xml"),
-                            albedo_images(scene_dir, 256))
-    except ValueError as e:
-        sys.exit(f"{a.config}: {e}")
-    toml_path = dst + ".toml"
-    with open(toml_path, "w") as f:
-        f.write(text)
-    proj = dst + "-proj"
-    shutil.rmtree(proj, ignore_errors=True)
-    r = subprocess.run([a.kdmap, "project", toml_path, "--out", proj, "--progress", "never"],
-                       capture_output=True, text=True)
-    if r.returncode != 0:
-        sys.exit(f"kdmap project failed: {r.stderr.strip().splitlines()[-1:]}")
-    swap_textures(a.out, proj, dst)
-    r = subprocess.run([sys.executable, os.path.join(TOOLS, "heldout.py"), dst, scene_dir,
-                        "--spp", str(a.spp), "--albedo-only"], capture_output=True, text=True)
-    if r.returncode != 0:
-        sys.exit(f"heldout.py failed: {r.stderr.strip().splitlines()[-1:]}")
-    j = json.loads(r.stdout[r.stdout.index("{"):])["albedo"]
+        j = measure(a.out, a.scene_dir, cfg, a.spp, a.kdmap, a.config)
+    except FloorError as e:
+        sys.exit(str(e))
     shapes = ", ".join(f"{k} {100 * v['albedo_mean_rel_error']:.2f}%"
                        for k, v in sorted(j["shapes"].items()))
     print(f"projection floor (held-out albedo, noise-free albedo photos projected with the "
-          f"run's settings): {100 * j['albedo_mean_rel_error']:.2f}% ({dst}; {shapes})")
+          f"run's settings): {100 * j['albedo_mean_rel_error']:.2f}% ({j['dir']}; {shapes})")
 
 
 if __name__ == "__main__":

@@ -10,6 +10,7 @@ other types) are refused, not silently changed.
 
 import os
 import sys
+import tempfile
 import tomllib
 import unittest
 
@@ -43,6 +44,24 @@ class FloorConfig(unittest.TestCase):
             pf.floor_config({"a": {"b": {"c": 1}}}, "/s.xml", {})
         with self.assertRaisesRegex(ValueError, "unsupported"):
             pf.floor_config({"a": [1, 2]}, "/s.xml", {})
+
+
+class Measure(unittest.TestCase):
+    """Bad input is refused before any rendering or projection."""
+
+    def test_a_directory_that_is_not_a_run_is_refused(self):
+        with tempfile.TemporaryDirectory() as d:
+            with self.assertRaisesRegex(pf.FloorError, "textures: no"):
+                pf.measure(d, d, kdmap="/nonexistent/kdmap")
+
+    def test_a_config_with_views_is_refused_before_rendering(self):
+        with tempfile.TemporaryDirectory() as d:
+            os.makedirs(os.path.join(d, "textures"))
+            open(os.path.join(d, "textures", "a_albedo.exr"), "w").close()
+            with self.assertRaisesRegex(pf.FloorError, r"run.toml: .*\[views\]"):
+                pf.measure(d, d, {"views": {"c": "x.exr"}}, kdmap="/nonexistent/kdmap",
+                           cfg_name="run.toml")
+            self.assertFalse(os.path.exists(os.path.join(d, "albedo")), "nothing rendered")
 
 
 if __name__ == "__main__":
