@@ -576,7 +576,8 @@ def print_summary(records):
                   f"{both('relit.rel_l1_error')} |")
     floored = [r for r in records if r.get("projection_floor")]
     if floored:
-        print("\n| scene | held-out albedo mean rel. | projection floor | the rest (light, noise) |")
+        print("\n| scene | held-out albedo mean rel. | projection floor | "
+              "the rest (light, noise) |")
         print("|---|---|---|---|")
         for r in floored:
             run = g(r, "mitsuba", "albedo", "albedo_mean_rel_error")

@@ -11,10 +11,11 @@ the true albedo alone, as the same cameras see it (Mitsuba's `albedo` AOV,
 by `kdmap project` with the run's own settings (`--config`, the run config; without it the
 defaults). Where the light is known exactly (here: the albedo *is* the radiance) the projected
 luminance is the recovered albedo, so those maps, put in place of the run's
-`textures/<shape>_albedo.exr` in a copy `<out>-projfloor`, are scored by `heldout.py
---albedo-only`: the error left by the photos' resolution and the projection's deconvolution
-alone. Beside `repr_floor.py` (the atlas holding the true texels: what the texel density
-costs), a run's figure splits three ways: representational floor <= projection floor <= run.
+`textures/<shape>_albedo.exr` in a copy `<out>-projfloor`, are scored by the held-out albedo
+judge (`heldout.albedo_score`, as `heldout.py --albedo-only`): the error left by the photos'
+resolution and the projection's deconvolution alone. Beside `repr_floor.py` (the atlas
+holding the true texels: what the texel density costs), a run's figure splits three ways:
+representational floor <= projection floor <= run.
 
 The atlas must be the run's: the same scene and atlas settings (the tool checks that every
 projected map has the size of the texture it replaces).
@@ -46,9 +47,16 @@ def toml_value(v):
 
 def floor_config(cfg, scene_xml, albedo):
     """The text of the run config `cfg` (parsed TOML, may be empty) with its scene set to
-    `scene_xml` and its views to `albedo` ({sensor id: EXR path}). Only the flat tables of a
-    kdmap run config are written; a config with its own `[views]` is refused (its photos are
-    what the floor replaces)."""
+    `scene_xml` and its views to `albedo` ({sensor id: EXR path}): [`run_settings`], then
+    [`views_table`]."""
+    return run_settings(cfg, scene_xml) + views_table(albedo)
+
+
+def run_settings(cfg, scene_xml):
+    """The run config `cfg` as TOML text with its scene set to `scene_xml`. Only the flat
+    tables of a kdmap run config are written; a config with its own `[views]` is refused (its
+    photos are what the floor replaces), as are nested tables and values of other types
+    (ValueError)."""
     if "views" in cfg:
         raise ValueError("the run config has its own [views]; give one without them")
     lines = [f"scene = {toml_value(scene_xml)}"]
@@ -62,7 +70,12 @@ def floor_config(cfg, scene_xml, albedo):
                 if isinstance(v, dict):
                     raise ValueError(f"[{table}.{k}]: nested tables are not supported")
                 lines.append(f"{k} = {toml_value(v)}")
-    lines.append("[views]")
+    return "\n".join(lines) + "\n"
+
+
+def views_table(albedo):
+    """A `[views]` table of {sensor id: EXR path}, as TOML text."""
+    lines = ["[views]"]
     for sensor, path in sorted(albedo.items()):
         lines.append(f"{sensor} = {toml_value(path)}")
     return "\n".join(lines) + "\n"
@@ -93,10 +106,9 @@ def albedo_images(scene_dir, spp):
 
 def exr_size(path):
     """(height, width) of an EXR."""
-    sys.path.insert(0, TOOLS)
-    import exrio
+    from exrio import read_exr_rgb
 
-    return exrio.read_exr_rgb(path).shape[:2]
+    return read_exr_rgb(path).shape[:2]
 
 
 def swap_textures(out, proj, dst):
@@ -104,17 +116,15 @@ def swap_textures(out, proj, dst):
     projection's `maps/<shape>_luminance.exr`; fails when a map is missing or of another size."""
     shutil.rmtree(dst, ignore_errors=True)
     shutil.copytree(out, dst, ignore=shutil.ignore_patterns("heldout", "checkpoint"))
-    textures = sorted(glob.glob(os.path.join(dst, "textures", "*_albedo.exr")))
-    if not textures:
-        raise FloorError(f"{out}/textures: no *_albedo.exr (not a finished kdmap run?)")
-    for t in textures:
+    for t in sorted(glob.glob(os.path.join(dst, "textures", "*_albedo.exr"))):
         shape = os.path.basename(t)[: -len("_albedo.exr")]
         m = os.path.join(proj, "maps", f"{shape}_luminance.exr")
         if not os.path.exists(m):
             raise FloorError(f"{m}: missing (the projection's scene differs from the run's)")
-        if exr_size(m) != exr_size(t):
-            raise FloorError(f"{m}: {exr_size(m)} texels, the run's {shape} texture "
-                             f"{exr_size(t)}: give the run's config (--config)")
+        got, want = exr_size(m), exr_size(t)
+        if got != want:
+            raise FloorError(f"{m}: {got} texels, the run's {shape} texture {want}: give the "
+                             f"run's config (--config)")
         shutil.copyfile(m, t)
 
 
@@ -128,11 +138,10 @@ def measure(out, scene_dir, cfg=None, spp=64, kdmap=None, cfg_name="the run conf
     if not glob.glob(os.path.join(out, "textures", "*_albedo.exr")):
         raise FloorError(f"{out}/textures: no *_albedo.exr (not a finished kdmap run?)")
     try:
-        text = floor_config(cfg or {}, os.path.join(scene_dir, "input.xml"), {})
+        text = run_settings(cfg or {}, os.path.join(scene_dir, "input.xml"))
     except ValueError as e:
         raise FloorError(f"{cfg_name}: {e}") from e
-    text = floor_config(cfg or {}, os.path.join(scene_dir, "input.xml"),
-                        albedo_images(scene_dir, 256))
+    text += views_table(albedo_images(scene_dir, 256))
     toml_path = dst + ".toml"
     with open(toml_path, "w") as f:
         f.write(text)
@@ -143,11 +152,12 @@ def measure(out, scene_dir, cfg=None, spp=64, kdmap=None, cfg_name="the run conf
     if r.returncode != 0:
         raise FloorError(f"kdmap project failed: {last_line(r.stderr)}")
     swap_textures(out, proj, dst)
-    r = subprocess.run([sys.executable, os.path.join(TOOLS, "heldout.py"), dst, scene_dir,
-                        "--spp", str(spp), "--albedo-only"], capture_output=True, text=True)
-    if r.returncode != 0:
-        raise FloorError(f"heldout.py failed: {last_line(r.stderr)}")
-    j = json.loads(r.stdout[r.stdout.index("{"):])["albedo"]
+    import heldout  # numpy and Mitsuba, only once there is something to judge
+
+    try:
+        j = heldout.albedo_score(dst, scene_dir, spp, os.path.join(dst, "heldout"))
+    except Exception as e:  # a Mitsuba failure: one line, as the other steps'
+        raise FloorError(f"held-out albedo judge failed: {type(e).__name__}: {e}") from e
     j["dir"] = dst
     return j
 

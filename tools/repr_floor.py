@@ -6,20 +6,17 @@
 Copies the run to `<out>-truthtex`, puts the TRUE albedo baked into the run's own atlas (each
 texel the truth averaged over its square: `<out>/accuracy/<shape>_truth.exr`, written by
 `kdmap accuracy <out> <scene>/truth.xml`, which must have run) in place of each recovered
-`textures/<shape>_albedo.exr`, and scores that with `tools/heldout.py --albedo-only`: what a
-perfect solver would score at the run's texel density. (Chart gutters of the baked truth are
+`textures/<shape>_albedo.exr`, and scores that with the held-out albedo judge
+(`heldout.albedo_score`, what `tools/heldout.py --albedo-only` runs): what a perfect solver
+would score at the run's texel density. (Chart gutters of the baked truth are
 not dilated, so seams bleed a little: the figure is a slight overestimate.)
 """
 
 import argparse
 import glob
-import json
 import os
 import shutil
-import subprocess
 import sys
-
-TOOLS = os.path.dirname(os.path.abspath(__file__))
 
 
 def main():
@@ -38,12 +35,13 @@ def main():
     for t in truths:
         shape = os.path.basename(t)[: -len("_truth.exr")]
         shutil.copyfile(t, os.path.join(dst, "textures", f"{shape}_albedo.exr"))
-    r = subprocess.run([sys.executable, os.path.join(TOOLS, "heldout.py"), dst, a.scene_dir,
-                        "--spp", str(a.spp), "--albedo-only"], capture_output=True, text=True)
-    if r.returncode != 0:
-        sys.exit(f"heldout.py failed: {r.stderr.strip().splitlines()[-1:]}")
-    j = json.loads(r.stdout[r.stdout.index("{"):])
-    e = j["albedo"]["albedo_mean_rel_error"]
+    import heldout
+
+    try:
+        j = heldout.albedo_score(dst, a.scene_dir, a.spp, os.path.join(dst, "heldout"))
+    except Exception as e:  # a Mitsuba failure: one line
+        sys.exit(f"held-out albedo judge failed: {type(e).__name__}: {e}")
+    e = j["albedo_mean_rel_error"]
     print(f"representational floor (held-out albedo, true texels at the run's density): "
           f"{100 * e:.2f}% ({dst})")
 
