@@ -82,6 +82,7 @@ pub struct RawProjection {
     pub denoise_radius: Option<u32>,
     pub denoise_z: Option<f32>,
     pub tv_weight: Option<f32>,
+    pub noise_probe: Option<bool>,
 }
 
 #[derive(Debug, Clone, Default, Deserialize)]
@@ -368,6 +369,11 @@ pub struct Config {
     /// Weight of the total-variation step after each refinement pass, in units of the
     /// photos' relative noise (0 = off, the default; see `project::tv`).
     pub tv_weight: f32,
+    /// Whether the photos' noise through the projection is measured by projecting them again
+    /// with added noise (`project::probe`; the default), rather than only propagated through
+    /// the views' weights. Reports written before it existed read as `false` (they did not).
+    #[serde(default)]
+    pub noise_probe: bool,
     /// First-pass interior shadow rays per area-emitter triangle (the perimeter is searched
     /// too; see `light::DirectParams`).
     pub area_samples: u32,
@@ -453,6 +459,7 @@ impl Config {
             denoise_radius: DENOISE_RADIUS,
             denoise_z: DENOISE_Z,
             tv_weight: 0.0,
+            noise_probe: true,
             area_samples: 16,
             method: Method::Gather,
             gather_rays: 1024,
@@ -633,6 +640,7 @@ impl Config {
         set(&mut c.denoise_radius, raw.projection.denoise_radius);
         set(&mut c.denoise_z, raw.projection.denoise_z);
         set(&mut c.tv_weight, raw.projection.tv_weight);
+        set(&mut c.noise_probe, raw.projection.noise_probe);
         set(&mut c.area_samples, raw.direct.area_samples);
         set(&mut c.photometric_scale, raw.units.photometric_scale);
         let p = raw.photons;
@@ -977,10 +985,15 @@ mod tests {
         std::fs::write(
             &p,
             "scene = \"s.xml\"\n[projection]\nrefine_passes = 1\nrefine_step = 1.25\n\
-             denoise_radius = 3\ndenoise_z = 2.5\ntv_weight = 0.2\n",
+             denoise_radius = 3\ndenoise_z = 2.5\ntv_weight = 0.2\nnoise_probe = false\n",
         )
         .unwrap();
         let c = Config::load(&p, &Overrides::default()).unwrap();
+        assert!(!c.noise_probe);
+        assert!(
+            Config::for_scene("s.xml".into()).noise_probe,
+            "on by default"
+        );
         assert_eq!((c.refine_passes, c.refine_step), (1, 1.25));
         assert_eq!((c.denoise_radius, c.denoise_z), (3, 2.5));
         assert_eq!(c.tv_weight, 0.2);

@@ -476,6 +476,7 @@ impl<'a> Run<'a> {
         })?;
         let dn = denoise(p, cfg, &self.charts, &self.geom, &mut state, &self.scratch)?;
         report.timings.projection = t.elapsed().as_secs_f64();
+        report.timings.noise_probe = ps.probe_seconds;
         report.resources.after("projection");
         debug_check(&self.geom, &state)?;
         let proj = ProjCounts {

@@ -50,6 +50,9 @@ pub struct Timings {
     pub load: f64,
     pub atlas: f64,
     pub projection: f64,
+    /// The projection's noise probe (part of `projection`; see `project::probe`).
+    #[serde(default)]
+    pub noise_probe: f64,
     pub direct: f64,
     pub photons: f64,
     #[serde(default)]

@@ -49,8 +49,8 @@ impl Rng {
         (self.u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
     }
 
-    /// Standard normal, from two draws (Box-Muller); test noise.
-    #[cfg(test)]
+    /// Standard normal, from two draws (Box-Muller): test noise, and the projection's noise
+    /// probe.
     pub fn normal(&mut self) -> f32 {
         let (u, v) = (1.0 - self.f64(), self.f64());
         ((-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()) as f32

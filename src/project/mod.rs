@@ -45,16 +45,19 @@
 //! ([`robust_weight`]) and, in the last pass, counted (`TexelState::disagree`, the
 //! `maps/<shape>_disagreement` map). The last pass's residuals also give the variance of the
 //! fused luminance ([`fused_variance`]: the photo noise through the weights, or the views'
-//! scatter where larger), from which `confidence` makes the standard error of `K_d`.
+//! scatter where larger), from which `confidence` makes the standard error of `K_d`; its
+//! photo-noise part is then measured by running the projection again on perturbed photos
+//! ([`probe`]).
 
 mod noise;
+pub mod probe;
 mod refine;
 mod shrink;
 pub mod tv;
 mod view;
 
 pub use refine::{Refine, REFINE_SUPERSAMPLE};
-pub use shrink::{shrink_residual, shrink_residual_levels};
+pub use shrink::{residual_roughness, shrink_residual, shrink_residual_levels};
 pub use view::{classify_pixels, Pair, PixelInfo, Value, View};
 
 use crate::atlas::charts::Charts;
@@ -87,7 +90,10 @@ pub struct ProjectionStats {
     pub masked_pixels: usize,
     pub covered_texels: u64,
     pub observed_texels: u64,
+    /// The whole stage, the noise probe included.
     pub seconds: f64,
+    /// The noise probe's part of it (0 when off).
+    pub probe_seconds: f64,
 }
 
 /// How the stage is shared with the other processes of a run (decided by `pipeline`): this
@@ -174,19 +180,10 @@ pub fn run_shard(
             Camera::from_sensor(&p.scene.sensors[*si]),
             photo,
         );
-        map_tiles(state, geom, window, |t, g, st| {
-            if !(shard.owns)(t) || !bounds[t].is_some_and(|(lo, hi)| view.camera.may_see(lo, hi)) {
-                return;
-            }
-            let slot = p.layout.slot_of_tile(t as u32);
-            project_tile(&view, &p.shape_ref(slot), g, st);
-        })?;
         views.push(view);
         stage.inc(1);
         interrupt::check(interrupt::NOTHING_SAVED)?;
     }
-    state.for_each_tile_mut(window, |_, st| finish_tile(st))?;
-    (shard.sync)(state)?;
     let ctx = refine::Refine {
         p,
         hits,
@@ -197,12 +194,39 @@ pub fn run_shard(
         window,
         scratch,
         shard,
+        label: "refinement",
     };
-    ctx.run(
-        state,
-        (cfg.refine_passes, cfg.refine_step, cfg.tv_weight),
-        mode,
-    )?;
+    let passes = (cfg.refine_passes, cfg.refine_step, cfg.tv_weight);
+    let noise = project_and_refine(&ctx, state, passes, mode)?;
+    if cfg.noise_probe && !noise.is_empty() {
+        let t = Instant::now();
+        let perturbed: Vec<Image> = (photos.iter().zip(&noise).enumerate())
+            .map(|(i, (ph, n))| probe::perturbed(ph, n, cfg.seed, i as u64))
+            .collect();
+        let probe_views: Vec<View> = (views.iter().zip(&perturbed))
+            .map(|(v, im)| v.with_image(im))
+            .collect();
+        let path = scratch.dir.join("probe-state.tiles");
+        let mut probe_state = p.create_store(&path, TexelState::default())?;
+        let pctx = refine::Refine {
+            views: &probe_views,
+            label: "noise probe",
+            ..ctx
+        };
+        project_and_refine(&pctx, &mut probe_state, passes, mode)?;
+        probe::apply(
+            &p.layout,
+            charts,
+            geom,
+            state,
+            &mut probe_state,
+            window,
+            scratch,
+        )?;
+        drop(probe_state);
+        std::fs::remove_file(&path).map_err(|e| crate::error::Error::io(&path, e))?;
+        stats.probe_seconds = t.elapsed().as_secs_f64();
+    }
     stage.finish();
     let counts = map_tiles(state, geom, window, |_, g, st| {
         let c = g.iter().filter(|g| g.covered()).count() as u64;
@@ -214,6 +238,30 @@ pub fn run_shard(
     stats.observed_texels = o;
     stats.seconds = t0.elapsed().as_secs_f64();
     Ok(stats)
+}
+
+/// The weighted mean of every view of `ctx` into `state` (L_orig, weight, OBSERVED; synced),
+/// then the refinement passes; returns the views' noise as the last pass estimated it.
+fn project_and_refine(
+    ctx: &refine::Refine,
+    state: &mut TileStore<TexelState>,
+    passes: (u32, f32, f32),
+    mode: Mode,
+) -> Result<Vec<probe::ViewNoise>> {
+    let (p, shard, bounds) = (ctx.p, ctx.shard, ctx.bounds);
+    for view in ctx.views {
+        map_tiles(state, ctx.geom, ctx.window, |t, g, st| {
+            if !(shard.owns)(t) || !bounds[t].is_some_and(|(lo, hi)| view.camera.may_see(lo, hi)) {
+                return;
+            }
+            let slot = p.layout.slot_of_tile(t as u32);
+            project_tile(view, &p.shape_ref(slot), g, st);
+        })?;
+        interrupt::check(interrupt::NOTHING_SAVED)?;
+    }
+    state.for_each_tile_mut(ctx.window, |_, st| finish_tile(st))?;
+    (shard.sync)(state)?;
+    ctx.run(state, passes, mode)
 }
 
 /// Every view's photo: as `prepare` decoded and checked it, else read again (checked the

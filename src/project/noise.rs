@@ -52,6 +52,17 @@ pub fn pixel_noise(
         .collect()
 }
 
+/// Per pixel, the roughness of `v` (relative residuals, `None` where there is none; `width`
+/// pixels per row) over its block's window, as a standard deviation (see [`roughness`]): the
+/// local noise level with no floor and no guard, 0 where too few pixels have a value.
+pub fn local_roughness(v: &[Option<f32>], width: usize) -> Vec<f32> {
+    let rough = roughness(v, width, &|_| true);
+    let bw = width.div_ceil(NOISE_BLOCK);
+    (0..v.len())
+        .map(|i| rough[(i / width / NOISE_BLOCK) * bw + (i % width) / NOISE_BLOCK])
+        .collect()
+}
+
 /// Per block of [`NOISE_BLOCK`] x [`NOISE_BLOCK`] pixels (row by row), the roughness of `v`
 /// (an image `width` wide) over the window around it: for each of [`DIRECTIONS`] the median
 /// `|v(p) - v(p + d)|` over the pairs that both have a value, as a standard deviation of `v`

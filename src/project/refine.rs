@@ -2,11 +2,12 @@
 //! current maps, back-project the residuals `photo - render` with the projection's own lookups
 //! and weights, add their weighted mean (see the module notes of [`super`]).
 
+use super::probe::ViewNoise;
 use super::tv::tv_luminance;
 use super::view::View;
 use super::{
-    apply_refinement, backproject_tile, shrink_residual_levels, Pair, Residual, ResidualViews,
-    Shard, ROW_BAND,
+    apply_refinement, backproject_tile, residual_roughness, shrink_residual_levels, Pair, Residual,
+    ResidualViews, Shard, ROW_BAND,
 };
 use crate::atlas::charts::Charts;
 use crate::atlas::hits::HitTable;
@@ -86,6 +87,8 @@ pub struct Refine<'a> {
     pub scratch: &'a Scratch,
     /// The tiles refined here, and how the others' reach this process after each pass.
     pub shard: &'a Shard<'a>,
+    /// The progress stage's name.
+    pub label: &'static str,
 }
 
 /// The residuals of a pass, per texel, summed over the views: a scratch tile store (mapped a
@@ -105,18 +108,20 @@ impl Refine<'_> {
     /// residuals give each texel's `l_var` and `disagree`. With `tv > 0` each pass ends with
     /// the TV step of [`tv_luminance`] at `tv` times the views' mean relative noise. The maps
     /// and the residuals live in scratch textures and tiles within the memory budget; casts
-    /// rays only for clean pixels that straddle a chart seam.
+    /// rays only for clean pixels that straddle a chart seam. Returns each view's noise as
+    /// the last pass estimated it (none without passes).
     pub fn run(
         &self,
         state: &mut TileStore<TexelState>,
         (passes, step, tv): (u32, f32, f32),
         mode: Mode,
-    ) -> Result<()> {
+    ) -> Result<Vec<ViewNoise>> {
+        let mut noise = Vec::new();
         if passes == 0 || self.views.is_empty() {
-            return Ok(());
+            return Ok(noise);
         }
         let total = passes as u64 * self.views.len() as u64;
-        let stage = Stage::new(mode, "refinement", total, "views");
+        let stage = Stage::new(mode, self.label, total, "views");
         let path = self.scratch.dir.join("refine-delta.tiles");
         for pass in 0..passes {
             let maps = current_maps(self.p, self.geom, state, self.scratch)?;
@@ -132,8 +137,12 @@ impl Refine<'_> {
                 touched: (0..n).map(|_| AtomicBool::new(false)).collect(),
             };
             let mut sigma = 0.0;
+            noise.clear();
             for view in self.views {
-                sigma += self.backproject(view, &textures, state, &mut delta)?;
+                let last = pass + 1 == passes;
+                let n = self.backproject(view, &textures, state, &mut delta, last)?;
+                sigma += n.sigma;
+                noise.push(n);
                 stage.inc(1);
                 crate::interrupt::check(crate::interrupt::NOTHING_SAVED)?;
             }
@@ -162,7 +171,7 @@ impl Refine<'_> {
         }
         std::fs::remove_file(&path).map_err(|e| Error::io(&path, e))?;
         stage.finish();
-        Ok(())
+        Ok(noise)
     }
 
     /// The maps as textures by shape.
@@ -180,14 +189,16 @@ impl Refine<'_> {
     }
 
     /// One view's residual, back-projected into `delta` (per tile, allocated on first use),
-    /// judged against the current `state`; returns the photo's relative noise.
+    /// judged against the current `state`; returns the photo's noise: its relative level, and
+    /// in the `last` pass the residual's local roughness per pixel.
     fn backproject(
         &self,
         view: &View,
         textures: &[Option<Texture>],
         state: &TileStore<TexelState>,
         delta: &mut Delta,
-    ) -> Result<f32> {
+        last: bool,
+    ) -> Result<ViewNoise> {
         let (p, photo) = (self.p, view.image);
         let w = photo.width;
         // A blurring film needs the neighbours of clean pixels within its reach too.
@@ -218,6 +229,10 @@ impl Refine<'_> {
             })
             .collect();
         let raw = residual.clone();
+        let rough = match last {
+            true => residual_roughness(&raw, &photo.pixels, &view.pixels, w as usize),
+            false => Vec::new(),
+        };
         let (sigma, level) =
             shrink_residual_levels(&mut residual, &photo.pixels, &view.pixels, w as usize);
         let both: Vec<Pair> = raw
@@ -252,7 +267,10 @@ impl Refine<'_> {
         })?;
         match err.into_inner().unwrap_or_else(|e| e.into_inner()) {
             Some(e) => Err(e),
-            None => Ok(sigma),
+            None => Ok(ViewNoise {
+                sigma,
+                level: rough,
+            }),
         }
     }
 }

@@ -62,6 +62,18 @@ pub fn shrink_residual(
     shrink_residual_levels(residual, photo, pixels, width).0
 }
 
+/// Per pixel, the local roughness of the relative residual `residual / photo` (clean pixels
+/// only; see [`super::noise::local_roughness`]): the noise level the noise probe adds noise at.
+pub fn residual_roughness(
+    residual: &[Vec3],
+    photo: &[Vec3],
+    pixels: &[PixelInfo],
+    width: usize,
+) -> Vec<f32> {
+    let e: Vec<Option<f32>> = relative(residual, photo, pixels).collect();
+    super::noise::local_roughness(&e, width)
+}
+
 /// [`shrink_residual`], also returning each pixel's relative noise level (the view's `sigma`
 /// or more where the photo is locally noisier, see [`pixel_noise`]; `sigma` everywhere, 0 for a
 /// noise-free photo): what a texel's noise variance is judged by.

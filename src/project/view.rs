@@ -210,6 +210,17 @@ impl<'a> View<'a> {
         }
     }
 
+    /// The same view (camera, pixel classification, corners) of another photo of the same
+    /// size: no rays are cast again.
+    pub fn with_image<'b>(&self, image: &'b Image) -> View<'b> {
+        View {
+            camera: self.camera.clone(),
+            image,
+            pixels: self.pixels.clone(),
+            corners: self.corners.clone(),
+        }
+    }
+
     /// Per pixel, whether a clean pixel lies within `n` pixels of it (the clean mask for
     /// `n = 0`).
     pub fn near_clean(&self, n: u32) -> Vec<bool> {

@@ -802,3 +802,99 @@ fn bin_areas_sum_to_mesh_areas() {
 fn bin_areas_sum_to_mesh_areas_at_low_density() {
     check_bin_areas(64.0);
 }
+
+/// Per shape of a projection left in `out`: `(shape id, texel index within the run, luminance,
+/// predicted standard deviation sqrt(l_var))` of every observed texel.
+fn observed_luminance(p: &Prepared, out: &Path) -> Vec<(String, usize, f32, f32)> {
+    let mut v = Vec::new();
+    for (t, (_, ss)) in read_tiles(p, out).into_iter().enumerate() {
+        let slot = p.layout.slot_of_tile(t as u32);
+        let id = &p.scene.shapes[p.layout.slots[slot].shape].id;
+        for (i, s) in ss.iter().enumerate() {
+            if s.weight > 0.0 {
+                let l = luminance(Vec3::from_array(s.l_orig));
+                v.push((id.clone(), t * ss.len() + i, l, s.l_var.max(0.0).sqrt()));
+            }
+        }
+    }
+    v
+}
+
+/// The median of `v` (sorted in place).
+fn median(v: &mut [f32]) -> f32 {
+    v.sort_by(f32::total_cmp);
+    v[v.len() / 2]
+}
+
+/// The noise probe (`project::probe`) must predict the noise the photos give each texel. Two
+/// projections of synthetic cbox-tex photos with independent relative noise (2% on the
+/// brightest surfaces, more on dim ones, as in a rendered photo) measure it: per shape, the
+/// robust spread of the two luminances' relative difference over sqrt 2. The predicted
+/// standard deviation (`sqrt(l_var)`, its median over the shape) must be within a factor 1.5
+/// of it on every shape. Without the probe (the noise propagated through the views' weights
+/// only) the refinement's amplification on the grazing ceiling is missed.
+#[test]
+fn the_noise_probe_predicts_the_texel_noise_of_independent_photos() {
+    let root = fixture("cbox-tex");
+    let base = config(&root);
+    let p = prepare(&base, Mode::Quiet).unwrap();
+    let field = Field::cbox_tex(&p, &root);
+    let run = |seed: u64, probe: bool| {
+        let mut cfg = base.clone();
+        cfg.noise_probe = probe;
+        let dir = tempfile::tempdir().unwrap();
+        let noisy = move |si: usize, i: usize, v: Vec3| {
+            let rel = 0.016 / luminance(v).max(0.04).sqrt();
+            let n = kdmap::rng::Rng::new(seed, si as u64, 0, i as u64).normal();
+            v * (1.0 + rel * n).max(0.0)
+        };
+        synthetic_photos(&p, &field, &mut cfg, dir.path(), &noisy);
+        let out = tempfile::tempdir().unwrap();
+        let (p, _) = project(&cfg, out.path(), refine_passes());
+        observed_luminance(&p, out.path())
+    };
+    let ratios = |a: &[(String, usize, f32, f32)], b: &[(String, usize, f32, f32)]| {
+        let mut by: std::collections::BTreeMap<&str, (Vec<f32>, Vec<f32>)> = Default::default();
+        for (x, y) in a.iter().zip(b) {
+            assert_eq!((&x.0, x.1), (&y.0, y.1), "the same texels");
+            let m = 0.5 * (x.2 + y.2);
+            if m > 0.0 {
+                let e = by.entry(&x.0).or_default();
+                e.0.push((x.2 - y.2) / m / std::f32::consts::SQRT_2);
+                e.1.push(x.3 / x.2.max(1e-9));
+            }
+        }
+        by.into_iter()
+            .map(|(id, (mut d, mut pred))| {
+                let mid = median(&mut d);
+                let mut dev: Vec<f32> = d.iter().map(|v| (v - mid).abs()).collect();
+                let actual = 1.4826 * median(&mut dev);
+                (id.to_string(), actual, median(&mut pred))
+            })
+            .collect::<Vec<_>>()
+    };
+    let (a, b) = (run(1, true), run(2, true));
+    let (a0, b0) = (run(1, false), run(2, false));
+    let (with, without) = (ratios(&a, &b), ratios(&a0, &b0));
+    let mut worst_without = 1.0f32;
+    for ((id, actual, pred), (_, actual0, pred0)) in with.iter().zip(&without) {
+        eprintln!(
+            "{id}: texel noise {:.2}%, predicted {:.2}% with the probe, {:.2}% without ({:.2}%)",
+            100.0 * actual,
+            100.0 * pred,
+            100.0 * pred0,
+            100.0 * actual0
+        );
+        let r = actual / pred;
+        assert!(
+            (1.0 / 1.5..1.5).contains(&r),
+            "{id}: measured / predicted {r:.2}"
+        );
+        let r0 = actual0 / pred0;
+        worst_without = worst_without.max(r0).max(1.0 / r0);
+    }
+    assert!(
+        worst_without > 1.5,
+        "the propagation alone was within {worst_without:.2}"
+    );
+}
