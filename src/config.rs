@@ -89,6 +89,7 @@ pub struct RawProjection {
 #[serde(deny_unknown_fields)]
 pub struct RawDirect {
     pub area_samples: Option<u32>,
+    pub env_samples: Option<u32>,
 }
 
 #[derive(Debug, Clone, Default, Deserialize)]
@@ -377,6 +378,11 @@ pub struct Config {
     /// First-pass interior shadow rays per area-emitter triangle (the perimeter is searched
     /// too; see `light::DirectParams`).
     pub area_samples: u32,
+    /// Sample pairs per texel for an environment light's direct irradiance (see
+    /// `light::env`; `DirectParams::env_samples`). Reports written before it existed read as
+    /// 144, the value they used.
+    #[serde(default = "default_env_samples")]
+    pub env_samples: u32,
     /// How `E_i` is estimated.
     pub method: Method,
     /// Gather rays per gather point (rounded up to a square).
@@ -461,6 +467,7 @@ impl Config {
             tv_weight: 0.0,
             noise_probe: true,
             area_samples: 16,
+            env_samples: ENV_SAMPLES,
             method: Method::Gather,
             gather_rays: 1024,
             gather_spacing: 0.0,
@@ -642,6 +649,7 @@ impl Config {
         set(&mut c.tv_weight, raw.projection.tv_weight);
         set(&mut c.noise_probe, raw.projection.noise_probe);
         set(&mut c.area_samples, raw.direct.area_samples);
+        set(&mut c.env_samples, raw.direct.env_samples);
         set(&mut c.photometric_scale, raw.units.photometric_scale);
         let p = raw.photons;
         if let Some(n) = p.per_iteration {
@@ -760,6 +768,12 @@ impl Config {
                 "direct.area_samples = 0: need at least 1 sample per emitter triangle".into(),
             );
         }
+        if self.env_samples == 0 || self.env_samples > MAX_ENV_SAMPLES {
+            return Err(format!(
+                "direct.env_samples = {}: must be 1..={MAX_ENV_SAMPLES} sample pairs per texel",
+                self.env_samples
+            ));
+        }
         if self.photons == 0 {
             return Err("photons = 0: need at least one light path per iteration".into());
         }
@@ -858,6 +872,15 @@ impl Config {
             radius / 32.0
         }
     }
+}
+
+/// Default sample pairs per texel under an environment light (`light::DirectParams`).
+pub const ENV_SAMPLES: u32 = 144;
+/// The most `direct.env_samples` accepts (each texel's samples are held at once).
+pub const MAX_ENV_SAMPLES: u32 = 65536;
+
+fn default_env_samples() -> u32 {
+    ENV_SAMPLES
 }
 
 fn set<T>(slot: &mut T, v: Option<T>) {
@@ -975,6 +998,26 @@ mod tests {
             let mut c = Config::for_scene("s.xml".into());
             c.tv_weight = w;
             assert!(c.validate().unwrap_err().contains("tv_weight"), "{w}");
+        }
+    }
+
+    /// `[direct] env_samples` sets the pairs per texel under an environment light; 0 and
+    /// more than the cap are refused with the key named.
+    #[test]
+    fn direct_section_sets_env_samples() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("run.toml");
+        std::fs::write(&p, "scene = \"s.xml\"\n[direct]\nenv_samples = 1024\n").unwrap();
+        let c = Config::load(&p, &Overrides::default()).unwrap();
+        assert_eq!(c.env_samples, 1024);
+        assert_eq!(Config::for_scene("s.xml".into()).env_samples, ENV_SAMPLES);
+        for bad in [0, MAX_ENV_SAMPLES + 1] {
+            let mut c = Config::for_scene("s.xml".into());
+            c.env_samples = bad;
+            assert!(
+                c.validate().unwrap_err().contains("direct.env_samples"),
+                "{bad}"
+            );
         }
     }
 

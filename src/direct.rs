@@ -95,6 +95,7 @@ fn light_tiles(
 ) -> Result<Vec<TileSums>> {
     let params = DirectParams {
         area_samples: cfg.area_samples,
+        env_samples: cfg.env_samples,
         ..DirectParams::default()
     };
     let window = p.window::<TexelState>(cfg);

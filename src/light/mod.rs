@@ -171,7 +171,7 @@ impl Default for DirectParams {
             area_samples: 16,
             penumbra_samples: 2048,
             edge_samples: 64,
-            env_samples: 144,
+            env_samples: crate::config::ENV_SAMPLES,
         }
     }
 }
