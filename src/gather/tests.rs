@@ -621,11 +621,10 @@ fn radiance_through_a_tiny_cache_reads_each_texel() {
     assert!(checked > 1000, "{checked}");
 }
 
-/// The variance counts hits on unobserved texels at the radiance of each evaluation, paired
-/// as the observed ones are: a square of light seen as observed radiance 2, or unobserved with
-/// `K_d E / pi = 2`, gives every point the same `E_i` and the same variance.
-#[test]
-fn gather_variance_treats_unobserved_hits_as_observed_ones() {
+/// A floor (`[-2, 2]^2`, facing up) under a 1 x 1 square facing down, 1 above it at
+/// `x = 0.3`, the floor observed black: the variance tests' scene (the square's edge is the
+/// gather's only variance).
+fn floor_under_square() -> Fixture {
     let mut floor = mesh::rectangle();
     floor.transform(&Mat4::from_scale(Vec3::splat(2.0)));
     let mut top = mesh::rectangle();
@@ -633,20 +632,22 @@ fn gather_variance_treats_unobserved_hits_as_observed_ones() {
     top.transform(
         &(Mat4::from_translation(Vec3::new(0.3, 0.0, 1.0)) * Mat4::from_scale(Vec3::splat(0.5))),
     );
-    let build = || {
-        let mut fx = Fixture::new(
-            vec![
-                shape("floor", floor.clone(), None),
-                shape("top", top.clone(), None),
-            ],
-            8.0,
-        );
-        fx.observe("floor", Vec3::splat(0.0));
-        fx
-    };
-    let mut seen = build();
+    let mut fx = Fixture::new(
+        vec![shape("floor", floor, None), shape("top", top, None)],
+        8.0,
+    );
+    fx.observe("floor", Vec3::splat(0.0));
+    fx
+}
+
+/// The variance counts hits on unobserved texels at the radiance of each evaluation, paired
+/// as the observed ones are: a square of light seen as observed radiance 2, or unobserved with
+/// `K_d E / pi = 2`, gives every point the same `E_i` and the same variance.
+#[test]
+fn gather_variance_treats_unobserved_hits_as_observed_ones() {
+    let mut seen = floor_under_square();
     seen.observe("top", Vec3::splat(2.0));
-    let mut unseen = build();
+    let mut unseen = floor_under_square();
     unseen.set("top", |s| {
         s.e_d = [1.0; 3];
         s.k_d = [2.0 * PI; 3];
@@ -748,19 +749,8 @@ fn gather_variance_is_zero_in_a_furnace_and_bounds_the_spread_over_seeds() {
         &furnace[..3]
     );
 
-    let mut floor = mesh::rectangle();
-    floor.transform(&Mat4::from_scale(Vec3::splat(2.0)));
-    let mut top = mesh::rectangle();
-    mesh::flip_normals(&mut top);
-    top.transform(
-        &(Mat4::from_translation(Vec3::new(0.3, 0.0, 1.0)) * Mat4::from_scale(Vec3::splat(0.5))),
-    );
-    let mut fx = Fixture::new(
-        vec![shape("floor", floor, None), shape("top", top, None)],
-        8.0,
-    );
+    let mut fx = floor_under_square();
     fx.observe("top", Vec3::splat(2.0));
-    fx.observe("floor", Vec3::splat(0.0));
     let runs: Vec<Vec<(Vec3, f32)>> = (0..24)
         .map(|seed| fx.gather_variance(0.25, 64, seed))
         .collect();
