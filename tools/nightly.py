@@ -277,6 +277,8 @@ def run_scene(scene, args, kdmap, logs):
                                    f"{type(e).__name__}: {e}")
     if args.projection_floor and not args.no_mitsuba:
         rec["projection_floor"] = run_projection_floor(scene, scene_dir, out, args, kdmap, rec)
+    if args.noise_calibration:
+        rec["noise_calibration"] = run_noise_calibration(scene, scene_dir, args, kdmap, rec)
     if args.anchor:
         rec["anchor"] = run_anchor(scene, scene_dir, args, rec, logs)
     return rec
@@ -303,6 +305,32 @@ def run_projection_floor(scene, scene_dir, out, args, kdmap, rec):
          "albedo_rel_l1": j["albedo_rel_l1"], "seconds": time.perf_counter() - t0}
     log(f"{scene}: projection floor (held-out albedo of noise-free albedo photos) "
         f"{100 * f['albedo_mean_rel_error']:.2f}% [{f['seconds']:.0f} s]")
+    return f
+
+
+def run_noise_calibration(scene, scene_dir, args, kdmap, rec):
+    """Issue 17: per shape, the K_d noise measured with a second set of photos and a second
+    seed over the predicted standard error (`noise_calibration.py`; its runs and photos in
+    `cache/noise-calibration/<scene>`, beside the scene cache), with the median and the worst ratio, or None."""
+    import noise_calibration
+
+    t0 = time.perf_counter()
+    work = os.path.join(os.path.dirname(os.path.abspath(args.cache)), "noise-calibration", scene)
+    try:
+        shapes = noise_calibration.measure(scene_dir, work, {}, 7, kdmap)
+    except noise_calibration.CalibrationError as e:
+        rec["failures"].append(f"{scene}: noise calibration failed: {e}")
+        return None
+    ratios = sorted(r["ratio"] for r in shapes.values() if r["ratio"] == r["ratio"])
+    if not ratios:
+        rec["failures"].append(f"{scene}: noise calibration: no shape with a ratio")
+        return None
+    f = {"shapes": shapes, "median_ratio": ratios[len(ratios) // 2],
+         "worst_ratio": max(ratios, key=lambda r: max(r, 1 / r) if r > 0 else float("inf")),
+         "seconds": time.perf_counter() - t0}
+    log(f"{scene}: K_d noise measured / predicted (1 if calibrated): median "
+        f"{f['median_ratio']:.2f}, worst {f['worst_ratio']:.2f} over {len(ratios)} shapes "
+        f"[{f['seconds']:.0f} s]")
     return f
 
 
@@ -419,6 +447,10 @@ def main():
                     help="also score the projection floor (tools/projection_floor.py: the "
                     "held-out albedo of noise-free albedo photos projected with the same "
                     "settings; scenes with albedo/ images or generated ones)")
+    ap.add_argument("--noise-calibration", action="store_true",
+                    help="also check the predicted standard error of K_d against noise measured "
+                    "with a second render of the photos and a second seed "
+                    "(tools/noise_calibration.py; minutes of Mitsuba per scene)")
     ap.add_argument("--no-build", action="store_true", help="use the existing release binary")
     ap.add_argument("--kdmap", help="kdmap binary to measure (default: target/release/kdmap; "
                     "implies --no-build)")
