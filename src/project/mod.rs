@@ -57,7 +57,7 @@ pub mod tv;
 mod view;
 
 pub use refine::{Refine, REFINE_SUPERSAMPLE};
-pub use shrink::{residual_roughness, shrink_residual, shrink_residual_levels};
+pub use shrink::{shrink_residual, shrink_residual_levels, NoiseLevels};
 pub use view::{classify_pixels, Pair, PixelInfo, Value, View};
 
 use crate::atlas::charts::Charts;

@@ -28,38 +28,39 @@ const MIN_PAIRS: usize = 32;
 const DIRECTIONS: [(i64, i64); 4] = [(1, 0), (0, 1), (1, 1), (1, -1)];
 
 /// Per pixel, the relative noise level the shrinkage judges the residual against: `sigma`
-/// (the view's level), or the residual's local roughness where that is larger and the
-/// render's local roughness is smaller than it. `e` is the relative residual and `log_render`
-/// the logarithm of the render (so its differences are relative too), both per pixel and
-/// `None` where there is none; `width` pixels per row. The render's roughness is taken only
-/// for blocks whose residual is rougher than `sigma` (elsewhere the level is `sigma` anyway).
+/// (the view's level), or the residual's local roughness `rough` (per block, from
+/// [`block_roughness`]) where that is larger and the render's local roughness is smaller than
+/// it. `log_render` is the logarithm of the render (so its differences are relative too), per
+/// pixel and `None` where there is none; `width` pixels per row. The render's roughness is
+/// taken only for blocks whose residual is rougher than `sigma` (elsewhere the level is
+/// `sigma` anyway).
 pub fn pixel_noise(
-    e: &[Option<f32>],
+    rough: &[f32],
     log_render: &[Option<f32>],
     width: usize,
     sigma: f32,
 ) -> Vec<f32> {
-    let rough = roughness(e, width, &|_| true);
     let smooth = roughness(log_render, width, &|b| rough[b] > sigma);
     let level: Vec<f32> = rough
         .iter()
         .zip(&smooth)
         .map(|(&r, &s)| if r > sigma && s < r { r } else { sigma })
         .collect();
-    let bw = width.div_ceil(NOISE_BLOCK);
-    (0..e.len())
-        .map(|i| level[(i / width / NOISE_BLOCK) * bw + (i % width) / NOISE_BLOCK])
-        .collect()
+    per_pixel(&level, log_render.len(), width)
 }
 
-/// Per pixel, the roughness of `v` (relative residuals, `None` where there is none; `width`
-/// pixels per row) over its block's window, as a standard deviation (see [`roughness`]): the
-/// local noise level with no floor and no guard, 0 where too few pixels have a value.
-pub fn local_roughness(v: &[Option<f32>], width: usize) -> Vec<f32> {
-    let rough = roughness(v, width, &|_| true);
+/// Per block of [`NOISE_BLOCK`] x [`NOISE_BLOCK`] pixels, the roughness of the relative
+/// residual `e` (`None` where there is none; `width` pixels per row) over the block's window
+/// (see [`roughness`]): the residual's local noise level, 0 where too few pixels have a value.
+pub fn block_roughness(e: &[Option<f32>], width: usize) -> Vec<f32> {
+    roughness(e, width, &|_| true)
+}
+
+/// Per pixel of an image of `len` pixels, `width` per row, the value of its block.
+pub fn per_pixel(blocks: &[f32], len: usize, width: usize) -> Vec<f32> {
     let bw = width.div_ceil(NOISE_BLOCK);
-    (0..v.len())
-        .map(|i| rough[(i / width / NOISE_BLOCK) * bw + (i % width) / NOISE_BLOCK])
+    (0..len)
+        .map(|i| blocks[(i / width / NOISE_BLOCK) * bw + (i % width) / NOISE_BLOCK])
         .collect()
 }
 
@@ -207,7 +208,7 @@ mod tests {
             .enumerate()
             .map(|(i, g)| g.map(|g| g * if i % N < N / 2 { 0.001 } else { 0.1 }))
             .collect();
-        let level = pixel_noise(&e, &render, N, 0.01);
+        let level = pixel_noise(&block_roughness(&e, N), &render, N, 0.01);
         for y in 0..N {
             let (left, right) = (level[y * N + 8], level[y * N + N - 8]);
             assert!(left > 0.024 && left < 0.033, "{left}");
@@ -215,7 +216,7 @@ mod tests {
         }
         // and never falls below the view's level
         let quiet = noise(6, 0.001);
-        assert!(pixel_noise(&quiet, &render, N, 0.01)
+        assert!(pixel_noise(&block_roughness(&quiet, N), &render, N, 0.01)
             .iter()
             .all(|&s| s == 0.01));
     }

@@ -6,8 +6,8 @@ use super::probe::ViewNoise;
 use super::tv::tv_luminance;
 use super::view::View;
 use super::{
-    apply_refinement, backproject_tile, residual_roughness, shrink_residual_levels, Pair, Residual,
-    ResidualViews, Shard, ROW_BAND,
+    apply_refinement, backproject_tile, shrink_residual_levels, Pair, Residual, ResidualViews,
+    Shard, ROW_BAND,
 };
 use crate::atlas::charts::Charts;
 use crate::atlas::hits::HitTable;
@@ -138,8 +138,8 @@ impl Refine<'_> {
             };
             let mut sigma = 0.0;
             noise.clear();
+            let last = pass + 1 == passes;
             for view in self.views {
-                let last = pass + 1 == passes;
                 let n = self.backproject(view, &textures, state, &mut delta, last)?;
                 sigma += n.sigma;
                 noise.push(n);
@@ -229,12 +229,9 @@ impl Refine<'_> {
             })
             .collect();
         let raw = residual.clone();
-        let rough = match last {
-            true => residual_roughness(&raw, &photo.pixels, &view.pixels, w as usize),
-            false => Vec::new(),
-        };
-        let (sigma, level) =
-            shrink_residual_levels(&mut residual, &photo.pixels, &view.pixels, w as usize);
+        let levels = shrink_residual_levels(&mut residual, &photo.pixels, &view.pixels, w as usize);
+        let (sigma, level) = (levels.sigma, levels.level);
+        let rough = if last { levels.rough } else { Vec::new() };
         let both: Vec<Pair> = raw
             .into_iter()
             .zip(residual)

@@ -12,7 +12,7 @@
 //! replaced (`|e|` shrunk by `sigma`) dropped exactly those edge residuals, so the passes
 //! restored less detail. It is a median and a separable box sum, so it is written here.
 
-use super::noise::pixel_noise;
+use super::noise::{block_roughness, per_pixel, pixel_noise};
 use super::view::PixelInfo;
 use glam::Vec3;
 
@@ -59,41 +59,49 @@ pub fn shrink_residual(
     pixels: &[PixelInfo],
     width: usize,
 ) -> f32 {
-    shrink_residual_levels(residual, photo, pixels, width).0
+    shrink_residual_levels(residual, photo, pixels, width).sigma
 }
 
-/// Per pixel, the local roughness of the relative residual `residual / photo` (clean pixels
-/// only; see [`super::noise::local_roughness`]): the noise level the noise probe adds noise at.
-pub fn residual_roughness(
-    residual: &[Vec3],
-    photo: &[Vec3],
-    pixels: &[PixelInfo],
-    width: usize,
-) -> Vec<f32> {
-    let e: Vec<Option<f32>> = relative(residual, photo, pixels).collect();
-    super::noise::local_roughness(&e, width)
+/// A photo's noise as [`shrink_residual_levels`] finds it.
+#[derive(Debug, Clone, Default)]
+pub struct NoiseLevels {
+    /// The photo's relative per-pixel noise (`noise_sigma`; 0 for a noise-free photo).
+    pub sigma: f32,
+    /// Per pixel, what a texel's noise variance is judged by: `sigma`, or more where the
+    /// photo is locally noisier (see [`pixel_noise`]).
+    pub level: Vec<f32>,
+    /// Per pixel, the local roughness of the relative residual with no floor and no guard
+    /// ([`block_roughness`]; 0 where too few pixels have one): the level the noise probe adds
+    /// noise at.
+    pub rough: Vec<f32>,
 }
 
-/// [`shrink_residual`], also returning each pixel's relative noise level (the view's `sigma`
-/// or more where the photo is locally noisier, see [`pixel_noise`]; `sigma` everywhere, 0 for a
-/// noise-free photo): what a texel's noise variance is judged by.
+/// [`shrink_residual`], also returning the photo's noise levels ([`NoiseLevels`]; `level` is
+/// `sigma` everywhere, 0, for a noise-free photo).
 pub fn shrink_residual_levels(
     residual: &mut [Vec3],
     photo: &[Vec3],
     pixels: &[PixelInfo],
     width: usize,
-) -> (f32, Vec<f32>) {
+) -> NoiseLevels {
     let e: Vec<Option<f32>> = relative(residual, photo, pixels).collect();
     let sigma = noise_sigma(&e);
+    let blocks = block_roughness(&e, width);
+    let rough = per_pixel(&blocks, e.len(), width);
     if sigma <= 0.0 {
-        return (sigma, vec![sigma; residual.len()]);
+        let level = vec![sigma; residual.len()];
+        return NoiseLevels {
+            sigma,
+            level,
+            rough,
+        };
     }
     let energy: Vec<f64> = e
         .iter()
         .map(|v| v.map_or(0.0, |v| (v * v) as f64))
         .collect();
     let energy = box_sum(&energy, width, SHRINK_RADIUS);
-    let (noise, level) = window_noise(residual, photo, &e, width, sigma);
+    let (noise, level) = window_noise(residual, photo, (&e, &blocks), width, sigma);
     for (i, r) in residual.iter_mut().enumerate() {
         // the window's noise energy against its residuals' energy
         let (noise, total) = (noise[i], energy[i]);
@@ -103,16 +111,21 @@ pub fn shrink_residual_levels(
         };
         *r *= keep;
     }
-    (sigma, level)
+    NoiseLevels {
+        sigma,
+        level,
+        rough,
+    }
 }
 
 /// Per pixel, the noise energy its window holds: the sum over the window's pixels with a
-/// relative residual of their local noise variance ([`pixel_noise`]: the view's `sigma`, or
-/// more where the photo is locally noisier and the render smooth).
+/// relative residual `e` of their local noise variance ([`pixel_noise`] from the residual's
+/// block roughness `rough`: the view's `sigma`, or more where the photo is locally noisier and
+/// the render smooth).
 fn window_noise(
     residual: &[Vec3],
     photo: &[Vec3],
-    e: &[Option<f32>],
+    (e, rough): (&[Option<f32>], &[f32]),
     width: usize,
     sigma: f32,
 ) -> (Vec<f64>, Vec<f32>) {
@@ -125,7 +138,7 @@ fn window_noise(
             (e.is_some() && v > 0.0).then(|| v.ln())
         })
         .collect();
-    let level = pixel_noise(e, &log_render, width, sigma);
+    let level = pixel_noise(rough, &log_render, width, sigma);
     let var: Vec<f64> = e
         .iter()
         .zip(&level)
@@ -214,7 +227,8 @@ mod tests {
             .map(|i| Vec3::splat(2.0 * (1.0 + rel(i))))
             .collect();
         let mut r: Vec<Vec3> = (0..n * n).map(|i| Vec3::splat(2.0 * rel(i))).collect();
-        let (sigma, level) = shrink_residual_levels(&mut r, &photo, &vec![clean(); n * n], n);
+        let NoiseLevels { sigma, level, .. } =
+            shrink_residual_levels(&mut r, &photo, &vec![clean(); n * n], n);
         assert!(sigma > 0.01 && sigma < 0.04, "{sigma}");
         for y in 0..n {
             let (left, right) = (level[y * n + 4], level[y * n + n - 4]);
@@ -222,7 +236,8 @@ mod tests {
             assert!(right > 0.032 && right < 0.045, "{right}");
         }
         let mut quiet = vec![Vec3::ZERO; n * n];
-        let (sigma, level) = shrink_residual_levels(&mut quiet, &photo, &vec![clean(); n * n], n);
+        let NoiseLevels { sigma, level, .. } =
+            shrink_residual_levels(&mut quiet, &photo, &vec![clean(); n * n], n);
         assert_eq!(sigma, 0.0);
         assert!(level.iter().all(|&l| l == 0.0));
     }
