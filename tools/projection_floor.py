@@ -81,6 +81,18 @@ def views_table(albedo):
     return "\n".join(lines) + "\n"
 
 
+def read_config(path):
+    """The run config at `path` parsed ({} for None); a file that cannot be read or parsed ends
+    the program with one line naming it."""
+    if not path:
+        return {}
+    try:
+        with open(path, "rb") as f:
+            return tomllib.load(f)
+    except (OSError, tomllib.TOMLDecodeError) as e:
+        sys.exit(f"{path}: {e}")
+
+
 class FloorError(Exception):
     """What stopped the measurement, one line naming the file or step."""
 
@@ -170,13 +182,7 @@ def main():
     ap.add_argument("--spp", type=int, default=64)
     ap.add_argument("--kdmap", default=os.path.join(ROOT, "target", "release", "kdmap"))
     a = ap.parse_args()
-    cfg = {}
-    if a.config:
-        try:
-            with open(a.config, "rb") as f:
-                cfg = tomllib.load(f)
-        except (OSError, tomllib.TOMLDecodeError) as e:
-            sys.exit(f"{a.config}: {e}")
+    cfg = read_config(a.config)
     try:
         j = measure(a.out, a.scene_dir, cfg, a.spp, a.kdmap, a.config)
     except FloorError as e:
