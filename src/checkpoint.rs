@@ -44,8 +44,9 @@ static CHECKPOINT_WRITES: AtomicU64 = AtomicU64::new(0);
 /// Manifest format version this build reads and writes. 6: the automatic atlas has density
 /// levels per triangle, so a run of version 5 has another texel layout for the same inputs.
 /// 8: `E_d` holds the caustics (light by way of mirrors and glass), which a version-7 state
-/// of a scene with such materials has in none of its irradiance.
-pub const VERSION: u32 = 8;
+/// of a scene with such materials has in none of its irradiance. 9: the report it carries has
+/// the refinement's residuals.
+pub const VERSION: u32 = 9;
 const MAGIC: &str = "KDMCKPT";
 /// The current manifest.
 pub const MANIFEST: &str = "progress.kdm";

@@ -52,7 +52,7 @@ use crate::photon::{
 };
 use crate::progress::{self, note, Mode, Stage};
 use crate::project::{ProjectionStats, Shard};
-use crate::report::{Counts, IterationStats, Report};
+use crate::report::{Counts, IterationStats, Refinement, Report};
 use crate::solve::{init_indirect_tile, kd_step, update_step, Filled};
 use crate::{direct, project};
 use serde::{Deserialize, Serialize};
@@ -477,6 +477,14 @@ impl<'a> Run<'a> {
         let dn = denoise(p, cfg, &self.charts, &self.geom, &mut state, &self.scratch)?;
         report.timings.projection = t.elapsed().as_secs_f64();
         report.timings.noise_probe = ps.probe_seconds;
+        let ids = p
+            .views
+            .iter()
+            .map(|(si, _)| p.scene.sensors[*si].id.clone());
+        report.refinement = Refinement::new(ids.collect(), ps.refine_residual.clone());
+        if let Some(line) = report.refinement.summary() {
+            note(mode, &line);
+        }
         report.resources.after("projection");
         debug_check(&self.geom, &state)?;
         let proj = ProjCounts {

@@ -94,6 +94,10 @@ pub struct ProjectionStats {
     pub seconds: f64,
     /// The noise probe's part of it (0 when off).
     pub probe_seconds: f64,
+    /// Per refinement pass, each view's mean relative residual `|photo - render| / photo`
+    /// over its clean pixels before the pass's update (pass 0: the weighted mean's; see
+    /// [`refine::mean_relative_residual`]).
+    pub refine_residual: Vec<Vec<f64>>,
 }
 
 /// How the stage is shared with the other processes of a run (decided by `pipeline`): this
@@ -197,7 +201,8 @@ pub fn run_shard(
         label: "refinement",
     };
     let passes = (cfg.refine_passes, cfg.refine_step, cfg.tv_weight);
-    let noise = project_and_refine(&ctx, state, passes, mode)?;
+    let (noise, residual) = project_and_refine(&ctx, state, passes, mode)?;
+    stats.refine_residual = residual;
     if cfg.noise_probe && !noise.is_empty() {
         let t = Instant::now();
         let perturbed: Vec<Image> = (photos.iter().zip(&noise).enumerate())
@@ -241,13 +246,14 @@ pub fn run_shard(
 }
 
 /// The weighted mean of every view of `ctx` into `state` (L_orig, weight, OBSERVED; synced),
-/// then the refinement passes; returns the views' noise as the last pass estimated it.
+/// then the refinement passes; returns the views' noise as the last pass estimated it and
+/// the passes' residuals (see [`refine::Refine::run`]).
 fn project_and_refine(
     ctx: &refine::Refine,
     state: &mut TileStore<TexelState>,
     passes: (u32, f32, f32),
     mode: Mode,
-) -> Result<Vec<probe::ViewNoise>> {
+) -> Result<(Vec<probe::ViewNoise>, Vec<Vec<f64>>)> {
     let (p, shard, bounds) = (ctx.p, ctx.shard, ctx.bounds);
     for view in ctx.views {
         map_tiles(state, ctx.geom, ctx.window, |t, g, st| {

@@ -59,6 +59,31 @@ fn current_maps(
     Ok(maps)
 }
 
+/// How far a view's render is from its photo: the mean of `|sum_c r| / sum_c photo` (`r` =
+/// `photo - render`) over the clean pixels with light that have a render, 0 where there are
+/// none. What the passes drive down: the weighted mean's blur, then what the maps cannot
+/// explain (the photos' noise, texture finer than the atlas or the views resolve).
+pub fn mean_relative_residual(
+    residual: &[Vec3],
+    render: &[Option<Vec3>],
+    photo: &[Vec3],
+    pixels: &[crate::project::PixelInfo],
+) -> f64 {
+    let (mut sum, mut n) = (0.0f64, 0u64);
+    for (((r, re), ph), px) in residual.iter().zip(render).zip(photo).zip(pixels) {
+        let s = ph.element_sum();
+        if px.clean && re.is_some() && s > 0.0 {
+            sum += (r.element_sum().abs() / s) as f64;
+            n += 1;
+        }
+    }
+    if n == 0 {
+        0.0
+    } else {
+        sum / n as f64
+    }
+}
+
 /// The step of refinement pass `pass` (from 0): 1 in the first, whose robust weights are
 /// judged against the plain weighted mean (a view with a highlight is still in it), `step`
 /// after. Over-relaxing the first pass too left the highlight test's texels 6.0% off instead
@@ -109,16 +134,18 @@ impl Refine<'_> {
     /// the TV step of [`tv_luminance`] at `tv` times the views' mean relative noise. The maps
     /// and the residuals live in scratch textures and tiles within the memory budget; casts
     /// rays only for clean pixels that straddle a chart seam. Returns each view's noise as
-    /// the last pass estimated it (none without passes).
+    /// the last pass estimated it (none without passes), and per pass each view's
+    /// [`mean_relative_residual`] before the pass's update.
     pub fn run(
         &self,
         state: &mut TileStore<TexelState>,
         (passes, step, tv): (u32, f32, f32),
         mode: Mode,
-    ) -> Result<Vec<ViewNoise>> {
+    ) -> Result<(Vec<ViewNoise>, Vec<Vec<f64>>)> {
         let mut noise = Vec::new();
+        let mut residuals = Vec::new();
         if passes == 0 || self.views.is_empty() {
-            return Ok(noise);
+            return Ok((noise, residuals));
         }
         let total = passes as u64 * self.views.len() as u64;
         let stage = Stage::new(mode, self.label, total, "views");
@@ -138,11 +165,13 @@ impl Refine<'_> {
             };
             let mut sigma = 0.0;
             noise.clear();
+            let mut pass_residuals = Vec::with_capacity(self.views.len());
             let last = pass + 1 == passes;
             for view in self.views {
-                let n = self.backproject(view, &textures, state, &mut delta, last)?;
+                let (n, r) = self.backproject(view, &textures, state, &mut delta, last)?;
                 sigma += n.sigma;
                 noise.push(n);
+                pass_residuals.push(r);
                 stage.inc(1);
                 crate::interrupt::check(crate::interrupt::NOTHING_SAVED)?;
             }
@@ -151,6 +180,7 @@ impl Refine<'_> {
             }
             drop(textures);
             drop(maps);
+            residuals.push(pass_residuals);
             map_tiles(state, &delta.store, self.window, |t, d, st| {
                 if delta.touched[t].load(Ordering::Relaxed) {
                     apply_refinement(st, d, pass + 1 == passes, pass_step(pass, step));
@@ -171,7 +201,7 @@ impl Refine<'_> {
         }
         std::fs::remove_file(&path).map_err(|e| Error::io(&path, e))?;
         stage.finish();
-        Ok(noise)
+        Ok((noise, residuals))
     }
 
     /// The maps as textures by shape.
@@ -189,8 +219,9 @@ impl Refine<'_> {
     }
 
     /// One view's residual, back-projected into `delta` (per tile, allocated on first use),
-    /// judged against the current `state`; returns the photo's noise: its relative level, and
-    /// in the `last` pass the residual's local roughness per pixel.
+    /// judged against the current `state`; returns the photo's noise (its relative level, and
+    /// in the `last` pass the residual's local roughness per pixel) and the residual's
+    /// [`mean_relative_residual`].
     fn backproject(
         &self,
         view: &View,
@@ -198,7 +229,7 @@ impl Refine<'_> {
         state: &TileStore<TexelState>,
         delta: &mut Delta,
         last: bool,
-    ) -> Result<ViewNoise> {
+    ) -> Result<(ViewNoise, f64)> {
         let (p, photo) = (self.p, view.image);
         let w = photo.width;
         // A blurring film needs the neighbours of clean pixels within its reach too.
@@ -228,6 +259,7 @@ impl Refine<'_> {
                 _ => Vec3::ZERO,
             })
             .collect();
+        let mean = mean_relative_residual(&residual, &render, &photo.pixels, &view.pixels);
         let raw = residual.clone();
         let levels = shrink_residual_levels(&mut residual, &photo.pixels, &view.pixels, w as usize);
         let (sigma, level) = (levels.sigma, levels.level);
@@ -264,10 +296,59 @@ impl Refine<'_> {
         })?;
         match err.into_inner().unwrap_or_else(|e| e.into_inner()) {
             Some(e) => Err(e),
-            None => Ok(ViewNoise {
-                sigma,
-                level: rough,
-            }),
+            None => Ok((
+                ViewNoise {
+                    sigma,
+                    level: rough,
+                },
+                mean,
+            )),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::project::PixelInfo;
+
+    fn px(clean: bool) -> PixelInfo {
+        PixelInfo {
+            shape: 0,
+            normal: Vec3::Z,
+            plane: 0.0,
+            clean,
+        }
+    }
+
+    /// The mean of `|sum r| / sum photo` over clean pixels with light and a render, by hand.
+    #[test]
+    fn mean_relative_residual_counts_clean_lit_rendered_pixels_only() {
+        let photo = [
+            Vec3::ONE,
+            Vec3::splat(2.0),
+            Vec3::ONE,
+            Vec3::ZERO,
+            Vec3::ONE,
+        ];
+        let residual = [
+            Vec3::new(0.3, 0.0, 0.0),
+            Vec3::new(-0.6, 0.0, 0.0),
+            Vec3::splat(5.0),
+            Vec3::splat(5.0),
+            Vec3::splat(5.0),
+        ];
+        let render = [
+            Some(Vec3::ONE),
+            Some(Vec3::ONE),
+            Some(Vec3::ONE),
+            Some(Vec3::ONE),
+            None,
+        ];
+        let pixels = [px(true), px(true), px(false), px(true), px(true)];
+        // pixel 0: 0.3 / 3, pixel 1: 0.6 / 6; not clean, dark, no render: left out
+        let got = mean_relative_residual(&residual, &render, &photo, &pixels);
+        assert!((got - 0.1).abs() < 1e-7, "{got}");
+        assert_eq!(mean_relative_residual(&[], &[], &[], &[]), 0.0, "no pixels");
     }
 }
