@@ -45,7 +45,7 @@ static CHECKPOINT_WRITES: AtomicU64 = AtomicU64::new(0);
 /// levels per triangle, so a run of version 5 has another texel layout for the same inputs.
 /// 8: `E_d` holds the caustics (light by way of mirrors and glass), which a version-7 state
 /// of a scene with such materials has in none of its irradiance. 9: the report it carries has
-/// the refinement's residuals.
+/// the refinement's residuals, and the state `ed_var` (92 bytes a texel, was 88).
 pub const VERSION: u32 = 9;
 const MAGIC: &str = "KDMCKPT";
 /// The current manifest.

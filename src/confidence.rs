@@ -5,9 +5,11 @@
 //! (`kdmap accuracy`: does the error the run predicts match the error it makes?).
 //!
 //! `K_d = pi L / (E_d + E_i)`, so to first order its relative variance is the sum of the
-//! relative variances of `L` and of `E`, judged on luminance. `E_d` is taken as exact (point,
-//! spot and directional light are; area and sky light are sampled with stratified rays whose
-//! noise is not counted), and so is `E_i` where it was not gathered (photons).
+//! relative variances of `L` and of `E`, judged on luminance; `E`'s is the gathered `E_i`'s
+//! (`e_var`) plus, under an environment light, `E_d`'s sampling noise (`ed_var`, see
+//! `direct::sampling`). Point, spot and directional light are exact; an area light's
+//! stratified shadow rays are not counted, and neither is `E_i` where it was not gathered
+//! (photons).
 
 use crate::atlas::layout::{flags, TexelState};
 use crate::report::Confidence;
@@ -26,7 +28,7 @@ pub fn kd_rel_stderr(s: &TexelState) -> Option<f32> {
     if !(l > 0.0 && e > 0.0) {
         return None;
     }
-    let rel2 = s.l_var / (l * l) + s.e_var / (e * e);
+    let rel2 = s.l_var / (l * l) + (s.e_var + s.ed_var) / (e * e);
     rel2.is_finite().then(|| rel2.sqrt())
 }
 
@@ -76,12 +78,13 @@ impl ConfidenceSums {
             self.c.disagreeing_views += s.disagree as u64;
         }
         self.c.e_i_noise_estimated |= s.e_var > 0.0;
+        self.c.e_d_noise_estimated |= s.ed_var > 0.0;
         let Some(r) = kd_rel_stderr(s) else { return };
         let l = luminance(Vec3::from_array(s.l_orig));
         let e = luminance(Vec3::from_array(s.e_d) + Vec3::from_array(s.e_i));
         self.c.texels += 1;
         self.hist[hist_bin(r)] += 1;
-        self.photo += (s.l_var / (l * l) >= s.e_var / (e * e)) as u64;
+        self.photo += (s.l_var / (l * l) >= (s.e_var + s.ed_var) / (e * e)) as u64;
     }
 
     /// The summary.
@@ -213,6 +216,15 @@ mod tests {
         let r = kd_rel_stderr(&s).unwrap();
         assert!((r - 0.05).abs() < 1e-6, "{r}");
         assert!((kd_stderr(&s) - Vec3::splat(0.025)).abs().max_element() < 1e-6);
+        // E_d's sampling noise adds to E_i's: 0.03^2 + 0.04^2 + 0.12^2 = 0.13^2
+        let mut s2 = s;
+        s2.ed_var = (0.12f32 * 10.0).powi(2);
+        let r2 = kd_rel_stderr(&s2).unwrap();
+        assert!((r2 - 0.13).abs() < 1e-6, "{r2}");
+        let mut sums = ConfidenceSums::default();
+        sums.add(&s2);
+        let c = sums.finish();
+        assert!(c.e_d_noise_estimated && c.photo_dominated == 0.0, "{c:?}");
         assert_eq!(kd_rel_stderr(&TexelState::default()), None, "unobserved");
         assert_eq!(
             kd_rel_stderr(&observed(1.0, 0.1, 0.0, 0.0)),

@@ -12,6 +12,8 @@
 //! texel count. A texel next to a hard shadow edge (point, spot, directional light) is
 //! estimated densely too, in case its own few rays missed an edge that just touches it.
 
+pub mod sampling;
+
 use crate::atlas::charts::Charts;
 use crate::atlas::layout::{TexelGeom, TexelState};
 use crate::atlas::texels::NONE;
@@ -20,7 +22,7 @@ use crate::atlas::Prepared;
 use crate::config::Config;
 use crate::error::Result;
 use crate::interrupt;
-use crate::light::{emitter_irradiance, emitter_unoccluded, DirectParams, Footprint, Reach};
+use crate::light::{emitter_irradiance_var, emitter_unoccluded, DirectParams, Footprint, Reach};
 use crate::progress::{Mode, Stage};
 use crate::scene::Emitter;
 use glam::Vec3;
@@ -138,7 +140,7 @@ impl DirectStats {
 }
 
 /// Whether texel `off` has its first-pass values (rows of `lights` per texel).
-fn valued(first: &[Option<(Vec3, Reach)>], off: usize, lights: usize) -> bool {
+fn valued(first: &[Option<(Vec3, Reach, f32)>], off: usize, lights: usize) -> bool {
     first.get(off * lights).is_some_and(Option::is_some)
 }
 
@@ -224,7 +226,7 @@ impl<'a> TileCtx<'a> {
         let lights = self.p.scene.emitters.len();
         let n = self.g.len();
         // per texel and light: the first pass's irradiance and verdict (None: not run)
-        let mut first: Vec<Option<(Vec3, Reach)>> = vec![None; n * lights];
+        let mut first: Vec<Option<(Vec3, Reach, f32)>> = vec![None; n * lights];
         let mut sums = TileSums {
             dense_k: vec![0; lights],
             ..Default::default()
@@ -253,9 +255,10 @@ impl<'a> TileCtx<'a> {
         }
         for off in (0..n).filter(|&o| self.g[o].covered()) {
             let mut e = Vec3::ZERO;
+            let mut var = 0.0;
             let mut dense = false;
             for k in 0..lights {
-                let (ek, reach) = first[off * lights + k].expect("every covered texel is lit");
+                let (ek, reach, vk) = first[off * lights + k].expect("every covered texel is lit");
                 // an area or environment light's first pass already integrated its penumbra
                 let area = matches!(
                     self.p.scene.emitters[k],
@@ -267,15 +270,21 @@ impl<'a> TileCtx<'a> {
                     dense = true;
                     sums.dense_k[k] += 1;
                 }
-                e += if redo {
+                let (ek, vk) = if redo {
                     dense = true;
                     sums.dense_k[k] += 1;
-                    self.estimate(off, k, true).0
+                    let (e, _, v) = self.estimate(off, k, true);
+                    (e, v)
                 } else {
-                    ek
+                    (ek, vk)
                 };
+                e += ek;
+                var += vk;
             }
             st[off].e_d = e.to_array();
+            // the sample pairs' own spread: `sampling::estimate` keeps the smaller of it and
+            // the map's roughness
+            st[off].ed_var = var;
             sums.sum += e * self.g[off].area;
             sums.area += self.g[off].area as f64;
             sums.texels += 1;
@@ -298,7 +307,12 @@ impl<'a> TileCtx<'a> {
 
     /// The first pass at every covered point of the lattice of spacing `s` that has no value
     /// yet; returns how many ran.
-    fn first_passes(&self, s: usize, first: &mut [Option<(Vec3, Reach)>], lights: usize) -> u64 {
+    fn first_passes(
+        &self,
+        s: usize,
+        first: &mut [Option<(Vec3, Reach, f32)>],
+        lights: usize,
+    ) -> u64 {
         let mut ran = 0;
         for off in 0..self.g.len() {
             if self.on_grid(off, s) && self.g[off].covered() && !valued(first, off, lights) {
@@ -316,7 +330,12 @@ impl<'a> TileCtx<'a> {
     /// the tip of a shadow's corner reaching into a cell between its corners; shadows smaller
     /// than a cell are the risk [`FEATURE_OF_RADIUS`] bounds. Other cells are left to the
     /// finer levels.
-    fn fill_agreeing_cells(&self, s: usize, first: &mut [Option<(Vec3, Reach)>], lights: usize) {
+    fn fill_agreeing_cells(
+        &self,
+        s: usize,
+        first: &mut [Option<(Vec3, Reach, f32)>],
+        lights: usize,
+    ) {
         let last = self.ts - 1;
         let n = last.div_ceil(s);
         let span = |c: usize| [c * s, ((c + 1) * s).min(last)];
@@ -348,7 +367,7 @@ impl<'a> TileCtx<'a> {
         &self,
         [x0, x1]: [usize; 2],
         [y0, y1]: [usize; 2],
-        first: &[Option<(Vec3, Reach)>],
+        first: &[Option<(Vec3, Reach, f32)>],
         lights: usize,
     ) -> Option<Option<Vec<Reach>>> {
         let corners = [(x0, y0), (x1, y0), (x0, y1), (x1, y1)].map(|(a, b)| b * self.ts + a);
@@ -366,7 +385,7 @@ impl<'a> TileCtx<'a> {
         [x0, x1]: [usize; 2],
         [y0, y1]: [usize; 2],
         verdict: &[Reach],
-        first: &mut [Option<(Vec3, Reach)>],
+        first: &mut [Option<(Vec3, Reach, f32)>],
         lights: usize,
     ) {
         let chart = self.chart[y0 * self.ts + x0];
@@ -382,10 +401,10 @@ impl<'a> TileCtx<'a> {
     }
 
     /// Light `k` at texel `off`: the first pass, or with `dense` the dense estimate.
-    fn estimate(&self, off: usize, k: usize, dense: bool) -> (Vec3, Reach) {
+    fn estimate(&self, off: usize, k: usize, dense: bool) -> (Vec3, Reach, f32) {
         let key = (self.seed, self.first_key + off as u64);
         let p = self.p;
-        emitter_irradiance(
+        emitter_irradiance_var(
             &p.scene,
             &p.accel,
             k,
@@ -396,7 +415,7 @@ impl<'a> TileCtx<'a> {
         )
     }
 
-    fn first_pass(&self, off: usize, row: &mut [Option<(Vec3, Reach)>]) {
+    fn first_pass(&self, off: usize, row: &mut [Option<(Vec3, Reach, f32)>]) {
         for (k, r) in row.iter_mut().enumerate() {
             *r = Some(self.estimate(off, k, false));
         }
@@ -407,7 +426,7 @@ impl<'a> TileCtx<'a> {
     fn lattice_verdict(
         &self,
         off: usize,
-        first: &[Option<(Vec3, Reach)>],
+        first: &[Option<(Vec3, Reach, f32)>],
         lights: usize,
     ) -> Option<Vec<Reach>> {
         let (x, y) = self.xy(off);
@@ -426,7 +445,7 @@ impl<'a> TileCtx<'a> {
         &self,
         [x0, x1]: [usize; 2],
         [y0, y1]: [usize; 2],
-        first: &[Option<(Vec3, Reach)>],
+        first: &[Option<(Vec3, Reach, f32)>],
         lights: usize,
     ) -> Option<Vec<Reach>> {
         let corners = [(x0, y0), (x1, y0), (x0, y1), (x1, y1)].map(|(a, b)| b * self.ts + a);
@@ -449,13 +468,13 @@ impl<'a> TileCtx<'a> {
     }
 
     /// First-pass values from lattice verdicts: the analytic unoccluded irradiance where lit.
-    fn take_verdict(&self, off: usize, verdict: &[Reach], row: &mut [Option<(Vec3, Reach)>]) {
+    fn take_verdict(&self, off: usize, verdict: &[Reach], row: &mut [Option<(Vec3, Reach, f32)>]) {
         for (k, (r, v)) in row.iter_mut().zip(verdict).enumerate() {
             let e = match v {
                 Reach::Lit => emitter_unoccluded(&self.p.scene, k, &self.fps[off]),
                 _ => Vec3::ZERO,
             };
-            *r = Some((e, *v));
+            *r = Some((e, *v, 0.0));
         }
     }
 
@@ -465,7 +484,7 @@ impl<'a> TileCtx<'a> {
         &self,
         off: usize,
         k: usize,
-        first: &[Option<(Vec3, Reach)>],
+        first: &[Option<(Vec3, Reach, f32)>],
         lights: usize,
     ) -> bool {
         if matches!(

@@ -278,13 +278,16 @@ pub struct Confidence {
     pub texels: u64,
     pub kd_rel_stderr_median: f64,
     pub kd_rel_stderr_p90: f64,
-    /// Share of the texels where the photos' noise outweighs `E_i`'s.
+    /// Share of the texels where the photos' noise outweighs the light's (`E_i`'s, and
+    /// `E_d`'s sampling noise under an environment light).
     pub photo_dominated: f64,
     /// Observed texels at least one view disagreed on, and the disagreeing observations.
     pub texels_with_disagreement: u64,
     pub disagreeing_views: u64,
     /// Whether `E_i`'s noise was estimated (the gather; photons: no).
     pub e_i_noise_estimated: bool,
+    /// Whether `E_d`'s sampling noise was estimated (under an environment light).
+    pub e_d_noise_estimated: bool,
 }
 
 #[cfg(test)]

@@ -72,7 +72,7 @@ pub fn check_state(state: &TileStore<TexelState>, geom: &TileStore<TexelGeom>) -
 }
 
 fn state_ok(s: &TexelState, covered: bool) -> std::result::Result<(), String> {
-    let fields: [(&str, &[f32]); 11] = [
+    let fields: [(&str, &[f32]); 12] = [
         ("l_orig", &s.l_orig),
         ("weight", std::slice::from_ref(&s.weight)),
         ("e_d", &s.e_d),
@@ -84,6 +84,7 @@ fn state_ok(s: &TexelState, covered: bool) -> std::result::Result<(), String> {
         ("e_var", std::slice::from_ref(&s.e_var)),
         ("disagree", std::slice::from_ref(&s.disagree)),
         ("l_noise", std::slice::from_ref(&s.l_noise)),
+        ("ed_var", std::slice::from_ref(&s.ed_var)),
     ];
     for (name, v) in fields {
         if v.iter().any(|x| !(x.is_finite() && *x >= 0.0)) {

@@ -697,9 +697,9 @@ mod tests {
         assert_eq!(plan.estimated_texels, 40_000);
         let big = needs(&sc, &plan, 4096, (u64::MAX, 0));
         assert_eq!(big.store_texels, 60_000);
-        // geometry (52 B) and state (88 B) stores, two state snapshots, outputs
-        let stores = 60_000 * (52 + 88);
-        assert_eq!(big.disk_bytes, stores + 2 * 60_000 * 88 + 40_000 * 140);
+        // geometry (52 B) and state (92 B) stores, two state snapshots, outputs
+        let stores = 60_000 * (52 + 92);
+        assert_eq!(big.disk_bytes, stores + 2 * 60_000 * 92 + 40_000 * 140);
         let small = needs(&sc, &plan, 4096, (1000, 0));
         assert_eq!(big.memory_bytes - small.memory_bytes, stores - 1000);
         // the gather's cache adds its bytes to memory and nothing to disk

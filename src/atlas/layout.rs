@@ -197,7 +197,7 @@ impl TexelGeom {
     }
 }
 
-/// The solver's per-texel state. 88 bytes. Radiance in scene units per channel, irradiance in
+/// The solver's per-texel state. 92 bytes. Radiance in scene units per channel, irradiance in
 /// scene units x sr.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, Pod, Zeroable)]
@@ -229,6 +229,10 @@ pub struct TexelState {
     /// The part of `l_var` that is the photos' noise alone (propagated through the views'
     /// weights, without their scatter): what [`crate::denoise`] judges differences against.
     pub l_noise: f32,
+    /// Estimated variance of the luminance of `e_d` from its sampling (an environment light's
+    /// sample pairs, measured on the map: `direct::sampling`; 0 where not estimated), scene
+    /// units squared.
+    pub ed_var: f32,
 }
 
 #[cfg(test)]
@@ -282,6 +286,6 @@ mod tests {
     #[test]
     fn records_have_the_documented_sizes() {
         assert_eq!(std::mem::size_of::<TexelGeom>(), 52);
-        assert_eq!(std::mem::size_of::<TexelState>(), 88);
+        assert_eq!(std::mem::size_of::<TexelState>(), 92);
     }
 }

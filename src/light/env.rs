@@ -13,7 +13,7 @@
 use super::Footprint;
 use crate::accel::{offset_origin, Accel};
 use crate::rng::Rng;
-use crate::scene::EnvMap;
+use crate::scene::{luminance, EnvMap};
 use glam::Vec3;
 use std::f32::consts::PI;
 
@@ -26,6 +26,19 @@ pub fn irradiance(
     samples: u32,
     stream: (u64, u64, u64),
 ) -> Vec3 {
+    irradiance_var(env, accel, fp, samples, stream).0
+}
+
+/// [`irradiance`] and the variance of the luminance of that mean as if the pairs were
+/// independent: their sample variance over their number (0 for one pair). The pairs are
+/// stratified, so it is an upper bound: 1.4-2.4x the K_d noise on envmap's shapes.
+pub fn irradiance_var(
+    env: &EnvMap,
+    accel: Option<&Accel>,
+    fp: &Footprint,
+    samples: u32,
+    stream: (u64, u64, u64),
+) -> (Vec3, f32) {
     let k = super::strata(samples);
     let n = (k * k) as usize;
     let mut rng = Rng::new(stream.0 ^ ENV_TAG, stream.1, stream.2, 0);
@@ -37,7 +50,9 @@ pub fn irradiance(
         None => true,
     };
     let mut sum = Vec3::ZERO;
+    let (mut y1, mut y2) = (0.0f64, 0.0f64);
     for j in 0..n {
+        let mut pair = Vec3::ZERO;
         let (a, b) = (
             ((j % k as usize) as f32 + rng.f32()) / k as f32,
             ((j / k as usize) as f32 + rng.f32()) / k as f32,
@@ -51,7 +66,8 @@ pub fn irradiance(
         if let Some((d, p_map)) = env.sample(ucell, v1, v2) {
             let cos = fp.n.dot(d);
             if cos > 0.0 && visible(q, d) {
-                sum += env.eval(d) * (cos / (p_map + cos / PI));
+                let v = env.eval(d) * (cos / (p_map + cos / PI));
+                (sum, pair) = (sum + v, pair + v);
             }
         }
         // the cosine-weighted sample, stratified on a k x k grid
@@ -61,10 +77,19 @@ pub fn irradiance(
         let d = cosine_dir(fp.n, u1, u2);
         let cos = fp.n.dot(d);
         if cos > 0.0 && visible(q, d) {
-            sum += env.eval(d) * (cos / (env.pdf(d) + cos / PI));
+            let v = env.eval(d) * (cos / (env.pdf(d) + cos / PI));
+            (sum, pair) = (sum + v, pair + v);
         }
+        let y = luminance(pair) as f64;
+        (y1, y2) = (y1 + y, y2 + y * y);
     }
-    sum / n as f32
+    let nf = n as f64;
+    let var = if n > 1 {
+        ((y2 - y1 * y1 / nf).max(0.0) / (nf * (nf - 1.0))) as f32
+    } else {
+        0.0
+    };
+    (sum / n as f32, var)
 }
 
 /// Mixed into the seed of environment shadow samples.

@@ -297,29 +297,48 @@ pub fn emitter_irradiance(
     key: (u64, u64),
     dense: bool,
 ) -> (Vec3, Reach) {
+    let (e, reach, _) = emitter_irradiance_var(scene, accel, k, fp, params, key, dense);
+    (e, reach)
+}
+
+/// [`emitter_irradiance`], with the variance of the luminance of the estimate where its
+/// sampling noise is stated: an environment light's ([`env::irradiance_var`], an upper
+/// bound). Point, spot and directional light give 0 (exact but for the texel's stratified
+/// shadow points), and so does an area light (its stratified shadow rays are not counted).
+#[allow(clippy::too_many_arguments)]
+pub fn emitter_irradiance_var(
+    scene: &Scene,
+    accel: &Accel,
+    k: usize,
+    fp: &Footprint,
+    params: &DirectParams,
+    key: (u64, u64),
+    dense: bool,
+) -> (Vec3, Reach, f32) {
     let Some(e) = scene.emitters.get(k) else {
-        return (Vec3::ZERO, Reach::Dark);
+        return (Vec3::ZERO, Reach::Dark, 0.0);
     };
     if let Emitter::Area { shape, radiance } = *e {
         let Some(s) = scene.shapes.get(shape) else {
-            return (Vec3::ZERO, Reach::Dark);
+            return (Vec3::ZERO, Reach::Dark, 0.0);
         };
         let stream = (key.0, k as u64, key.1);
         let (f, reach) = area::irradiance_factor(&s.mesh, accel, fp, params, stream, dense);
-        return (radiance * f as f32, reach);
+        return (radiance * f as f32, reach, 0.0);
     }
     if let Emitter::Environment(env) = e {
-        let e = match params.env_samples {
-            0 => env::irradiance(env, None, fp, ENV_UNOCCLUDED, (0, k as u64, 0)),
-            n => env::irradiance(env, Some(accel), fp, n, (key.0, k as u64, key.1)),
+        let (e, var) = match params.env_samples {
+            0 => env::irradiance_var(env, None, fp, ENV_UNOCCLUDED, (0, k as u64, 0)),
+            n => env::irradiance_var(env, Some(accel), fp, n, (key.0, k as u64, key.1)),
         };
         // always sampled: nothing analytic to stand for a lit texel
-        return (e, Reach::Partial);
+        return (e, Reach::Partial, var);
     }
     let mut rng = Rng::new(key.0 ^ HARD_TAG, k as u64, key.1, 0);
-    hard_irradiance(accel, fp, params, &mut rng, dense, &|q| {
+    let (e, reach) = hard_irradiance(accel, fp, params, &mut rng, dense, &|q| {
         hard_light(e, fp.n, q)
-    })
+    });
+    (e, reach, 0.0)
 }
 
 /// The unoccluded irradiance of emitter `k` at `fp`'s center (what a [`Reach::Lit`] texel
