@@ -12,6 +12,15 @@ use super::unwrap::ShapeAtlas;
 use crate::error::{Error, Result};
 use crate::scene::Scene;
 
+/// One texel's value and its chart ([`NONE`]: none): what the window filters that stay within
+/// a chart read (`project::probe`'s noise, `direct::sampling`'s `E_d` roughness).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct ChartValue {
+    pub v: f32,
+    pub chart: u32,
+}
+
 /// Per slot, which chart each triangle lies on.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SlotCharts {

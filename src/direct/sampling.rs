@@ -12,7 +12,7 @@
 //! changes from texel to texel for noise, so the smaller of the two is kept. Medians over texture windows
 //! are not something a crate offers, so it is written here.
 
-use crate::atlas::charts::Charts;
+use crate::atlas::charts::{ChartValue, Charts};
 use crate::atlas::layout::{Layout, TexelGeom, TexelState};
 use crate::atlas::slot_texture::{Scratch, SlotTexture};
 use crate::atlas::texels::NONE;
@@ -26,14 +26,6 @@ use rayon::prelude::*;
 pub const RADIUS: u32 = 3;
 /// Fewest second differences a window needs for an estimate (else 0: not stated).
 const MIN_DIFFS: usize = 8;
-
-/// One texel of the `E_d` luminance map and its chart ([`NONE`]: not covered).
-#[repr(C)]
-#[derive(Debug, Clone, Copy, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct Cell {
-    pub v: f32,
-    pub chart: u32,
-}
 
 /// Per covered texel, `ed_var`: the smaller of what the direct stage left there (the sample
 /// pairs' spread, an upper bound) and the roughness of the map around it
@@ -49,9 +41,11 @@ pub fn estimate(
 ) -> Result<()> {
     for slot in 0..layout.slots.len() {
         let c = &charts.slots[slot];
-        let cells = SlotTexture::gather(layout, slot, state, geom, scratch, "ed", |s, g| Cell {
-            v: luminance(Vec3::from_array(s.e_d)),
-            chart: if g.covered() { c.texel(g) } else { NONE },
+        let cells = SlotTexture::gather(layout, slot, state, geom, scratch, "ed", |s, g| {
+            ChartValue {
+                v: luminance(Vec3::from_array(s.e_d)),
+                chart: if g.covered() { c.texel(g) } else { NONE },
+            }
         })?;
         let var = cells.map_windows(RADIUS, scratch, "ed-var", |v, w, h| {
             window_variance(v, w, h, RADIUS)
@@ -71,7 +65,7 @@ pub fn estimate(
 /// differences (along rows and along columns) whose three texels lie in the texel's own chart
 /// within `[x - r, x + r] x [y - r, y + r]`: `(1.4826 median |d|)^2 / 6`. 0 for a texel with no
 /// chart, or fewer than [`MIN_DIFFS`] differences.
-pub fn window_variance(t: &[Cell], width: u32, height: u32, r: u32) -> Result<Vec<f32>> {
+pub fn window_variance(t: &[ChartValue], width: u32, height: u32, r: u32) -> Result<Vec<f32>> {
     let (w, h) = (width as usize, height as usize);
     if t.len() != w * h {
         return Err(Error::internal(format!(
@@ -150,8 +144,8 @@ mod tests {
         let ramp =
             |x: u32, y: u32| 1.0 + 0.02 * x as f32 + 0.01 * y as f32 + 0.002 * (x * x) as f32;
         let field = |x: u32, y: u32| ramp(x, y) + 0.5 * (x >= 20) as u32 as f32;
-        let noisy: Vec<Cell> = (0..w * h)
-            .map(|i| Cell {
+        let noisy: Vec<ChartValue> = (0..w * h)
+            .map(|i| ChartValue {
                 v: field(i % w, i / w) + sigma * rng.normal(),
                 chart: 1,
             })
@@ -181,8 +175,8 @@ mod tests {
             "at the edge {near} x the variance"
         );
 
-        let clean: Vec<Cell> = (0..w * h)
-            .map(|i| Cell {
+        let clean: Vec<ChartValue> = (0..w * h)
+            .map(|i| ChartValue {
                 v: ramp(i % w, i / w),
                 chart: 1,
             })
@@ -191,13 +185,13 @@ mod tests {
         assert!(var.iter().all(|&v| v < 1e-9), "a curved ramp is not noise");
 
         // a noisy chart beside a quiet one: the quiet one's texels stay at 0
-        let two: Vec<Cell> = (0..w * h)
+        let two: Vec<ChartValue> = (0..w * h)
             .map(|i| match i % w < 20 {
-                true => Cell {
+                true => ChartValue {
                     v: 1.0 + sigma * rng.normal(),
                     chart: 1,
                 },
-                false => Cell { v: 1.0, chart: 2 },
+                false => ChartValue { v: 1.0, chart: 2 },
             })
             .collect();
         let var = window_variance(&two, w, h, RADIUS).unwrap();
@@ -211,12 +205,12 @@ mod tests {
     #[test]
     fn texels_without_a_chart_or_enough_neighbours_get_zero() {
         let t = vec![
-            Cell {
+            ChartValue {
                 v: 1.0,
                 chart: NONE,
             },
-            Cell { v: 2.0, chart: 1 },
-            Cell { v: 5.0, chart: 1 },
+            ChartValue { v: 2.0, chart: 1 },
+            ChartValue { v: 5.0, chart: 1 },
         ];
         assert_eq!(window_variance(&t, 3, 1, RADIUS).unwrap(), vec![0.0; 3]);
     }

@@ -24,7 +24,7 @@
 //! `l_noise` (what the sigma filter judges by): judged by it the filter averaged cbox-tex's
 //! noisy textured ceiling more and lost detail (held-out albedo 4.88 -> 5.02%).
 
-use crate::atlas::charts::Charts;
+use crate::atlas::charts::{ChartValue, Charts};
 use crate::atlas::layout::{Layout, TexelGeom, TexelState};
 use crate::atlas::slot_texture::{Scratch, SlotTexture};
 use crate::atlas::texels::NONE;
@@ -79,18 +79,10 @@ pub fn perturbed(image: &Image, noise: &ViewNoise, seed: u64, view: u64) -> Imag
     }
 }
 
-/// One texel of the window mean: its squared scaled change and its chart ([`NONE`]: none).
-#[repr(C)]
-#[derive(Debug, Clone, Copy, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct Sq {
-    pub v: f32,
-    pub chart: u32,
-}
-
 /// Per texel of a row-major `width x height` texture, the mean of `v` over the texels of its
 /// own chart within `[x - r, x + r] x [y - r, y + r]` (0 for a texel with no chart). Cost
 /// `O(texels x (2r + 1)^2)`.
-pub fn chart_window_mean(t: &[Sq], width: u32, height: u32, r: u32) -> Result<Vec<f32>> {
+pub fn chart_window_mean(t: &[ChartValue], width: u32, height: u32, r: u32) -> Result<Vec<f32>> {
     let (w, h) = (width as usize, height as usize);
     if t.len() != w * h {
         return Err(Error::internal(format!(
@@ -148,9 +140,11 @@ pub fn apply(
     })?;
     for slot in 0..layout.slots.len() {
         let c = &charts.slots[slot];
-        let sq = SlotTexture::gather(layout, slot, probe, geom, scratch, "probe", |s, g| Sq {
-            v: s.l_noise,
-            chart: if s.weight > 0.0 { c.texel(g) } else { NONE },
+        let sq = SlotTexture::gather(layout, slot, probe, geom, scratch, "probe", |s, g| {
+            ChartValue {
+                v: s.l_noise,
+                chart: if s.weight > 0.0 { c.texel(g) } else { NONE },
+            }
         })?;
         let var = sq.map_windows(PROBE_RADIUS, scratch, "probe-var", |v, w, h| {
             chart_window_mean(v, w, h, PROBE_RADIUS)
@@ -227,8 +221,8 @@ mod tests {
     #[test]
     fn chart_window_mean_stays_within_the_chart() {
         let (w, h, r) = (9u32, 7u32, 2u32);
-        let t: Vec<Sq> = (0..w * h)
-            .map(|i| Sq {
+        let t: Vec<ChartValue> = (0..w * h)
+            .map(|i| ChartValue {
                 v: (i * 7 % 11) as f32,
                 chart: match i % w {
                     0 => NONE,
