@@ -535,13 +535,7 @@ impl<'a> Run<'a> {
         let sums = direct::run_tiles(p, cfg, &self.charts, &self.geom, state, self.mode, &owns)?;
         share::share_tiles(world, state)?;
         // every rank holds every tile now, and measures the same noise on it
-        if p.scene
-            .emitters
-            .iter()
-            .any(|e| matches!(e, crate::scene::Emitter::Environment(_)))
-        {
-            direct::sampling::estimate(&p.layout, &self.charts, &self.geom, state, &self.scratch)?;
-        }
+        direct::sampling::estimate(p, &self.charts, &self.geom, state, &self.scratch)?;
         let mine = sums.into_iter().enumerate().map(|(t, s)| (t as u64, s));
         let mine = mine.filter(|(t, _)| world.owns(*t)).collect();
         let all = share::share_serde(world, mine)?;

@@ -6,19 +6,20 @@
 //! `E(x - 1) - 2 E(x) + E(x + 1)` (rows and columns) over a window of its own chart, whose
 //! spread is `6 var` for independent noise, zero for light that changes linearly, and a common
 //! offset where a curved surface bends it (taken out with each direction's median). A median
-//! (`1.4826 x` the median absolute deviation) keeps the few at a shadow edge out. It
-//! needs nothing of the sampler, so it holds for stratified samples, whose variance the pairs'
-//! own spread overstates 1.4-2.4x (measured on envmap's shapes); but it takes light that
-//! changes from texel to texel for noise, so the smaller of the two is kept. Medians over texture windows
-//! are not something a crate offers, so it is written here.
+//! (`1.4826 x` the median absolute deviation) keeps the few at a shadow edge out. It needs
+//! nothing of the sampler, so it holds for stratified samples, whose variance the pairs' own
+//! spread overstates 1.4-2.4x (measured on envmap's shapes); but it takes light that changes
+//! from texel to texel for noise, so the smaller of the two is kept. Medians over texture
+//! windows are not something a crate offers, so it is written here.
 
 use crate::atlas::charts::{ChartValue, Charts};
-use crate::atlas::layout::{Layout, TexelGeom, TexelState};
+use crate::atlas::layout::{TexelGeom, TexelState};
 use crate::atlas::slot_texture::{Scratch, SlotTexture};
 use crate::atlas::texels::NONE;
 use crate::atlas::tiles::TileStore;
+use crate::atlas::Prepared;
 use crate::error::{Error, Result};
-use crate::scene::luminance;
+use crate::scene::{luminance, Emitter};
 use glam::Vec3;
 use rayon::prelude::*;
 
@@ -31,14 +32,20 @@ const MIN_DIFFS: usize = 8;
 /// pairs' spread, an upper bound) and the roughness of the map around it
 /// ([`window_variance`], an upper bound where the light itself changes from texel to texel,
 /// as across a faceted or small curved mesh: 2-4x on envmap's torus, cylinder and sphere).
-/// Both bound the noise from above, so the smaller is the tighter.
+/// Both bound the noise from above, so the smaller is the tighter. A scene without an
+/// environment light has no sampled `E_d` whose noise is stated: nothing to do.
 pub fn estimate(
-    layout: &Layout,
+    p: &Prepared,
     charts: &Charts,
     geom: &TileStore<TexelGeom>,
     state: &mut TileStore<TexelState>,
     scratch: &Scratch,
 ) -> Result<()> {
+    let sky = |e: &Emitter| matches!(e, Emitter::Environment(_));
+    if !p.scene.emitters.iter().any(sky) {
+        return Ok(());
+    }
+    let layout = &p.layout;
     for slot in 0..layout.slots.len() {
         let c = &charts.slots[slot];
         let cells = SlotTexture::gather(layout, slot, state, geom, scratch, "ed", |s, g| {
@@ -63,7 +70,7 @@ pub fn estimate(
 
 /// Per texel of a row-major `width x height` texture, the noise variance of `v` from the second
 /// differences (along rows and along columns) whose three texels lie in the texel's own chart
-/// within `[x - r, x + r] x [y - r, y + r]`: `(1.4826 median |d|)^2 / 6`. 0 for a texel with no
+/// within `[x - r, x + r] x [y - r, y + r]`, as [`spread`] makes it. 0 for a texel with no
 /// chart, or fewer than [`MIN_DIFFS`] differences.
 pub fn window_variance(t: &[ChartValue], width: u32, height: u32, r: u32) -> Result<Vec<f32>> {
     let (w, h) = (width as usize, height as usize);

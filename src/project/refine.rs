@@ -3,6 +3,7 @@
 //! and weights, add their weighted mean (see the module notes of [`super`]).
 
 use super::probe::ViewNoise;
+use super::shrink::relative;
 use super::tv::tv_luminance;
 use super::view::View;
 use super::{
@@ -60,9 +61,10 @@ fn current_maps(
 }
 
 /// How far a view's render is from its photo: the mean of `|sum_c r| / sum_c photo` (`r` =
-/// `photo - render`) over the clean pixels with light that have a render, 0 where there are
-/// none. What the passes drive down: the weighted mean's blur, then what the maps cannot
-/// explain (the photos' noise, texture finer than the atlas or the views resolve).
+/// `photo - render`, the shrinkage's [`relative`] residual) over the clean pixels with light
+/// that have a render, 0 where there are none. What the passes drive down: the weighted mean's
+/// blur, then what the maps cannot explain (the photos' noise, texture finer than the atlas or
+/// the views resolve).
 pub fn mean_relative_residual(
     residual: &[Vec3],
     render: &[Option<Vec3>],
@@ -70,10 +72,9 @@ pub fn mean_relative_residual(
     pixels: &[crate::project::PixelInfo],
 ) -> f64 {
     let (mut sum, mut n) = (0.0f64, 0u64);
-    for (((r, re), ph), px) in residual.iter().zip(render).zip(photo).zip(pixels) {
-        let s = ph.element_sum();
-        if px.clean && re.is_some() && s > 0.0 {
-            sum += (r.element_sum().abs() / s) as f64;
+    for (e, re) in relative(residual, photo, pixels).zip(render) {
+        if let (Some(e), Some(_)) = (e, re) {
+            sum += e.abs() as f64;
             n += 1;
         }
     }

@@ -38,7 +38,7 @@ fn noise_sigma(e: &[Option<f32>]) -> f32 {
 
 /// Per pixel, the residual relative to the photo (on the channel sums), for clean pixels with
 /// light and a finite ratio; `None` elsewhere.
-fn relative<'a>(
+pub(super) fn relative<'a>(
     residual: &'a [Vec3],
     photo: &'a [Vec3],
     pixels: &'a [PixelInfo],
