@@ -200,7 +200,7 @@ pub fn run_shard(
         shard,
         label: "refinement",
     };
-    let passes = (cfg.refine_passes, cfg.refine_step, cfg.tv_weight);
+    let passes = refine::Passes::of(cfg);
     let (noise, residual) = project_and_refine(&ctx, state, passes, mode)?;
     stats.refine_residual = residual;
     if cfg.noise_probe && !noise.is_empty() {
@@ -251,7 +251,7 @@ pub fn run_shard(
 fn project_and_refine(
     ctx: &refine::Refine,
     state: &mut TileStore<TexelState>,
-    passes: (u32, f32, f32),
+    passes: refine::Passes,
     mode: Mode,
 ) -> Result<(Vec<probe::ViewNoise>, Vec<Vec<f64>>)> {
     let (p, shard, bounds) = (ctx.p, ctx.shard, ctx.bounds);
@@ -421,6 +421,10 @@ pub struct Residual {
     pub out: f32,
     /// `sum_v h_v w_v`: the robust-weighted total weight.
     pub hw: f32,
+    /// `sum_v h_v w_v k_v`, `k_v` the shrinkage's keep factor at the texel in view `v`
+    /// ([`shrink_residual_levels`]): `hwk / hw` is the share of the texel's residual that is
+    /// signal, what the gate of [`apply_refinement`] reads.
+    pub hwk: f32,
 }
 
 /// Predicted noise variance of the luminance of one view's value for a texel: the photo's
@@ -480,7 +484,8 @@ pub fn backproject_tile(
         }
         let width = rv.view.camera.width();
         let get = |x: u32, y: u32| rv.residual[(y * width + x) as usize];
-        let Some((Pair(raw, r, level), w)) = observe_texel_from(rv.view, shape, g, &get) else {
+        let Some((Pair(raw, r, level, keep), w)) = observe_texel_from(rv.view, shape, g, &get)
+        else {
             continue;
         };
         let l = luminance(Vec3::from_array(s.l_orig)).max(0.0);
@@ -493,6 +498,7 @@ pub fn backproject_tile(
             a.d[c] += h * w * r[c];
         }
         a.hw += h * w;
+        a.hwk += h * w * keep;
         a.wr2 += h * w * y * y;
         a.w2var += w * w * var;
         a.views += 1.0;
@@ -534,10 +540,29 @@ pub fn photo_variance(a: &Residual, weight: f32) -> f32 {
 /// SIRT); where a view is being outvoted the step stays 1, since an over-relaxed reweighting
 /// overshoots (at 1.8 the highlight test's texels end 14% off with the step everywhere, 6.0%
 /// without it where a view is outvoted, 4.5% at step 1).
-pub fn apply_refinement(state: &mut [TexelState], acc: &[Residual], stats: bool, step: f32) {
+///
+/// With `gate > 0`, a texel whose views agree and whose residuals are mostly noise (the mean
+/// keep factor of the shrinkage, `hwk / hw`, under `gate`) keeps its value: the passes stop
+/// where the photos hold nothing more to fit, texel by texel, and go on where unresolved detail
+/// remains (see [`crate::config::REFINE_GATE`]). A texel where a view is being outvoted is not
+/// gated, so the reweighting runs its course. The statistics are updated either way.
+pub fn apply_refinement(
+    state: &mut [TexelState],
+    acc: &[Residual],
+    stats: bool,
+    step: f32,
+    gate: f32,
+) {
     for (s, a) in state.iter_mut().zip(acc) {
         if s.weight > 0.0 && a.hw > 0.0 {
-            let k = if a.out > 0.0 { 1.0 } else { step };
+            let quiet = gate > 0.0 && a.hwk < gate * a.hw;
+            let k = if a.out > 0.0 {
+                1.0
+            } else if quiet {
+                0.0
+            } else {
+                step
+            };
             for c in 0..3 {
                 s.l_orig[c] = (s.l_orig[c] + k * a.d[c] / a.hw).max(0.0);
             }
@@ -574,7 +599,7 @@ mod tests {
             acc(Vec3::splat(-0.5), 1.0),
             acc(Vec3::splat(5.0), 0.0),
         ];
-        apply_refinement(&mut st, &d, false, 1.0);
+        apply_refinement(&mut st, &d, false, 1.0, 0.0);
         assert_eq!(st[0].l_orig, [1.5, 0.5, 1.0]);
         assert_eq!(st[1].l_orig, [0.0; 3]);
         assert_eq!(st[2].l_orig, [0.0; 3], "unobserved texels stay as they are");
@@ -583,7 +608,7 @@ mod tests {
             weight: 2.0,
             ..Default::default()
         }];
-        apply_refinement(&mut st, &[acc(Vec3::ONE, 0.5)], false, 1.0);
+        apply_refinement(&mut st, &[acc(Vec3::ONE, 0.5)], false, 1.0, 0.0);
         assert_eq!(st[0].l_orig, [2.0; 3]);
         // an over-relaxed step goes `step` times as far
         let mut st = [TexelState {
@@ -591,7 +616,13 @@ mod tests {
             l_orig: [1.0; 3],
             ..Default::default()
         }];
-        apply_refinement(&mut st, &[acc(Vec3::new(1.0, -0.5, 0.0), 2.0)], false, 1.8);
+        apply_refinement(
+            &mut st,
+            &[acc(Vec3::new(1.0, -0.5, 0.0), 2.0)],
+            false,
+            1.8,
+            0.0,
+        );
         assert_eq!(st[0].l_orig, [1.9, 0.55, 1.0]);
         // but not where a view disagrees
         let mut st = [TexelState {
@@ -603,8 +634,38 @@ mod tests {
             out: 1.0,
             ..acc(Vec3::new(1.0, -0.5, 0.0), 2.0)
         };
-        apply_refinement(&mut st, &[outvoted], false, 1.8);
+        apply_refinement(&mut st, &[outvoted], false, 1.8, 0.0);
         assert_eq!(st[0].l_orig, [1.5, 0.75, 1.0]);
+    }
+
+    /// The gate: a texel whose residual is mostly noise (mean keep `hwk / hw` under the gate)
+    /// keeps its value, one with more signal takes the step, an outvoted one the step 1; the
+    /// last pass's statistics are written either way; gate 0 is no gate.
+    #[test]
+    fn the_gate_holds_texels_whose_residual_is_noise() {
+        let texel = || TexelState {
+            weight: 2.0,
+            l_orig: [1.0; 3],
+            ..Default::default()
+        };
+        let with_keep = |keep: f32, out: f32| Residual {
+            hwk: keep * 2.0,
+            out,
+            views: 2.0,
+            w2var: 0.4,
+            ..acc(Vec3::new(1.0, -0.5, 0.0), 2.0)
+        };
+        let run = |a: Residual, gate: f32| {
+            let mut st = [texel()];
+            apply_refinement(&mut st, &[a], true, 1.8, gate);
+            st[0]
+        };
+        let held = run(with_keep(0.3, 0.0), 0.7);
+        assert_eq!(held.l_orig, [1.0; 3], "noise: held");
+        assert_eq!(held.l_noise, 0.1, "statistics still written");
+        assert_eq!(run(with_keep(0.8, 0.0), 0.7).l_orig, [1.9, 0.55, 1.0]);
+        assert_eq!(run(with_keep(0.3, 1.0), 0.7).l_orig, [1.5, 0.75, 1.0]);
+        assert_eq!(run(with_keep(0.0, 0.0), 0.0).l_orig, [1.9, 0.55, 1.0]);
     }
 
     /// A texel's noise is the local level where that is above the view's, never below.

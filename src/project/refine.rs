@@ -85,10 +85,47 @@ pub fn mean_relative_residual(
     }
 }
 
+/// What the refinement passes do (from the config's `[projection]`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Passes {
+    /// How many.
+    pub count: u32,
+    /// The step after the first ([`pass_step`]).
+    pub step: f32,
+    /// The TV step's weight (0 = none).
+    pub tv: f32,
+    /// The gate of [`apply_refinement`] (0 = none) ...
+    pub gate: f32,
+    /// ... from this pass on (from 0).
+    pub gated_from: u32,
+}
+
+impl Passes {
+    /// The passes a config asks for.
+    pub fn of(cfg: &crate::config::Config) -> Passes {
+        Passes {
+            count: cfg.refine_passes,
+            step: cfg.refine_step,
+            tv: cfg.tv_weight,
+            gate: cfg.refine_gate,
+            gated_from: cfg.refine_gated_from,
+        }
+    }
+
+    /// The gate of pass `pass` (from 0): 0 before `gated_from`.
+    fn gate(&self, pass: u32) -> f32 {
+        if pass >= self.gated_from {
+            self.gate
+        } else {
+            0.0
+        }
+    }
+}
+
 /// The step of refinement pass `pass` (from 0): 1 in the first, whose robust weights are
 /// judged against the plain weighted mean (a view with a highlight is still in it), `step`
 /// after. Over-relaxing the first pass too left the highlight test's texels 6.0% off instead
-/// of 4.7% (three passes; 4.5% over the four default ones).
+/// of 4.7% (three passes; 4.5% over four).
 fn pass_step(pass: u32, step: f32) -> f32 {
     if pass == 0 {
         1.0
@@ -125,10 +162,10 @@ struct Delta {
 }
 
 impl Refine<'_> {
-    /// `passes` times: re-render every view from the current maps, back-project the
+    /// `passes.count` times: re-render every view from the current maps, back-project the
     /// residuals `photo - render` (clean pixels only) and add `step` times their weighted
-    /// mean to `l_orig` (1 times in the first pass, [`pass_step`])
-    /// (see the module notes). Every pass is robust (a view that departs from the estimate by
+    /// mean to `l_orig` (1 times in the first pass, [`pass_step`]; none where the pass's gate
+    /// finds only noise, [`apply_refinement`]) (see the module notes). Every pass is robust (a view that departs from the estimate by
     /// more than its noise is down-weighted, see [`backproject_tile`]: from the first pass on,
     /// as it takes the default passes to outvote a highlight), and the last one's
     /// residuals give each texel's `l_var` and `disagree`. With `tv > 0` each pass ends with
@@ -140,18 +177,19 @@ impl Refine<'_> {
     pub fn run(
         &self,
         state: &mut TileStore<TexelState>,
-        (passes, step, tv): (u32, f32, f32),
+        passes: Passes,
         mode: Mode,
     ) -> Result<(Vec<ViewNoise>, Vec<Vec<f64>>)> {
         let mut noise = Vec::new();
         let mut residuals = Vec::new();
-        if passes == 0 || self.views.is_empty() {
+        let (count, step, tv) = (passes.count, passes.step, passes.tv);
+        if count == 0 || self.views.is_empty() {
             return Ok((noise, residuals));
         }
-        let total = passes as u64 * self.views.len() as u64;
+        let total = count as u64 * self.views.len() as u64;
         let stage = Stage::new(mode, self.label, total, "views");
         let path = self.scratch.dir.join("refine-delta.tiles");
-        for pass in 0..passes {
+        for pass in 0..count {
             let maps = current_maps(self.p, self.geom, state, self.scratch)?;
             let textures = self.textures(&maps);
             let n = self.p.layout.tile_count as usize;
@@ -167,7 +205,7 @@ impl Refine<'_> {
             let mut sigma = 0.0;
             noise.clear();
             let mut pass_residuals = Vec::with_capacity(self.views.len());
-            let last = pass + 1 == passes;
+            let last = pass + 1 == count;
             for view in self.views {
                 let (n, r) = self.backproject(view, &textures, state, &mut delta, last)?;
                 sigma += n.sigma;
@@ -184,7 +222,8 @@ impl Refine<'_> {
             residuals.push(pass_residuals);
             map_tiles(state, &delta.store, self.window, |t, d, st| {
                 if delta.touched[t].load(Ordering::Relaxed) {
-                    apply_refinement(st, d, pass + 1 == passes, pass_step(pass, step));
+                    let gate = passes.gate(pass);
+                    apply_refinement(st, d, last, pass_step(pass, step), gate);
                 }
             })?;
             (self.shard.sync)(state)?;
@@ -263,13 +302,14 @@ impl Refine<'_> {
         let mean = mean_relative_residual(&residual, &render, &photo.pixels, &view.pixels);
         let raw = residual.clone();
         let levels = shrink_residual_levels(&mut residual, &photo.pixels, &view.pixels, w as usize);
-        let (sigma, level) = (levels.sigma, levels.level);
+        let (sigma, level, keep) = (levels.sigma, levels.level, levels.keep);
         let rough = if last { levels.rough } else { Vec::new() };
         let both: Vec<Pair> = raw
             .into_iter()
             .zip(residual)
             .zip(level)
-            .map(|((a, b), s)| Pair(a, b, s))
+            .zip(keep)
+            .map(|(((a, b), s), k)| Pair(a, b, s, k))
             .collect();
         let rv = ResidualViews {
             view,

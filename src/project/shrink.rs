@@ -74,6 +74,11 @@ pub struct NoiseLevels {
     /// ([`block_roughness`]; 0 where too few pixels have one): the level the noise probe adds
     /// noise at.
     pub rough: Vec<f32>,
+    /// Per pixel, the factor the residual was scaled by: 0 where its window holds no more
+    /// than noise (or the pixel is not clean, or dark), towards 1 where it holds much more; 1
+    /// everywhere for a noise-free photo. What the refinement's gate reads
+    /// (`project::apply_refinement`).
+    pub keep: Vec<f32>,
 }
 
 /// [`shrink_residual`], also returning the photo's noise levels ([`NoiseLevels`]; `level` is
@@ -94,6 +99,7 @@ pub fn shrink_residual_levels(
             sigma,
             level,
             rough,
+            keep: vec![1.0; residual.len()],
         };
     }
     let energy: Vec<f64> = e
@@ -102,19 +108,21 @@ pub fn shrink_residual_levels(
         .collect();
     let energy = box_sum(&energy, width, SHRINK_RADIUS);
     let (noise, level) = window_noise(residual, photo, (&e, &blocks), width, sigma);
-    for (i, r) in residual.iter_mut().enumerate() {
+    let mut keep = vec![0.0; residual.len()];
+    for (i, (r, k)) in residual.iter_mut().zip(&mut keep).enumerate() {
         // the window's noise energy against its residuals' energy
         let (noise, total) = (noise[i], energy[i]);
-        let keep = match e[i] {
+        *k = match e[i] {
             Some(_) if total > noise => (1.0 - noise / total) as f32,
             _ => 0.0,
         };
-        *r *= keep;
+        *r *= *k;
     }
     NoiseLevels {
         sigma,
         level,
         rough,
+        keep,
     }
 }
 
@@ -248,6 +256,32 @@ mod tests {
         let sigma = shrink_residual(&mut r, &photo, &pixels, 20);
         assert!((sigma - 0.014826).abs() < 1e-6, "{sigma}");
         assert!(r.iter().all(|v| *v == Vec3::ZERO));
+    }
+
+    /// `keep` is the factor each pixel's residual was scaled by: 0 on noise alone and on a
+    /// pixel that is not clean, inside (0, 1) on a coherent band, 1 for a noise-free photo.
+    #[test]
+    fn keep_is_the_factor_each_residual_was_scaled_by() {
+        let (mut r, photo, mut pixels) = checkerboard();
+        for (i, v) in r.iter_mut().enumerate() {
+            if (6..11).contains(&(i % 20)) {
+                *v += Vec3::splat(0.09);
+            }
+        }
+        pixels[7].clean = false;
+        let before = r.clone();
+        let keep = shrink_residual_levels(&mut r, &photo, &pixels, 20).keep;
+        assert_eq!(keep[7], 0.0, "not clean");
+        assert_eq!(keep[0], 0.0, "noise alone");
+        let mid = 10 * 20 + 8;
+        assert!(keep[mid] > 0.8 && keep[mid] < 1.0, "{}", keep[mid]);
+        for ((a, b), k) in before.iter().zip(&r).zip(&keep) {
+            assert!((*a * *k - *b).abs().max_element() < 1e-7);
+        }
+        let mut r = vec![Vec3::ZERO; 400];
+        r[7] = Vec3::splat(1.0);
+        let keep = shrink_residual_levels(&mut r, &photo, &pixels, 20).keep;
+        assert!(keep.iter().all(|&k| k == 1.0), "noise-free: left alone");
     }
 
     #[test]

@@ -340,15 +340,15 @@ impl<T> Value for T where
 {
 }
 
-/// Two images' values at one pixel and a level (the photo's relative noise there), sampled
-/// together (one set of lookups for all three).
+/// Two images' values at one pixel, a level (the photo's relative noise there) and the
+/// shrinkage's keep factor, sampled together (one set of lookups for all four).
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
-pub struct Pair(pub Vec3, pub Vec3, pub f32);
+pub struct Pair(pub Vec3, pub Vec3, pub f32, pub f32);
 
 impl std::ops::Add for Pair {
     type Output = Pair;
     fn add(self, o: Pair) -> Pair {
-        Pair(self.0 + o.0, self.1 + o.1, self.2 + o.2)
+        Pair(self.0 + o.0, self.1 + o.1, self.2 + o.2, self.3 + o.3)
     }
 }
 
@@ -357,20 +357,21 @@ impl std::ops::AddAssign for Pair {
         self.0 += o.0;
         self.1 += o.1;
         self.2 += o.2;
+        self.3 += o.3;
     }
 }
 
 impl std::ops::Mul<f32> for Pair {
     type Output = Pair;
     fn mul(self, k: f32) -> Pair {
-        Pair(self.0 * k, self.1 * k, self.2 * k)
+        Pair(self.0 * k, self.1 * k, self.2 * k, self.3 * k)
     }
 }
 
 impl std::ops::Div<f32> for Pair {
     type Output = Pair;
     fn div(self, k: f32) -> Pair {
-        Pair(self.0 / k, self.1 / k, self.2 / k)
+        Pair(self.0 / k, self.1 / k, self.2 / k, self.3 / k)
     }
 }
 
