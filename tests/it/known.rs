@@ -80,18 +80,21 @@ fn mirror_cbox_recovers_its_diffuse_walls() {
         .exists());
 }
 
+/// mirror-cbox reconstructed with its default config changed by `change`, scored per shape.
+fn mirror_cbox_scores(change: impl Fn(&mut Config)) -> Vec<ShapeAccuracy> {
+    let root = fixture("mirror-cbox");
+    let mut cfg = Config::for_scene(root.join("input.xml"));
+    change(&mut cfg);
+    let out = tempfile::tempdir().unwrap();
+    reconstruct(&cfg, out.path(), Mode::Quiet).unwrap();
+    score(&root, &cfg, out.path())
+}
+
 /// The opt-in TV prior (`[projection] tv_weight`) on mirror-cbox's uniform walls: the
 /// per-texel error of every wall falls and the walls' mean colour stays within 3%.
 #[test]
 fn a_tv_prior_takes_noise_off_uniform_walls() {
-    let root = fixture("mirror-cbox");
-    let errors = |tv: f32| {
-        let mut cfg = Config::for_scene(root.join("input.xml"));
-        cfg.tv_weight = tv;
-        let out = tempfile::tempdir().unwrap();
-        reconstruct(&cfg, out.path(), Mode::Quiet).unwrap();
-        score(&root, &cfg, out.path())
-    };
+    let errors = |tv: f32| mirror_cbox_scores(|c| c.tv_weight = tv);
     let (plain, tv) = (errors(0.0), errors(0.2));
     for (a, b) in plain.iter().zip(&tv) {
         eprintln!(
@@ -118,14 +121,7 @@ fn a_tv_prior_takes_noise_off_uniform_walls() {
 /// per-texel error of the walls together falls and every wall's mean colour stays within 3%.
 #[test]
 fn the_refinement_gate_keeps_the_photos_noise_off_uniform_walls() {
-    let root = fixture("mirror-cbox");
-    let errors = |gate: f32| {
-        let mut cfg = Config::for_scene(root.join("input.xml"));
-        cfg.refine_gate = gate;
-        let out = tempfile::tempdir().unwrap();
-        reconstruct(&cfg, out.path(), Mode::Quiet).unwrap();
-        score(&root, &cfg, out.path())
-    };
+    let errors = |gate: f32| mirror_cbox_scores(|c| c.refine_gate = gate);
     let (plain, gated) = (errors(0.0), errors(kdmap::config::REFINE_GATE));
     for (a, b) in plain.iter().zip(&gated) {
         eprintln!(

@@ -569,11 +569,7 @@ fn the_gate_keeps_texture_detail() {
         let mut cfg = base.clone();
         cfg.refine_gate = gate;
         let dir = tempfile::tempdir().unwrap();
-        let noise = move |si: usize, i: usize, v: Vec3| {
-            let rel = 0.016 / luminance(v).max(0.04).sqrt();
-            let n = kdmap::rng::Rng::new(7, si as u64, 0, i as u64).normal();
-            v * (1.0 + rel * n).max(0.0)
-        };
+        let noise = photo_noise(7);
         let exact = |_: usize, _: usize, v: Vec3| v;
         let tweak: &dyn Fn(usize, usize, Vec3) -> Vec3 = if noisy { &noise } else { &exact };
         synthetic_photos(&p, &field, &mut cfg, dir.path(), tweak);
@@ -934,6 +930,17 @@ fn observed_luminance(p: &Prepared, out: &Path) -> Vec<(String, usize, f32, f32)
     v
 }
 
+/// A [`synthetic_photos`] tweak that adds a rendered photo's kind of noise: relative, 1.6%
+/// at luminance 1 and more on dim surfaces (`1.6% / sqrt(luminance)`, at most 8%), drawn from
+/// `seed`, the sensor and the pixel.
+fn photo_noise(seed: u64) -> impl Fn(usize, usize, Vec3) -> Vec3 {
+    move |si: usize, i: usize, v: Vec3| {
+        let rel = 0.016 / luminance(v).max(0.04).sqrt();
+        let n = kdmap::rng::Rng::new(seed, si as u64, 0, i as u64).normal();
+        v * (1.0 + rel * n).max(0.0)
+    }
+}
+
 /// The median of `v` (sorted in place).
 fn median(v: &mut [f32]) -> f32 {
     v.sort_by(f32::total_cmp);
@@ -957,11 +964,7 @@ fn the_noise_probe_predicts_the_texel_noise_of_independent_photos() {
         let mut cfg = base.clone();
         cfg.noise_probe = probe;
         let dir = tempfile::tempdir().unwrap();
-        let noisy = move |si: usize, i: usize, v: Vec3| {
-            let rel = 0.016 / luminance(v).max(0.04).sqrt();
-            let n = kdmap::rng::Rng::new(seed, si as u64, 0, i as u64).normal();
-            v * (1.0 + rel * n).max(0.0)
-        };
+        let noisy = photo_noise(seed);
         synthetic_photos(&p, &field, &mut cfg, dir.path(), &noisy);
         let out = tempfile::tempdir().unwrap();
         let (p, _) = project(&cfg, out.path(), refine_passes());
