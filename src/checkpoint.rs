@@ -45,8 +45,10 @@ static CHECKPOINT_WRITES: AtomicU64 = AtomicU64::new(0);
 /// levels per triangle, so a run of version 5 has another texel layout for the same inputs.
 /// 8: `E_d` holds the caustics (light by way of mirrors and glass), which a version-7 state
 /// of a scene with such materials has in none of its irradiance. 9: the report it carries has
-/// the refinement's residuals, and the state `ed_var` (92 bytes a texel, was 88).
-pub const VERSION: u32 = 9;
+/// the refinement's residuals, and the state `ed_var` (92 bytes a texel, was 88). 10: the
+/// config it carries has the refinement's gate (`refine_gate`, `refine_gated_from`); bincode
+/// is not self-describing, so a version-9 checkpoint would not decode.
+pub const VERSION: u32 = 10;
 const MAGIC: &str = "KDMCKPT";
 /// The current manifest.
 pub const MANIFEST: &str = "progress.kdm";
