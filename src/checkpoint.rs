@@ -437,3 +437,44 @@ pub fn restore<P>(dir: &Path, m: &Manifest<P>, state_path: &Path) -> Result<()> 
     }
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The checkpoint carries the config in bincode, which is not self-describing: with a field
+    /// added or removed an older checkpoint no longer decodes ("bad payload"), so the checkpoint
+    /// format version must change with the config's fields. This is the list of them at
+    /// [`VERSION`]: update both together.
+    #[test]
+    fn the_config_s_fields_change_with_the_checkpoint_version() {
+        fn keys(v: &serde_json::Value, prefix: &str, out: &mut Vec<String>) {
+            if let serde_json::Value::Object(m) = v {
+                for (k, v) in m {
+                    out.push(format!("{prefix}{k}"));
+                    keys(v, &format!("{prefix}{k}."), out);
+                }
+            }
+        }
+        let mut got = Vec::new();
+        let cfg = serde_json::to_value(crate::config::Config::for_scene("s.xml".into())).unwrap();
+        keys(&cfg, "", &mut got);
+        got.sort();
+        let mut want: Vec<&str> = "scene views atlas atlas.texels_per_unit atlas.max_texels \
+            atlas.padding atlas.use_mesh_uvs atlas.tile_size atlas.max_texture_size \
+            refine_passes refine_step refine_gate refine_gated_from denoise_radius denoise_z \
+            tv_weight noise_probe area_samples env_samples method gather_rays gather_spacing \
+            photons photons_per_texel batch_size max_depth smoothing_radius iterations \
+            tolerance alpha0 update relaxation initial_indirect_share seed threads \
+            checkpoint_every_batches checkpoint_every_seconds memory_budget_mib known_shapes \
+            photometric_scale"
+            .split_whitespace()
+            .collect();
+        want.sort();
+        assert_eq!(
+            (VERSION, got),
+            (10, want.iter().map(|s| s.to_string()).collect::<Vec<_>>()),
+            "the config's fields changed: bump VERSION and update this list"
+        );
+    }
+}

@@ -11,13 +11,15 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
-/// A small cbox run: coarse atlas, few area samples, one refinement pass (so the sharded
-/// refinement renders are checked too), `extra` appended to the config.
+/// A small cbox run: coarse atlas, few area samples, two refinement passes, the second gated
+/// (so the sharded refinement renders and the gate are checked too; the gate holds texels
+/// here: with `refine_gate = 0` the textures differ), `extra` appended to the config.
 fn write_config(dir: &Path, name: &str, extra: &str) -> PathBuf {
     let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/cbox/input.xml");
     let p = dir.join(name);
     let text = format!(
-        "scene = {:?}\n[atlas]\ntexels_per_unit = 24.0\n[projection]\nrefine_passes = 1\n\
+        "scene = {:?}\n[atlas]\ntexels_per_unit = 24.0\n[projection]\nrefine_passes = 2\n\
+         refine_gated_from = 1\n\
          [direct]\narea_samples = 4\n{extra}",
         scene.to_str().unwrap()
     );
