@@ -116,9 +116,10 @@ fn a_tv_prior_takes_noise_off_uniform_walls() {
 }
 
 /// The refinement's gate on mirror-cbox's uniform walls: eight passes with the last four
-/// gated (the default) against eight ungated. The ungated passes fit the photos' Monte Carlo
-/// noise into the walls; the gate stops each texel once its views' residual is noise, so the
-/// per-texel error of the walls together falls and every wall's mean colour stays within 3%.
+/// gated (the default) against eight ungated. The ungated passes move the walls away from the
+/// truth (the same way pass after pass: a drift, not only noise); the gate stops each texel
+/// once its views' residual is mostly noise, so the per-texel error of the walls together
+/// falls and every wall's mean colour stays within 3%.
 #[test]
 fn the_refinement_gate_keeps_the_photos_noise_off_uniform_walls() {
     let errors = |gate: f32| mirror_cbox_scores(|c| c.refine_gate = gate);
