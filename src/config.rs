@@ -253,7 +253,7 @@ pub const MAX_REFINE_PASSES: u32 = 64;
 /// 8x8-block re-projection error goes from 2.1/1.1/1.5% (no pass) to 1.0/0.7/0.9% (one) and
 /// 0.7/0.6/0.6% (three); each pass costs about one projection. Eight, the last four gated
 /// ([`REFINE_GATE`], [`REFINE_GATED_FROM`]): textured surfaces keep gaining detail past the
-/// fourth pass, while uniform ones would only fit the photos' noise.
+/// fourth pass, while uniform ones drift away from the truth (the same way pass after pass).
 pub const REFINE_PASSES: u32 = 8;
 /// Default step of the refinement passes after the first (over-relaxation of the
 /// back-projection, see `project::apply_refinement`; 1 is the plain weighted mean of the
@@ -270,10 +270,11 @@ pub const REFINE_STEP: f32 = 1.8;
 /// in a gated pass when under this share of its views' residual is signal (the mean keep
 /// factor of the residual shrinkage over the views; 0 = no gate). Held-out albedo / relit 8x8
 /// (Mitsuba 3 judge, 64 spp), 4 passes -> 8 ungated -> 8 with the last four gated at 0.7:
-/// cbox-tex 4.88 / 2.50 -> 4.63 / 2.53 -> 4.56 / 2.52%, lights 3.63 / 1.14 -> 3.33 -> 3.46 /
-/// 1.12%, open 7.67 / 1.86 -> 7.28 -> 7.55 / 1.86%, envmap 5.11 / 0.72 -> 4.81 -> 5.09 / 0.72%,
-/// mirror-cbox 3.04 / 2.21 -> 3.67 -> 3.07 / 2.22%, cbox 1.32 / 2.16 -> 1.46 -> 1.34 / 2.16%.
-/// At 0.5 / 0.85: cbox-tex 4.57 / 4.55%, mirror-cbox 3.14 / 3.05%.
+/// cbox-tex 4.88 / 2.50 -> 4.63 / 2.53 -> 4.55 / 2.53%, lights 3.63 / 1.14 -> 3.33 -> 3.47 /
+/// 1.12%, open 7.67 / 1.86 -> 7.28 -> 7.57 / 1.87%, envmap 5.11 / 0.72 -> 4.81 -> 5.09 / 0.72%,
+/// mirror-cbox 3.04 / 2.21 -> 3.67 -> 3.06 / 2.21%, cbox 1.32 / 2.16 -> 1.46 -> 1.34 / 2.16%.
+/// At 0.3: cbox-tex 4.60%, mirror-cbox 3.37%, envmap 5.03%, open 7.32%; at 0.5: envmap 5.09%,
+/// open 7.42% (README, "Refinement gate").
 pub const REFINE_GATE: f32 = 0.7;
 /// Default first gated refinement pass (from 0; the passes before it are not gated). Gating
 /// from the second pass (1) suits scenes of uniform surfaces and hurts fine textures seen at
@@ -1078,7 +1079,8 @@ mod tests {
         std::fs::write(
             &p,
             "scene = \"s.xml\"\n[projection]\nrefine_passes = 1\nrefine_step = 1.25\n\
-             refine_gate = 0.5\nrefine_gated_from = 2\ndenoise_radius = 3\ndenoise_z = 2.5\ntv_weight = 0.2\nnoise_probe = false\n",
+             refine_gate = 0.5\nrefine_gated_from = 2\ndenoise_radius = 3\ndenoise_z = 2.5\n\
+             tv_weight = 0.2\nnoise_probe = false\n",
         )
         .unwrap();
         let c = Config::load(&p, &Overrides::default()).unwrap();

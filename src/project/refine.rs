@@ -90,7 +90,7 @@ pub fn mean_relative_residual(
 pub struct Passes {
     /// How many.
     pub count: u32,
-    /// The step after the first ([`pass_step`]).
+    /// The step after the first ([`Passes::step`]).
     pub step: f32,
     /// The TV step's weight (0 = none).
     pub tv: f32,
@@ -112,6 +112,18 @@ impl Passes {
         }
     }
 
+    /// The step of pass `pass` (from 0): 1 in the first, whose robust weights are judged
+    /// against the plain weighted mean (a view with a highlight is still in it), `step` after.
+    /// Over-relaxing the first pass too left the highlight test's texels 6.0% off instead of
+    /// 4.7% (three passes; 4.5% over four).
+    fn step(&self, pass: u32) -> f32 {
+        if pass == 0 {
+            1.0
+        } else {
+            self.step
+        }
+    }
+
     /// The gate of pass `pass` (from 0): 0 before `gated_from`.
     fn gate(&self, pass: u32) -> f32 {
         if pass >= self.gated_from {
@@ -119,18 +131,6 @@ impl Passes {
         } else {
             0.0
         }
-    }
-}
-
-/// The step of refinement pass `pass` (from 0): 1 in the first, whose robust weights are
-/// judged against the plain weighted mean (a view with a highlight is still in it), `step`
-/// after. Over-relaxing the first pass too left the highlight test's texels 6.0% off instead
-/// of 4.7% (three passes; 4.5% over four).
-fn pass_step(pass: u32, step: f32) -> f32 {
-    if pass == 0 {
-        1.0
-    } else {
-        step
     }
 }
 
@@ -164,8 +164,9 @@ struct Delta {
 impl Refine<'_> {
     /// `passes.count` times: re-render every view from the current maps, back-project the
     /// residuals `photo - render` (clean pixels only) and add `step` times their weighted
-    /// mean to `l_orig` (1 times in the first pass, [`pass_step`]; none where the pass's gate
-    /// finds only noise, [`apply_refinement`]) (see the module notes). Every pass is robust (a view that departs from the estimate by
+    /// mean to `l_orig` (1 times in the first pass, [`Passes::step`]; none where the pass's
+    /// gate finds only noise, [`apply_refinement`]) (see the module notes). Every pass is
+    /// robust (a view that departs from the estimate by
     /// more than its noise is down-weighted, see [`backproject_tile`]: from the first pass on,
     /// as it takes the default passes to outvote a highlight), and the last one's
     /// residuals give each texel's `l_var` and `disagree`. With `tv > 0` each pass ends with
@@ -182,7 +183,7 @@ impl Refine<'_> {
     ) -> Result<(Vec<ViewNoise>, Vec<Vec<f64>>)> {
         let mut noise = Vec::new();
         let mut residuals = Vec::new();
-        let (count, step, tv) = (passes.count, passes.step, passes.tv);
+        let (count, tv) = (passes.count, passes.tv);
         if count == 0 || self.views.is_empty() {
             return Ok((noise, residuals));
         }
@@ -220,10 +221,10 @@ impl Refine<'_> {
             drop(textures);
             drop(maps);
             residuals.push(pass_residuals);
+            let (step, gate) = (passes.step(pass), passes.gate(pass));
             map_tiles(state, &delta.store, self.window, |t, d, st| {
                 if delta.touched[t].load(Ordering::Relaxed) {
-                    let gate = passes.gate(pass);
-                    apply_refinement(st, d, last, pass_step(pass, step), gate);
+                    apply_refinement(st, d, last, step, gate);
                 }
             })?;
             (self.shard.sync)(state)?;
