@@ -836,7 +836,7 @@ impl<'a> Run<'a> {
         let cache = match self.gather.get() {
             Some(c) => c,
             None => {
-                let cache = self.trace_gather(&radiance)?;
+                let cache = self.trace_gather(&radiance, &r.state)?;
                 radiance.check()?;
                 rays = self.world.sum(cache.stats.rays);
                 self.gather.get_or_init(|| cache)
@@ -849,8 +849,12 @@ impl<'a> Run<'a> {
         share::share_points(self.world, &mut variance)?;
         drop(radiance);
         std::fs::remove_file(&path).map_err(|e| crate::Error::io(&path, e))?;
-        let (points, layout, charts, geom) =
-            (self.gather_points()?, &p.layout, &self.charts, &self.geom);
+        let (points, layout, charts, geom) = (
+            self.gather_points(&r.state)?,
+            &p.layout,
+            &self.charts,
+            &self.geom,
+        );
         let stage = self.tile_stage("E_i", 1);
         let tick = |k| stage.inc(k);
         write_accum(
@@ -871,8 +875,12 @@ impl<'a> Run<'a> {
     }
 
     /// The gather's rays from every point (see `gather::GatherCache`).
-    fn trace_gather(&self, radiance: &Radiance) -> Result<GatherCache> {
-        let points = self.gather_points()?;
+    fn trace_gather(
+        &self,
+        radiance: &Radiance,
+        state: &TileStore<TexelState>,
+    ) -> Result<GatherCache> {
+        let points = self.gather_points(state)?;
         let ctx = GatherContext {
             accel: &self.p.accel,
             hits: self.hits(),
@@ -920,8 +928,9 @@ impl<'a> Run<'a> {
         )
     }
 
-    /// The gather points of this run (made on first use).
-    fn gather_points(&self) -> Result<&GatherPoints> {
+    /// The gather points of this run (made on first use, after the projection: they are placed
+    /// on observed texels where a cell has any, read from `state`).
+    fn gather_points(&self, state: &TileStore<TexelState>) -> Result<&GatherPoints> {
         if let Some(p) = self.points.get() {
             return Ok(p);
         }
@@ -939,6 +948,7 @@ impl<'a> Run<'a> {
         let pts = GatherPoints::new(
             &self.p,
             &self.geom,
+            state,
             &self.charts,
             &|shape| spacing[shape],
             &self.scratch,

@@ -12,7 +12,8 @@ project issue's definition of the anchor; change it only together with that defi
 - every reconstructed shape (each `shape` of input.xml without an `emitter`; emitter shapes are
   not optimised) gets its diffuse reflectance replaced by its own 256x256 RGB `bitmap` texture
   (raw, i.e. linear) initialised to 0.5 over the mesh's own UVs (a shape without UVs is skipped
-  and reported); optimised parameter `<shape>.bsdf.reflectance.data`;
+  and reported); optimised parameter `<shape>.bsdf.reflectance.data` (`<shape>.bsdf.brdf_0.
+  reflectance.data` inside a twosided BSDF);
 - Adam, learning rate 0.03; values clamped to [0, 1] after each step;
 - 8 spp per view and iteration (seed = iteration * views + view), the training views
   (`cam_train_*`, every sensor with a photo `images/<sensor id>.exr`) against their photos;
@@ -78,6 +79,15 @@ def _diffuse_of(shape_el):
         if b.get("type") == "diffuse":
             return b
     return None
+
+
+def reflectance_key(keys, sid):
+    """The parameter of shape `sid`'s bitmap reflectance among `keys` (`mi.traverse` keys):
+    `<sid>.bsdf.reflectance.data`, or inside a wrapper BSDF such as twosided
+    (`<sid>.bsdf.brdf_0.reflectance.data`); None when there is none or more than one."""
+    found = [k for k in keys
+             if k.startswith(f"{sid}.bsdf.") and k.endswith(".reflectance.data")]
+    return found[0] if len(found) == 1 else None
 
 
 def _set_reflectance(bsdf_el, filename):
@@ -228,10 +238,10 @@ def run(scene_arg, out, iterations=DEFAULTS["iterations"], time_only=None, lr=DE
                                                  mi.Struct.Type.Float32, srgb_gamma=False)
             refs.append(mi.TensorXf(np.array(bmp)))
         params = mi.traverse(scene)
-        keys = [f"{sid}.bsdf.reflectance.data" for sid in optimised]
-        missing = [k for k in keys if k not in params]
+        keys = [reflectance_key(params.keys(), sid) for sid in optimised]
+        missing = [sid for sid, k in zip(optimised, keys) if k is None]
         if missing:
-            raise RuntimeError(f"parameters not found: {missing}")
+            raise RuntimeError(f"reflectance parameters not found for shapes: {missing}")
         params.keep(keys)
         opt = mi.ad.Adam(lr=lr)
         for k in keys:

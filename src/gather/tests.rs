@@ -125,6 +125,7 @@ impl Fixture {
         GatherPoints::new(
             &self.p,
             &self.geom,
+            &self.state,
             &self.charts,
             &|_| spacing,
             &self.scratch(1 << 30),
@@ -195,6 +196,83 @@ fn furnace_gathers_pi_l_everywhere() {
         worst = worst.max(((*v - want).abs() / want).max_element());
     }
     assert!(worst < 2e-3, "worst relative error {worst}");
+}
+
+/// A furnace (a closed sphere of observed radiance `L`) with a floor inside, and a cube resting
+/// on the floor (sunk 0.01 into it), every surface observed at `L` but the floor under the
+/// cube, which no camera can see. Every exposed floor point sees `L` in every direction, so
+/// every observed floor texel must interpolate `E_i = pi L`. A gather point on a buried
+/// texel (under the cube, seeing only the cube's back faces: `E_i = 0`) pulled the observed
+/// texels around the cube down, by up to 77% of `pi L` on this grid (so `K_d = L / E` came out
+/// too high beside every object standing on a floor; cbox's floor beside its boxes was 4.0%
+/// too bright within a texel of them, 0.6% since points prefer observed texels).
+#[test]
+fn observed_texels_beside_an_object_on_the_floor_gather_from_exposed_points() {
+    let mut sky = mesh::sphere();
+    sky.normals = None;
+    mesh::flip_normals(&mut sky);
+    sky.transform(&Mat4::from_scale(Vec3::splat(3.0)));
+    let mut floor = mesh::rectangle();
+    floor.transform(&Mat4::from_scale(Vec3::splat(1.5)));
+    let mut cube = mesh::cube();
+    cube.transform(
+        &(Mat4::from_translation(Vec3::new(0.1, -0.2, 0.29)) * Mat4::from_scale(Vec3::splat(0.3))),
+    );
+    let mut fx = Fixture::new(
+        vec![
+            shape("sky", sky, None),
+            shape("floor", floor, None),
+            shape("cube", cube, None),
+        ],
+        8.0,
+    );
+    let l = Vec3::new(0.5, 1.0, 2.0);
+    for id in ["sky", "floor", "cube"] {
+        fx.observe(id, l);
+    }
+    // the floor under the cube is not observed
+    let slot = fx.slot_of("floor");
+    let layout = &fx.p.layout;
+    let under = |p: Vec3| (p.x - 0.1).abs() < 0.3 && (p.y + 0.2).abs() < 0.3;
+    map_tiles(&mut fx.state, &fx.geom, 4, |t, g, st| {
+        if layout.slot_of_tile(t as u32) != slot {
+            return;
+        }
+        for (g, s) in g.iter().zip(st.iter_mut()) {
+            if g.covered() && under(g.p()) {
+                *s = TexelState::default();
+            }
+        }
+    })
+    .unwrap();
+    let (pts, vals) = fx.gather(0.5, 64);
+    assert!(pts.stride(slot) >= 4, "stride {}", pts.stride(slot));
+    let tc = fx.texel_charts(slot);
+    let scratch = fx.scratch(1 << 30);
+    let geom = SlotTexture::gather(layout, slot, &fx.geom, &fx.geom, &scratch, "g", |g, _| *g)
+        .unwrap()
+        .to_vec();
+    let st = layout.slots[slot];
+    let want = l * PI;
+    let (mut worst, mut near) = (0.0f32, 0);
+    for y in 0..st.height {
+        for x in 0..st.width {
+            let i = (y * st.width + x) as usize;
+            let (c, g) = (tc[i], geom[i]);
+            if c == NONE || !g.covered() || under(g.p()) {
+                continue;
+            }
+            let v = pts.interpolate(&vals, slot, x, y, c);
+            worst = worst.max(((v - want).abs() / want).max_element());
+            let p = g.p();
+            near += ((p.x - 0.1).abs() < 0.5 && (p.y + 0.2).abs() < 0.5) as u32;
+        }
+    }
+    assert!(near > 30, "{near} observed texels around the cube");
+    assert!(
+        worst < 5e-3,
+        "worst relative error of an observed floor texel: {worst}"
+    );
 }
 
 /// A unit square of radiance `L` one unit above a floor: at a floor point `E_i` is `L` times
