@@ -47,8 +47,9 @@ static CHECKPOINT_WRITES: AtomicU64 = AtomicU64::new(0);
 /// of a scene with such materials has in none of its irradiance. 9: the report it carries has
 /// the refinement's residuals, and the state `ed_var` (92 bytes a texel, was 88). 10: the
 /// config it carries has the refinement's gate (`refine_gate`, `refine_gated_from`); bincode
-/// is not self-describing, so a version-9 checkpoint would not decode.
-pub const VERSION: u32 = 10;
+/// is not self-describing, so a version-9 checkpoint would not decode. 11: the config has
+/// `uv_fold`, and the report the fold's per-shape decisions.
+pub const VERSION: u32 = 11;
 const MAGIC: &str = "KDMCKPT";
 /// The current manifest.
 pub const MANIFEST: &str = "progress.kdm";
@@ -467,13 +468,13 @@ mod tests {
             photons photons_per_texel batch_size max_depth smoothing_radius iterations \
             tolerance alpha0 update relaxation initial_indirect_share seed threads \
             checkpoint_every_batches checkpoint_every_seconds memory_budget_mib known_shapes \
-            photometric_scale"
+            photometric_scale uv_fold"
             .split_whitespace()
             .collect();
         want.sort();
         assert_eq!(
             (VERSION, got),
-            (10, want.iter().map(|s| s.to_string()).collect::<Vec<_>>()),
+            (11, want.iter().map(|s| s.to_string()).collect::<Vec<_>>()),
             "the config's fields changed: bump VERSION and update this list"
         );
     }

@@ -38,6 +38,17 @@ pub struct RawConfig {
     pub shapes: BTreeMap<String, RawShape>,
     #[serde(default)]
     pub units: RawUnits,
+    #[serde(default)]
+    pub output: RawOutput,
+}
+
+/// `[output]`: what the output directory holds beyond the contract's fixed files.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawOutput {
+    /// `"auto"` (default) or `"off"`: fold tiled shapes' albedo into their input UVs
+    /// (`output::uv_fold`).
+    pub uv_fold: Option<String>,
 }
 
 /// `[units]`: how a scene's light values become scene radiance units.
@@ -466,6 +477,11 @@ pub struct Config {
     /// it at load, and divided by it when `scene.glb` is written. Mitsuba scenes ignore it.
     #[serde(default = "one")]
     pub photometric_scale: f32,
+    /// Whether a reconstructed shape whose UVs tile its texture gets its albedo folded into
+    /// those UVs for `scene.xml` (`[output] uv_fold = "auto"`, the default; see
+    /// `output::uv_fold`). Reports written before it existed read as `false` (they did not).
+    #[serde(default)]
+    pub uv_fold: bool,
 }
 
 fn one() -> f32 {
@@ -516,6 +532,7 @@ impl Config {
             checkpoint_every_seconds: 60.0,
             memory_budget_mib: 1024,
             known_shapes: BTreeMap::new(),
+            uv_fold: true,
             source: None,
             photometric_scale: 1.0,
         }
@@ -713,6 +730,18 @@ impl Config {
         set(&mut c.tolerance, s.tolerance);
         set(&mut c.alpha0, s.alpha0);
         set(&mut c.initial_indirect_share, s.initial_indirect_share);
+        if let Some(f) = raw.output.uv_fold {
+            c.uv_fold = match f.as_str() {
+                "auto" => true,
+                "off" => false,
+                other => {
+                    return Err(Error::config_in(
+                        path,
+                        format!("output.uv_fold = \"{other}\": expected \"auto\" or \"off\""),
+                    ))
+                }
+            };
+        }
         set(&mut c.relaxation, s.relaxation);
         if let Some(u) = s.update {
             c.update = match u.as_str() {
@@ -996,6 +1025,25 @@ mod tests {
         let text = "scene = \"a.xml\"\n[atlas]\nmax_texels = 5000\n";
         let c = Config::from_toml(Path::new("run.toml"), text).unwrap();
         assert_eq!(c.atlas.max_texels, 5000);
+    }
+
+    /// `[output] uv_fold`: on by default ("auto"), "off" turns it off, anything else is refused
+    /// with the key and the values it takes.
+    #[test]
+    fn uv_fold_is_auto_or_off() {
+        let at = |v: &str| {
+            let text = format!("scene = \"a.xml\"\n[output]\nuv_fold = {v}\n");
+            Config::from_toml(Path::new("run.toml"), &text)
+        };
+        assert!(Config::for_scene("a.xml".into()).uv_fold);
+        assert!(at("\"auto\"").unwrap().uv_fold);
+        assert!(!at("\"off\"").unwrap().uv_fold);
+        let e = at("\"on\"").unwrap_err().to_string();
+        assert!(
+            e.contains("output.uv_fold = \"on\"") && e.contains("\"off\""),
+            "{e}"
+        );
+        assert!(at("true").is_err());
     }
 
     #[test]

@@ -1116,6 +1116,9 @@ impl<'a> Run<'a> {
             &|k| stage.inc(k),
         )?;
         stage.finish();
+        for f in &r.report.uv_fold {
+            note(self.mode, &f.summary());
+        }
         r.checkpoint(&self.state_path, RunStage::Finished)?;
         note(
             self.mode,

@@ -147,6 +147,52 @@ pub struct Report {
     /// How the projection's refinement passes converged.
     #[serde(default)]
     pub refinement: Refinement,
+    /// Per reconstructed shape whose UVs tile its texture, what the fold into those UVs
+    /// found (`output::uv_fold`); empty when off or when no shape tiles.
+    #[serde(default)]
+    pub uv_fold: Vec<UvFold>,
+}
+
+impl UvFold {
+    /// One line for the console.
+    pub fn summary(&self) -> String {
+        let (r, m) = (self.resolution, self.misfit);
+        let what = match self.decision.as_str() {
+            "folded" => format!("misfit {m:.2}: folded into a {r}x{r} texture for scene.xml"),
+            "misfit" => {
+                format!("misfit {m:.2}: kept on the atlas, the albedo does not follow the UVs")
+            }
+            "coarse" => format!(
+                "kept on the atlas: too few repeats for a fold ({r}x{r}) finer than the atlas"
+            ),
+            _ => "kept on the atlas: too few observed texels to fold".to_string(),
+        };
+        format!(
+            "uv fold: '{}' tiles its UVs {:.1} times, {} observed texels, {what}",
+            self.shape, self.repeats, self.samples
+        )
+    }
+}
+
+/// What the fold into a shape's input UVs found (`output::uv_fold`).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct UvFold {
+    pub shape: String,
+    /// Times the UVs cover the texture (the sum of the triangles' UV areas).
+    pub repeats: f32,
+    /// Observed atlas texels folded.
+    pub samples: u64,
+    /// The folded texture's side, texels (0: too few samples to fold).
+    pub resolution: u32,
+    /// How badly the fold explains the atlas (0 = exactly; about 1 = not at all; 0 when not
+    /// folded).
+    pub misfit: f32,
+    /// Whether `scene.xml` uses the fold.
+    pub used: bool,
+    /// Why: `"folded"`; `"few samples"` (under 8 per texel even at 16 x 16); `"coarse"` (the
+    /// fold would not be at least twice as fine per side as the atlas's own texels of one
+    /// repeat); `"misfit"` (the albedo does not follow the UVs).
+    pub decision: String,
 }
 
 /// The projection's refinement, pass by pass: how far each view's render of the maps was
@@ -265,6 +311,7 @@ impl Report {
             resources: Resources::default(),
             confidence: Default::default(),
             refinement: Default::default(),
+            uv_fold: Vec::new(),
         }
     }
 }
@@ -293,6 +340,38 @@ pub struct Confidence {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Each decision of the fold reads as what happened, and an unfolded shape quotes no
+    /// misfit (none was computed).
+    #[test]
+    fn fold_lines_say_what_was_decided() {
+        let f = |decision: &str, misfit: f32| UvFold {
+            shape: "ground".into(),
+            repeats: 144.0,
+            samples: 131_236,
+            resolution: 128,
+            misfit,
+            used: decision == "folded",
+            decision: decision.into(),
+        };
+        let line = f("folded", 0.39).summary();
+        assert!(
+            line.contains("misfit 0.39: folded into a 128x128"),
+            "{line}"
+        );
+        let line = f("misfit", 0.93).summary();
+        assert!(line.contains("misfit 0.93: kept on the atlas"), "{line}");
+        let line = f("coarse", 0.0).summary();
+        assert!(
+            line.contains("too few repeats") && !line.contains("misfit"),
+            "{line}"
+        );
+        let line = f("few samples", 0.0).summary();
+        assert!(
+            line.contains("too few observed texels") && !line.contains("misfit"),
+            "{line}"
+        );
+    }
 
     /// Per pass, the mean over the views; the console line quotes the first and the last.
     #[test]

@@ -13,7 +13,10 @@
 //! <out>/renders/<sensor>.exr|png         each view re-rendered with the recovered albedo
 //! <out>/renders/<sensor>_compare.png     original | render | relative error
 //! <out>/meshes/<id>.obj (+ .mtl)         world-space meshes with atlas UVs
-//! <out>/scene.xml                        the recovered scene for Mitsuba 3
+//! <out>/textures/<id>_albedo_uv.exr|png  a tiled shape's K_d folded into its input UVs
+//! <out>/meshes/<id>_uv.obj               ... and its mesh with those UVs (see `uv_fold`)
+//! <out>/scene.xml                        the recovered scene for Mitsuba 3 (folded shapes on
+//!                                        their input UVs)
 //! <out>/scene.glb                        the recovered scene as binary glTF 2.0 (albedo PNGs inside)
 //! <out>/report_convergence.png           RMS and max relative error per iteration
 //! <out>/report.json                      the run's report, with the paper's table; written last
@@ -32,6 +35,7 @@ pub mod plot;
 pub mod renders;
 pub mod scene_glb;
 pub mod scene_xml;
+pub mod uv_fold;
 
 pub use maps::write_map;
 
@@ -114,7 +118,15 @@ pub fn write_outputs(
     for (si, shape) in p.scene.shapes.iter().enumerate() {
         obj::write_shape_mesh(&meshes, shape, p.atlases[si].as_ref())?;
     }
-    scene_xml::write_scene_xml(out, &p.scene)?;
+    let folded = match report.settings.uv_fold {
+        true => {
+            let (used, found) = uv_fold::fold_shapes(p, geom, state, out)?;
+            report.uv_fold = found;
+            used
+        }
+        false => Vec::new(),
+    };
+    scene_xml::write_scene_xml(out, &p.scene, &folded)?;
     scene_glb::write_scene_glb(out, &p.scene, &p.atlases, report.settings.photometric_scale)?;
 
     let textures: Vec<Option<Texture>> = radiance

@@ -104,6 +104,59 @@ pub fn write_shape_mesh(dir: &Path, shape: &Shape, atlas: Option<&ShapeAtlas>) -
     Ok(())
 }
 
+/// The OBJ text of `shape` with its own input UVs (one `vt` per vertex, v up as kept), for the
+/// albedo folded into them (`uv_fold`; `<id>_uv.obj`); `None` without UVs for every vertex.
+pub fn obj_text_input_uv(shape: &Shape) -> Option<String> {
+    let mesh = &shape.mesh;
+    let uvs = mesh
+        .uvs
+        .as_ref()
+        .filter(|u| u.len() == mesh.positions.len())?;
+    let mut s = String::with_capacity(80 * (mesh.positions.len() + mesh.triangles.len()));
+    let _ = writeln!(
+        s,
+        "# kdmap: shape '{}' in world space, with its input UVs (v up) for the folded albedo",
+        shape.id
+    );
+    let _ = writeln!(s, "o {}", shape.id);
+    for p in &mesh.positions {
+        let _ = writeln!(s, "v {} {} {}", p.x, p.y, p.z);
+    }
+    let normals = mesh
+        .normals
+        .as_ref()
+        .filter(|n| n.len() == mesh.positions.len());
+    if let Some(ns) = normals {
+        for n in ns {
+            let _ = writeln!(s, "vn {} {} {}", n.x, n.y, n.z);
+        }
+    }
+    for uv in uvs {
+        let _ = writeln!(s, "vt {} {}", uv.x, uv.y);
+    }
+    for tri in &mesh.triangles {
+        s.push('f');
+        for &i in tri {
+            let v = i + 1;
+            let _ = match normals.is_some() {
+                true => write!(s, " {v}/{v}/{v}"),
+                false => write!(s, " {v}/{v}"),
+            };
+        }
+        s.push('\n');
+    }
+    Some(s)
+}
+
+/// Write `<dir>/<id>_uv.obj` ([`obj_text_input_uv`]); nothing for a shape without UVs.
+pub fn write_shape_uv_mesh(dir: &Path, shape: &Shape) -> Result<()> {
+    let Some(text) = obj_text_input_uv(shape) else {
+        return Ok(());
+    };
+    crate::fsio::create_dir(dir)?;
+    write_atomic(&dir.join(format!("{}_uv.obj", shape.id)), text.as_bytes())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -167,5 +220,26 @@ mod tests {
         let plain = obj_text(&quad(), None, false);
         assert!(plain.contains("\nf 1//1 2//2 3//3\n") && !plain.contains("vt"));
         assert!(mtl_text("wall").contains("map_Kd ../textures/wall_albedo.png"));
+    }
+
+    /// The input UVs are written as kept (OBJ convention), one per vertex, so Mitsuba's
+    /// loader (which flips v) reads them as the input file had them.
+    #[test]
+    fn the_input_uv_mesh_keeps_the_input_uvs() {
+        let mut q = quad();
+        assert!(obj_text_input_uv(&q).is_none());
+        q.mesh.uvs = Some(vec![
+            Vec2::new(0.0, 0.0),
+            Vec2::new(20.0, 0.0),
+            Vec2::new(20.0, 20.0),
+            Vec2::new(2.0, 6.5),
+        ]);
+        let s = obj_text_input_uv(&q).unwrap();
+        assert!(s.contains("\nvt 20 20\nvt 2 6.5\n"), "{s}");
+        assert!(
+            s.contains("\nf 1/1/1 2/2/2 3/3/3\nf 1/1/1 3/3/3 4/4/4\n"),
+            "{s}"
+        );
+        assert_eq!(s.matches("\nvt ").count(), 4);
     }
 }

@@ -77,6 +77,12 @@ fn degrees(rad: f32) -> f64 {
 /// The `scene.xml` text for `scene`: meshes at `meshes/<id>.obj`, albedo textures at
 /// `textures/<id>_albedo.exr`, both relative to the file.
 pub fn scene_xml(scene: &Scene) -> String {
+    scene_xml_folded(scene, &[])
+}
+
+/// [`scene_xml`], with the shapes whose `folded[index]` is set on their input UVs and folded
+/// albedo instead (`meshes/<id>_uv.obj`, `textures/<id>_albedo_uv.exr`: see `uv_fold`).
+pub fn scene_xml_folded(scene: &Scene, folded: &[bool]) -> String {
     let mut s = String::new();
     let w = &mut s;
     let _ = writeln!(w, "<?xml version=\"1.0\" encoding=\"utf-8\"?>");
@@ -100,8 +106,8 @@ pub fn scene_xml(scene: &Scene) -> String {
     for (k, e) in scene.emitters.iter().enumerate() {
         write_emitter(w, k, e);
     }
-    for shape in &scene.shapes {
-        write_shape(w, shape);
+    for (i, shape) in scene.shapes.iter().enumerate() {
+        write_shape(w, shape, folded.get(i).copied().unwrap_or(false));
     }
     let _ = writeln!(w, "</scene>");
     s
@@ -270,12 +276,13 @@ fn write_emitter(w: &mut String, k: usize, e: &Emitter) {
 }
 
 /// One `<shape>`: its mesh, its recovered (or known) bsdf, its area emitter.
-fn write_shape(w: &mut String, shape: &Shape) {
+fn write_shape(w: &mut String, shape: &Shape, folded: bool) {
     let id = esc(&shape.id);
+    let suffix = if folded { "_uv" } else { "" };
     let _ = writeln!(w, "  <shape type=\"obj\" id=\"{id}\">");
     let _ = writeln!(
         w,
-        "    <string name=\"filename\" value=\"meshes/{id}.obj\"/>"
+        "    <string name=\"filename\" value=\"meshes/{id}{suffix}.obj\"/>"
     );
     if shape.mesh.normals.is_none() {
         // No `vn` in the file: keep the facets flat as kdmap saw them, rather than the
@@ -298,7 +305,7 @@ fn write_shape(w: &mut String, shape: &Shape) {
     let diffuse = if shape.is_reconstructed() {
         format!(
             "<bsdf type=\"diffuse\"><texture type=\"bitmap\" name=\"reflectance\">\
-             <string name=\"filename\" value=\"textures/{id}_albedo.exr\"/>\
+             <string name=\"filename\" value=\"textures/{id}_albedo{suffix}.exr\"/>\
              <boolean name=\"raw\" value=\"true\"/></texture></bsdf>"
         )
     } else {
@@ -322,9 +329,9 @@ fn write_shape(w: &mut String, shape: &Shape) {
     let _ = writeln!(w, "  </shape>");
 }
 
-/// Write `<out>/scene.xml` for `scene` (the meshes and textures it names are written by the
-/// other parts of `output`).
-pub fn write_scene_xml(out: &Path, scene: &Scene) -> Result<()> {
+/// Write `<out>/scene.xml` for `scene`, `folded` as in [`scene_xml_folded`] (the meshes and
+/// textures it names are written by the other parts of `output`).
+pub fn write_scene_xml(out: &Path, scene: &Scene, folded: &[bool]) -> Result<()> {
     for (k, e) in scene.emitters.iter().enumerate() {
         if let Emitter::Environment(env) = e {
             if let (Some(src), Some(name)) = (&env.file, env_map_name(k, env)) {
@@ -337,7 +344,10 @@ pub fn write_scene_xml(out: &Path, scene: &Scene) -> Result<()> {
             }
         }
     }
-    write_atomic(&out.join("scene.xml"), scene_xml(scene).as_bytes())
+    write_atomic(
+        &out.join("scene.xml"),
+        scene_xml_folded(scene, folded).as_bytes(),
+    )
 }
 
 #[cfg(test)]
@@ -381,7 +391,7 @@ mod tests {
         for s in &a.shapes {
             write_shape_mesh(&out.join("meshes"), s, None).unwrap();
         }
-        write_scene_xml(&out, &a).unwrap();
+        write_scene_xml(&out, &a, &[]).unwrap();
         let b = mitsuba::load(&out.join("scene.xml")).unwrap();
         assert_same_scene(&a, &b);
     }
@@ -423,7 +433,7 @@ mod tests {
         for s in &a.shapes {
             write_shape_mesh(&out.join("meshes"), s, None).unwrap();
         }
-        write_scene_xml(&out, &a).unwrap();
+        write_scene_xml(&out, &a, &[]).unwrap();
         let b = mitsuba::load(&out.join("scene.xml")).unwrap();
         for (s, t) in a.shapes.iter().zip(&b.shapes) {
             let (x, y) = (s.known().unwrap(), t.known().unwrap());
@@ -565,7 +575,7 @@ mod tests {
         let a = mitsuba::load(&input).unwrap();
         let out = dir.path().join("out");
         std::fs::create_dir_all(&out).unwrap();
-        write_scene_xml(&out, &a).unwrap();
+        write_scene_xml(&out, &a, &[]).unwrap();
         assert!(out.join("textures/env_0.exr").is_file());
         let b = mitsuba::load(&out.join("scene.xml")).unwrap();
         assert_eq!(b.emitters.len(), 2);
@@ -593,6 +603,49 @@ mod tests {
         // the rotation moved the map: not the same as the unrotated one
         let raw = EnvMap::load(&dir.path().join("in/sky/map.exr"), 2.5, Mat4::IDENTITY).unwrap();
         assert!((raw.eval(Vec3::X) - eb[0].eval(Vec3::X)).length() > 0.1);
+    }
+
+    /// A folded shape is written on its input UVs (`meshes/<id>_uv.obj`) with the folded
+    /// texture, the others as before; loaded back, its UVs are the input's (the OBJ's v
+    /// convention round-trips through Mitsuba's default flip).
+    #[test]
+    fn a_folded_shape_is_written_on_its_input_uvs() {
+        let dir = tempfile::tempdir().unwrap();
+        let input = dir.path().join("in.xml");
+        std::fs::write(
+            &input,
+            "<scene version=\"3.0.0\">\
+             <shape type=\"rectangle\" id=\"floor\"><transform name=\"to_world\">\
+               <scale value=\"2\"/></transform><bsdf type=\"diffuse\"/></shape>\
+             <shape type=\"cube\" id=\"box\"/>\
+             </scene>",
+        )
+        .unwrap();
+        let mut a = mitsuba::load(&input).unwrap();
+        for uv in a.shapes[0].mesh.uvs.as_mut().unwrap() {
+            *uv = *uv * 20.0 + glam::Vec2::new(0.25, -3.0);
+        }
+        let out = dir.path().join("out");
+        for s in &a.shapes {
+            write_shape_mesh(&out.join("meshes"), s, None).unwrap();
+        }
+        crate::output::obj::write_shape_uv_mesh(&out.join("meshes"), &a.shapes[0]).unwrap();
+        write_scene_xml(&out, &a, &[true, false]).unwrap();
+        let text = std::fs::read_to_string(out.join("scene.xml")).unwrap();
+        assert!(
+            text.contains("meshes/floor_uv.obj") && text.contains("textures/floor_albedo_uv.exr")
+        );
+        assert!(text.contains("meshes/box.obj") && text.contains("textures/box_albedo.exr"));
+        assert!(!text.contains("floor_albedo.exr") && !text.contains("box_uv"));
+        let b = mitsuba::load(&out.join("scene.xml")).unwrap();
+        let (ua, ub) = (
+            a.shapes[0].mesh.uvs.as_ref().unwrap(),
+            b.shapes[0].mesh.uvs.as_ref().unwrap(),
+        );
+        assert_eq!(ua.len(), ub.len());
+        for (x, y) in ua.iter().zip(ub) {
+            assert!((*x - *y).length() < 1e-4, "{x} vs {y}");
+        }
     }
 
     #[test]
