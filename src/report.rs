@@ -156,12 +156,14 @@ pub struct Report {
 impl UvFold {
     /// One line for the console.
     pub fn summary(&self) -> String {
-        let (r, m) = (self.resolution, self.misfit);
+        let (r, a) = (self.resolution, self.agreement);
         let what = match self.decision.as_str() {
-            "folded" => format!("misfit {m:.2}: folded into a {r}x{r} texture for scene.xml"),
-            "misfit" => {
-                format!("misfit {m:.2}: kept on the atlas, the albedo does not follow the UVs")
+            "folded" => {
+                format!("repeats agree ({a:.2}): folded into a {r}x{r} texture for scene.xml")
             }
+            "disagree" => format!(
+                "repeats disagree ({a:.2}): kept on the atlas, the albedo does not follow the UVs"
+            ),
             "coarse" => format!(
                 "kept on the atlas: too few repeats for a fold ({r}x{r}) finer than the atlas"
             ),
@@ -184,14 +186,14 @@ pub struct UvFold {
     pub samples: u64,
     /// The folded texture's side, texels (0: too few samples to fold).
     pub resolution: u32,
-    /// How badly the fold explains the atlas (0 = exactly; about 1 = not at all; 0 when not
-    /// folded).
-    pub misfit: f32,
+    /// How alike the folds of the even and of the odd repeats are (their luminances'
+    /// correlation: about 1 when the albedo follows the UVs, 0 when not; 0 when not folded).
+    pub agreement: f32,
     /// Whether `scene.xml` uses the fold.
     pub used: bool,
     /// Why: `"folded"`; `"few samples"` (under 8 per texel even at 16 x 16); `"coarse"` (the
     /// fold would not be at least twice as fine per side as the atlas's own texels of one
-    /// repeat); `"misfit"` (the albedo does not follow the UVs).
+    /// repeat); `"disagree"` (the repeats do not agree: the albedo does not follow the UVs).
     pub decision: String,
 }
 
@@ -342,33 +344,36 @@ mod tests {
     use super::*;
 
     /// Each decision of the fold reads as what happened, and an unfolded shape quotes no
-    /// misfit (none was computed).
+    /// agreement (none was computed).
     #[test]
     fn fold_lines_say_what_was_decided() {
-        let f = |decision: &str, misfit: f32| UvFold {
+        let f = |decision: &str, agreement: f32| UvFold {
             shape: "ground".into(),
             repeats: 144.0,
             samples: 131_236,
             resolution: 128,
-            misfit,
+            agreement,
             used: decision == "folded",
             decision: decision.into(),
         };
-        let line = f("folded", 0.39).summary();
+        let line = f("folded", 0.92).summary();
         assert!(
-            line.contains("misfit 0.39: folded into a 128x128"),
+            line.contains("agree (0.92): folded into a 128x128"),
             "{line}"
         );
-        let line = f("misfit", 0.93).summary();
-        assert!(line.contains("misfit 0.93: kept on the atlas"), "{line}");
+        let line = f("disagree", 0.02).summary();
+        assert!(
+            line.contains("disagree (0.02): kept on the atlas"),
+            "{line}"
+        );
         let line = f("coarse", 0.0).summary();
         assert!(
-            line.contains("too few repeats") && !line.contains("misfit"),
+            line.contains("too few repeats") && !line.contains("agree"),
             "{line}"
         );
         let line = f("few samples", 0.0).summary();
         assert!(
-            line.contains("too few observed texels") && !line.contains("misfit"),
+            line.contains("too few observed texels") && !line.contains("agree"),
             "{line}"
         );
     }

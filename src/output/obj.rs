@@ -15,6 +15,23 @@ use crate::Result;
 use std::fmt::Write as _;
 use std::path::Path;
 
+/// The `o`, `v` and `vn` lines of `shape` into `s`; whether it has a normal per vertex.
+fn write_vertices(s: &mut String, shape: &Shape) -> bool {
+    let mesh = &shape.mesh;
+    let _ = writeln!(s, "o {}", shape.id);
+    for p in &mesh.positions {
+        let _ = writeln!(s, "v {} {} {}", p.x, p.y, p.z);
+    }
+    let normals = mesh
+        .normals
+        .as_ref()
+        .filter(|n| n.len() == mesh.positions.len());
+    for n in normals.into_iter().flatten() {
+        let _ = writeln!(s, "vn {} {} {}", n.x, n.y, n.z);
+    }
+    normals.is_some()
+}
+
 /// The OBJ text of `shape`, with `atlas`'s UVs if given, using material `<id>` from
 /// `<id>.mtl` when `material` is set.
 pub fn obj_text(shape: &Shape, atlas: Option<&ShapeAtlas>, material: bool) -> String {
@@ -33,19 +50,7 @@ pub fn obj_text(shape: &Shape, atlas: Option<&ShapeAtlas>, material: bool) -> St
     if material {
         let _ = writeln!(s, "mtllib {}.mtl", shape.id);
     }
-    let _ = writeln!(s, "o {}", shape.id);
-    for p in &mesh.positions {
-        let _ = writeln!(s, "v {} {} {}", p.x, p.y, p.z);
-    }
-    let normals = mesh
-        .normals
-        .as_ref()
-        .filter(|n| n.len() == mesh.positions.len());
-    if let Some(ns) = normals {
-        for n in ns {
-            let _ = writeln!(s, "vn {} {} {}", n.x, n.y, n.z);
-        }
-    }
+    let normals = write_vertices(&mut s, shape);
     if let Some(a) = atlas {
         let (w, h) = (a.width as f64, a.height as f64);
         for tri in &a.corner_uv {
@@ -65,7 +70,7 @@ pub fn obj_text(shape: &Shape, atlas: Option<&ShapeAtlas>, material: bool) -> St
         for (c, &i) in tri.iter().enumerate() {
             let v = i + 1;
             let vt = 3 * t + c + 1;
-            let _ = match (uv, normals.is_some()) {
+            let _ = match (uv, normals) {
                 (true, true) => write!(s, " {v}/{vt}/{v}"),
                 (true, false) => write!(s, " {v}/{vt}"),
                 (false, true) => write!(s, " {v}//{v}"),
@@ -118,19 +123,7 @@ pub fn obj_text_input_uv(shape: &Shape) -> Option<String> {
         "# kdmap: shape '{}' in world space, with its input UVs (v up) for the folded albedo",
         shape.id
     );
-    let _ = writeln!(s, "o {}", shape.id);
-    for p in &mesh.positions {
-        let _ = writeln!(s, "v {} {} {}", p.x, p.y, p.z);
-    }
-    let normals = mesh
-        .normals
-        .as_ref()
-        .filter(|n| n.len() == mesh.positions.len());
-    if let Some(ns) = normals {
-        for n in ns {
-            let _ = writeln!(s, "vn {} {} {}", n.x, n.y, n.z);
-        }
-    }
+    let normals = write_vertices(&mut s, shape);
     for uv in uvs {
         let _ = writeln!(s, "vt {} {}", uv.x, uv.y);
     }
@@ -138,7 +131,7 @@ pub fn obj_text_input_uv(shape: &Shape) -> Option<String> {
         s.push('f');
         for &i in tri {
             let v = i + 1;
-            let _ = match normals.is_some() {
+            let _ = match normals {
                 true => write!(s, " {v}/{v}/{v}"),
                 false => write!(s, " {v}/{v}"),
             };
