@@ -23,7 +23,7 @@ tests/fixtures/<scene>/:
 
 Presets: room (furnished closed room, >1M triangles, 16 views of 512x384), room-small (the same
 generator tiny, for smoke tests), open (hard shadows: directional + point light on a large
-textured ground), mirror-cbox (Cornell box with a mirror and a glass sphere, tent filter,
+textured ground), open-b (open with another seed and a brick ground), mirror-cbox (Cornell box with a mirror and a glass sphere, tent filter,
 focus_distance, referenced BSDFs: refused by kdmap today), envmap (lit only by a procedural sky:
 refused by kdmap today). Every preset value can be overridden on the command line; all random
 choices come from --seed. Output defaults to cache/scenes/<preset> (git-ignored); a scene already
@@ -118,6 +118,25 @@ PRESETS = {
         lights="directional:1,point:1",
         spp=1024,
         seed=1,
+    ),
+    # "open" again with another seed and other textures (a brick ground at 256 px): the scene
+    # the fold into the input UVs (kdmap's output::uv_fold) was checked on, not tuned on
+    "open-b": dict(
+        layout="open",
+        room=(20.0, 0.0, 20.0),
+        objects="sphere:1,box:1,torus:1",
+        tris=20000,
+        flat_cell=1.0,
+        textures="bricks,photo,wood",
+        textured_objects=2,
+        tiling=1.0,
+        texture_res=256,
+        train=5,
+        test=2,
+        res=(256, 256),
+        lights="directional:1,point:1",
+        spp=1024,
+        seed=7,
     ),
     "mirror-cbox": dict(
         layout="mirror-cbox",
