@@ -730,18 +730,6 @@ impl Config {
         set(&mut c.tolerance, s.tolerance);
         set(&mut c.alpha0, s.alpha0);
         set(&mut c.initial_indirect_share, s.initial_indirect_share);
-        if let Some(f) = raw.output.uv_fold {
-            c.uv_fold = match f.as_str() {
-                "auto" => true,
-                "off" => false,
-                other => {
-                    return Err(Error::config_in(
-                        path,
-                        format!("output.uv_fold = \"{other}\": expected \"auto\" or \"off\""),
-                    ))
-                }
-            };
-        }
         set(&mut c.relaxation, s.relaxation);
         if let Some(u) = s.update {
             c.update = match u.as_str() {
@@ -765,6 +753,18 @@ impl Config {
         set(&mut c.checkpoint_every_batches, r.checkpoint_every_batches);
         set(&mut c.checkpoint_every_seconds, r.checkpoint_every_seconds);
         set(&mut c.memory_budget_mib, r.memory_budget_mib);
+        if let Some(f) = raw.output.uv_fold {
+            c.uv_fold = match f.as_str() {
+                "auto" => true,
+                "off" => false,
+                other => {
+                    return Err(Error::config_in(
+                        path,
+                        format!("output.uv_fold = \"{other}\": expected \"auto\" or \"off\""),
+                    ))
+                }
+            };
+        }
         Ok(c)
     }
 

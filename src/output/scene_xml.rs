@@ -75,14 +75,10 @@ fn degrees(rad: f32) -> f64 {
 }
 
 /// The `scene.xml` text for `scene`: meshes at `meshes/<id>.obj`, albedo textures at
-/// `textures/<id>_albedo.exr`, both relative to the file.
-pub fn scene_xml(scene: &Scene) -> String {
-    scene_xml_folded(scene, &[])
-}
-
-/// [`scene_xml`], with the shapes whose `folded[index]` is set on their input UVs and folded
-/// albedo instead (`meshes/<id>_uv.obj`, `textures/<id>_albedo_uv.exr`: see `uv_fold`).
-pub fn scene_xml_folded(scene: &Scene, folded: &[bool]) -> String {
+/// `textures/<id>_albedo.exr`, both relative to the file; the shapes whose `folded[index]` is
+/// set on their input UVs and folded albedo instead (`meshes/<id>_uv.obj`,
+/// `textures/<id>_albedo_uv.exr`: see `uv_fold`).
+pub fn scene_xml(scene: &Scene, folded: &[bool]) -> String {
     let mut s = String::new();
     let w = &mut s;
     let _ = writeln!(w, "<?xml version=\"1.0\" encoding=\"utf-8\"?>");
@@ -329,7 +325,7 @@ fn write_shape(w: &mut String, shape: &Shape, folded: bool) {
     let _ = writeln!(w, "  </shape>");
 }
 
-/// Write `<out>/scene.xml` for `scene`, `folded` as in [`scene_xml_folded`] (the meshes and
+/// Write `<out>/scene.xml` for `scene`, `folded` as in [`scene_xml`] (the meshes and
 /// textures it names are written by the other parts of `output`).
 pub fn write_scene_xml(out: &Path, scene: &Scene, folded: &[bool]) -> Result<()> {
     for (k, e) in scene.emitters.iter().enumerate() {
@@ -344,10 +340,7 @@ pub fn write_scene_xml(out: &Path, scene: &Scene, folded: &[bool]) -> Result<()>
             }
         }
     }
-    write_atomic(
-        &out.join("scene.xml"),
-        scene_xml_folded(scene, folded).as_bytes(),
-    )
+    write_atomic(&out.join("scene.xml"), scene_xml(scene, folded).as_bytes())
 }
 
 #[cfg(test)]

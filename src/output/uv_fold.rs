@@ -364,20 +364,6 @@ impl Splat {
     }
 }
 
-/// `samples` splatted at `res` as [`fold_shapes`] does it, in two [`Halves`].
-pub fn halves_of(samples: &[Sample], res: u32) -> Halves {
-    let mut c = Census::default();
-    samples.iter().for_each(|s| c.add(s));
-    let mut h = Halves::new(res, c.top);
-    samples.iter().for_each(|s| h.add(s));
-    h
-}
-
-/// Fold `samples` into a `res x res` wrapping texture, as [`fold_shapes`] does.
-pub fn fold(samples: &[Sample], res: u32) -> UvTexture {
-    halves_of(samples, res).finish()
-}
-
 /// Gives every empty texel of a wrapping `n x n` grid the mean of its filled 8-neighbours,
 /// ring by ring inwards; returns how many were empty. All empty stays all empty.
 fn fill_holes(t: &mut [Option<Vec3>], n: usize) -> u64 {
@@ -491,15 +477,29 @@ pub fn agreement(a: &Splat, b: &Splat) -> f32 {
     }
 }
 
-/// The [`agreement`] of the even and odd repeats of `samples` folded at `res`.
-pub fn split_agreement(samples: &[Sample], res: u32) -> f32 {
-    halves_of(samples, res).agreement()
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::scene::mesh;
+
+    /// `samples` splatted at `res` as [`fold_shapes`] does it (a census, then the halves).
+    fn halves_of(samples: &[Sample], res: u32) -> Halves {
+        let mut c = Census::default();
+        samples.iter().for_each(|s| c.add(s));
+        let mut h = Halves::new(res, c.top);
+        samples.iter().for_each(|s| h.add(s));
+        h
+    }
+
+    /// The whole fold of `samples` at `res`.
+    fn fold(samples: &[Sample], res: u32) -> UvTexture {
+        halves_of(samples, res).finish()
+    }
+
+    /// The [`agreement`] of the even and odd repeats of `samples` folded at `res`.
+    fn split_agreement(samples: &[Sample], res: u32) -> f32 {
+        halves_of(samples, res).agreement()
+    }
 
     /// A periodic albedo: a 4 x 4 checker of two colours over each UV repeat.
     fn checker(uv: Vec2) -> Vec3 {
