@@ -283,13 +283,6 @@ pub fn finer_than_the_atlas(res: u32, samples: u64, repeats: f32) -> bool {
     (res as f64).powi(2) >= FINER * FINER * per_repeat
 }
 
-/// The texel `(x, y)` a UV falls in at resolution `res`, wrapped (row 0 at `v = 1`).
-pub fn texel_of(uv: Vec2, res: u32) -> (u32, u32) {
-    let r = res as f64;
-    let wrap = |a: f64| (a.floor() as i64).rem_euclid(res as i64) as u32;
-    (wrap(uv.x as f64 * r), wrap((1.0 - uv.y as f64) * r))
-}
-
 /// The weighted bilinear splat of samples into a `res x res` wrapping grid (see the module
 /// docs). Sums in f64 in the samples' order, so the same samples give the same bits.
 pub struct Splat {
@@ -596,13 +589,29 @@ mod tests {
     }
 
     /// Row 0 is `v = 1` (the top of the image, as Mitsuba reads a bitmap through OBJ UVs),
-    /// and UVs wrap.
+    /// and UVs wrap: a sample at a texel's centre (`uv` given as that centre plus whole
+    /// repeats) puts all its weight on that texel of the splat.
     #[test]
     fn texels_are_laid_out_as_mitsuba_reads_them() {
-        assert_eq!(texel_of(Vec2::new(0.1, 0.95), 16), (1, 0));
-        assert_eq!(texel_of(Vec2::new(0.1, 0.01), 16), (1, 15));
-        assert_eq!(texel_of(Vec2::new(3.1, -1.05), 16), (1, 0));
-        assert_eq!(texel_of(Vec2::new(-0.01, 0.5), 16), (15, 8));
+        let landed = |uv: Vec2| {
+            let mut sp = Splat::new(16, 1.0);
+            sp.add(&Sample {
+                uv,
+                kd: Vec3::ONE,
+                density: 1.0,
+            });
+            let i = sp
+                .wsum
+                .iter()
+                .position(|&w| w == 1.0)
+                .expect("one texel takes it all");
+            ((i % 16) as u32, (i / 16) as u32)
+        };
+        let centre = |x: f32, y: f32| Vec2::new((x + 0.5) / 16.0, 1.0 - (y + 0.5) / 16.0);
+        assert_eq!(landed(centre(1.0, 0.0)), (1, 0));
+        assert_eq!(landed(centre(1.0, 15.0)), (1, 15));
+        assert_eq!(landed(centre(1.0, 0.0) + Vec2::new(3.0, -2.0)), (1, 0));
+        assert_eq!(landed(centre(-1.0, 8.0)), (15, 8));
     }
 
     /// The measured cases: the open scene's and envmap's grounds fold, `lights`' ground and
