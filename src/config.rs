@@ -265,7 +265,14 @@ pub const MAX_REFINE_PASSES: u32 = 64;
 /// 0.7/0.6/0.6% (three); each pass costs about one projection. Eight, the last four gated
 /// ([`REFINE_GATE`], [`REFINE_GATED_FROM`]): textured surfaces keep gaining detail past the
 /// fourth pass, while uniform ones drift away from the truth (the same way pass after pass).
-pub const REFINE_PASSES: u32 = 8;
+/// Sixteen since the passes past the eighth kept sharpening the photo textures seen at grazing
+/// angles: cbox-tex's projection floor (noise-free photos of its albedo) at 8 / 32 / 64
+/// passes 3.12 / 2.77 / 2.83%, its ceiling 9.8 / 7.8 / 7.9%; held-out albedo of the run at 8
+/// / 16 / 24 / 32 / 64 passes 4.48 / 4.35 / 4.34 / 4.35 / 4.45% (with `denoise_z = 4`: 4.42
+/// at 8, 4.29 at 16); the uniform boxes are unchanged (cbox 1.12 / 1.13%, mirror-cbox 2.47 /
+/// 2.49% at 8 / 16). Each pass costs about one projection (cbox-tex's projection 3.9 -> 7.0
+/// s).
+pub const REFINE_PASSES: u32 = 16;
 /// Default step of the refinement passes after the first (over-relaxation of the
 /// back-projection, see `project::apply_refinement`; 1 is the plain weighted mean of the
 /// residuals, and the first pass always takes 1, as its robust weights are judged against the
@@ -306,8 +313,15 @@ pub const REFINE_GATED_FROM: u32 = 4;
 /// points. Hence 4.
 pub const DENOISE_RADIUS: u32 = 4;
 /// Default agreement threshold of the sigma filter, in standard errors of the difference
-/// of two texels' values (`denoise`).
-pub const DENOISE_Z: f32 = 2.0;
+/// of two texels' values (`denoise`). The texels' standard errors are the photos' noise
+/// propagated through the views' weights (`TexelState::l_noise`), which the refinement
+/// passes amplify beyond (see `project::probe`): at 2 the filter barely acted on the dim
+/// faces of the boxes. Held-out albedo at 2 -> 4 (16 passes, tiled grounds left to the fold):
+/// cbox 1.19 -> 1.13%, mirror-cbox 3.05 -> 2.49%, cbox-tex 4.35 -> 4.29%, lights 3.39 ->
+/// 3.42%, open 2.32 -> 2.34%, open-b 4.38 -> 4.42%, envmap 1.75 -> 1.75%; at 6 cbox-tex
+/// 4.28% (32 passes). Before the grounds were left to the fold, 4 blurred their texture
+/// (envmap 1.89 -> 2.52%, open-b 4.73 -> 5.33%).
+pub const DENOISE_Z: f32 = 4.0;
 /// Largest total-variation weight a config may ask for (at 2 the checkerboard of the
 /// generated open scene is washed out: held-out albedo 30%).
 pub const MAX_TV_WEIGHT: f32 = 2.0;

@@ -147,7 +147,9 @@ fn independent(n: u32) -> f32 {
 /// error: open 42 -> 28%, envmap 36 -> 22%, lights 48 -> 42%; 68% if calibrated), while the
 /// uniform boxes, where the filter does most, stay on the safe side (cbox 85%, mirror-cbox 78%). A slot's texture whole if it
 /// fits in `scratch`'s budget, else tile by tile with a halo of `radius` texels (the same
-/// values: a texel's window lies within its tile's halo). `radius = 0` does nothing.
+/// values: a texel's window lies within its tile's halo). `radius = 0` does nothing; slots
+/// `skip` marks are left as they are (`skip` may be shorter than the slots: the rest are
+/// filtered).
 pub fn denoise_luminance(
     layout: &Layout,
     charts: &Charts,
@@ -155,12 +157,16 @@ pub fn denoise_luminance(
     state: &mut TileStore<TexelState>,
     (radius, z): (u32, f32),
     scratch: &Scratch,
+    skip: &[bool],
 ) -> Result<DenoiseStats> {
     let (averaged, judged, ratio_sum) = (Cell::new(0u64), Cell::new(0u64), Cell::new(0f64));
     if radius == 0 {
         return Ok(DenoiseStats::default());
     }
     for slot in 0..layout.slots.len() {
+        if skip.get(slot).copied().unwrap_or(false) {
+            continue;
+        }
         let c = &charts.slots[slot];
         let tex = SlotTexture::gather(layout, slot, state, geom, scratch, "noisy", |s, g| Noisy {
             l: Vec3::from_array(s.l_orig),
@@ -326,7 +332,8 @@ mod tests {
             let before = all_records(&st);
             let scratch = Scratch::new(dir.path(), budget);
             let stats =
-                denoise_luminance(&p.layout, &charts, &geom, &mut st, (2, 2.0), &scratch).unwrap();
+                denoise_luminance(&p.layout, &charts, &geom, &mut st, (2, 2.0), &scratch, &[])
+                    .unwrap();
             let after = all_records(&st);
             let (mut shrunk, mut changed) = (0, 0);
             let (mut ratio, mut judged) = (0.0f64, 0);

@@ -43,10 +43,11 @@ use crate::error::{Error, Result};
 use crate::fsio;
 use crate::gather::{
     trace_points_where, write_accum, GatherCache, GatherContext, GatherPoints, Radiance,
+    POINT_FILTER_Z,
 };
 use crate::interrupt;
 use crate::light::EmitterSampler;
-use crate::output::{output_units, write_map, write_outputs};
+use crate::output::{output_units, uv_fold, write_map, write_outputs};
 use crate::photon::{
     begin_pass, finish_pass, photon_pass_shared, smooth_accum, AlbedoTextures, PassContext, Paths,
 };
@@ -217,7 +218,7 @@ pub fn run_projection(cfg: &Config, out: &Path, mode: Mode) -> Result<(Prepared,
             sh,
         )
     })?;
-    denoise(&p, cfg, &charts, &geom, &mut state, &scratch)?;
+    denoise(&p, cfg, (&charts, &geom), &mut state, &scratch, false)?;
     debug_check(&geom, &state)?;
     if !world.is_root() {
         return Ok((p, stats));
@@ -243,17 +244,27 @@ pub fn run_projection(cfg: &Config, out: &Path, mode: Mode) -> Result<(Prepared,
 }
 
 /// The projected luminance's noise reduced (`denoise`), after the projection. Every rank runs
-/// it whole on the same synced state, so they stay the same bits.
+/// it whole on the same synced state, so they stay the same bits. With `fold` (a
+/// reconstruction whose output folds tiled textures, `[output] uv_fold`), the shapes the fold
+/// may take are left unfiltered: the fold averages their noise over the repeats, and the
+/// filter would only blur their detail (see `uv_fold::foldable_slots`).
 fn denoise(
     p: &Prepared,
     cfg: &Config,
-    charts: &Charts,
-    geom: &TileStore<TexelGeom>,
+    (charts, geom): (&Charts, &TileStore<TexelGeom>),
     state: &mut TileStore<TexelState>,
     scratch: &Scratch,
+    fold: bool,
 ) -> Result<crate::denoise::DenoiseStats> {
     let params = (cfg.denoise_radius, cfg.denoise_z);
-    crate::denoise::denoise_luminance(&p.layout, charts, geom, state, params, scratch)
+    let skip = match fold && cfg.uv_fold && cfg.denoise_radius > 0 {
+        true => {
+            let budget = uv_fold::fold_budget(cfg.memory_budget_mib);
+            uv_fold::foldable_slots(p, (geom, state), budget)?
+        }
+        false => Vec::new(),
+    };
+    crate::denoise::denoise_luminance(&p.layout, charts, geom, state, params, scratch, &skip)
 }
 
 /// The working directory of this rank: rank 0's is the run's checkpoint directory, the
@@ -474,7 +485,14 @@ impl<'a> Run<'a> {
             let (hits, geom, scratch) = ((self.hits(), &self.charts), &self.geom, &self.scratch);
             project::run_shard(p, cfg, hits, geom, &mut state, mode, scratch, sh)
         })?;
-        let dn = denoise(p, cfg, &self.charts, &self.geom, &mut state, &self.scratch)?;
+        let dn = denoise(
+            p,
+            cfg,
+            (&self.charts, &self.geom),
+            &mut state,
+            &self.scratch,
+            true,
+        )?;
         report.timings.projection = t.elapsed().as_secs_f64();
         report.timings.noise_probe = ps.probe_seconds;
         let ids = p
@@ -855,6 +873,7 @@ impl<'a> Run<'a> {
             &self.charts,
             &self.geom,
         );
+        let (values, variance) = points.filtered(&values, &variance, POINT_FILTER_Z);
         let stage = self.tile_stage("E_i", 1);
         let tick = |k| stage.inc(k);
         write_accum(

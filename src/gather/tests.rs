@@ -849,3 +849,88 @@ fn gather_variance_is_zero_in_a_furnace_and_bounds_the_spread_over_seeds() {
         "{predicted} vs {spread}: too loose to be of use"
     );
 }
+
+/// The plane fit's intercept weights: the mean on a full 3 x 3 grid; a plane recovered
+/// exactly from a one-sided set (a chart's corner); nothing from two points or a line.
+#[test]
+fn intercept_weights_fit_a_plane() {
+    let grid: Vec<(usize, f64, f64)> = (0..9)
+        .map(|k| (k, (k % 3) as f64 - 1.0, (k / 3) as f64 - 1.0))
+        .collect();
+    for w in intercept_weights(&grid).unwrap() {
+        assert!((w - 1.0 / 9.0).abs() < 1e-12, "{w}");
+    }
+    let plane = |x: f64, y: f64| 2.0 + 0.5 * x - 0.25 * y;
+    let corner = [(0, 0.0, 0.0), (1, 3.0, 0.0), (2, 0.0, 3.0), (3, 3.0, 3.0)];
+    let a = intercept_weights(&corner).unwrap();
+    let fit: f64 = corner
+        .iter()
+        .zip(&a)
+        .map(|(&(_, x, y), w)| w * plane(x, y))
+        .sum();
+    assert!((fit - 2.0).abs() < 1e-12, "{fit}");
+    assert!(intercept_weights(&corner[..2]).is_none());
+    let line = [(0, 0.0, 0.0), (1, 1.0, 1.0), (2, 2.0, 2.0), (3, -1.0, -1.0)];
+    assert!(intercept_weights(&line).is_none());
+}
+
+/// The points' filter against closed forms. On a flat 2 x 2 chart, points 0.1 apart carry
+/// `E_i` = a slope (1 standard error per cell along x) plus noise of that standard error,
+/// and a step of 12 standard errors at `x = 0`. Away from the step and the border the
+/// noise's RMS falls 2.5-fold (a full 3 x 3 plane fit takes it to a third; a neighbour
+/// whose noise departs by more than `z` is left out), and the predicted variance with it;
+/// along the borders across the slope it comes through nearly unbiased (0.07 and -0.25
+/// standard errors; the mean of the agreeing neighbours instead of the plane: 0.55 and
+/// -0.40); next to the step
+/// no point is pulled across it (mixing in its three neighbours over the step would move it
+/// by 4 standard errors).
+#[test]
+fn the_points_filter_averages_noise_and_keeps_slopes_and_steps() {
+    use crate::atlas::testing::jitter;
+    let fx = Fixture::new(vec![shape("floor", mesh::rectangle(), None)], 40.0);
+    let pts = fx.points(0.1);
+    let sigma = 0.02f32;
+    let truth = |p: Vec3| 1.0 + 0.2 * p.x + 0.1 * p.y + if p.x > 0.0 { 12.0 * sigma } else { 0.0 };
+    let values: Vec<Vec3> = (pts.points.iter().enumerate())
+        .map(|(i, p)| Vec3::splat(truth(p.p) + sigma * 3f32.sqrt() * jitter(i)))
+        .collect();
+    let var = vec![Vec3::new(sigma * sigma, 0.0, 0.0); values.len()];
+    let (f, fv) = pts.filtered(&values, &var, POINT_FILTER_Z);
+    assert!(pts.points.len() > 300, "{}", pts.points.len());
+    let (mut before, mut after, mut n) = (0.0f64, 0.0f64, 0);
+    let (mut border, mut nb) = ([0.0f64; 2], [0usize; 2]);
+    let (mut before_in, mut after_in) = (0.0f64, 0.0f64);
+    for (i, p) in pts.points.iter().enumerate() {
+        let t = truth(p.p);
+        let e = (f[i].x - t) as f64;
+        if p.p.x.abs() > 0.15 {
+            before += ((values[i].x - t) as f64).powi(2);
+            after += e * e;
+            n += 1;
+            assert!(fv[i].x <= var[i].x, "{i}: {}", fv[i].x);
+            if p.p.x.abs() > 0.9 {
+                let side = (p.p.x > 0.0) as usize;
+                border[side] += e;
+                nb[side] += 1;
+            } else if p.p.y.abs() < 0.9 {
+                before_in += ((values[i].x - t) as f64).powi(2);
+                after_in += e * e;
+            }
+        } else {
+            assert!(e.abs() < 3.0 * sigma as f64, "{:?}: off by {e}", p.p);
+        }
+    }
+    let (ratio, inner) = ((after / before).sqrt(), (after_in / before_in).sqrt());
+    let bias = [0, 1].map(|k| border[k] / nb[k] as f64 / sigma as f64);
+    eprintln!(
+        "noise RMS after / before {ratio:.3} over {n} points ({inner:.3} off the border); \
+         bias on the borders across the slope {bias:.3?} sigma over {nb:?} points"
+    );
+    assert!(inner < 0.5 && ratio < 0.6, "{inner} {ratio}");
+    assert!(bias.iter().all(|b| b.abs() < 0.35), "{bias:?}");
+    // off, nothing moves
+    assert_eq!(
+        pts.filtered(&values, &var, 0.0),
+        (values.clone(), var.clone())
+    );
+}

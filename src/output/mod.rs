@@ -120,7 +120,7 @@ pub fn write_outputs(
     }
     let folded = match report.settings.uv_fold {
         true => {
-            let budget = (report.settings.memory_budget_mib << 20) / 4;
+            let budget = uv_fold::fold_budget(report.settings.memory_budget_mib);
             let (used, found) = uv_fold::fold_shapes(p, (geom, state), out, budget)?;
             report.uv_fold = found;
             used

@@ -79,7 +79,7 @@ pub fn fold_shapes(
             decision: "few samples".into(),
             ..Default::default()
         };
-        if let Some(res) = resolution(census.n).map(|r| r.min(max_res(budget))) {
+        if let Some(res) = census.resolution(budget) {
             f.resolution = res;
             f.decision = "coarse".into();
             if finer_than_the_atlas(res, census.n, repeats) {
@@ -97,6 +97,38 @@ pub fn fold_shapes(
         found.push(f);
     }
     Ok((used, found))
+}
+
+/// The bytes a fold may take: a quarter of the run's memory budget.
+pub fn fold_budget(memory_budget_mib: u64) -> u64 {
+    (memory_budget_mib << 20) / 4
+}
+
+/// Per slot, whether its shape is one `auto` may fold: reconstructed, its UVs tiling the
+/// texture [`MIN_REPEATS`] times or more, with observed texels enough for a fold finer than
+/// the atlas (the tests of [`fold_shapes`] but the last, the repeats' agreement, which needs
+/// `K_d`). Read after the projection: the sigma filter leaves these shapes alone, since the
+/// fold averages their noise over the repeats and the filter would only take detail.
+/// One streaming pass over each such shape's tiles.
+pub fn foldable_slots(
+    p: &Prepared,
+    stores: (&TileStore<TexelGeom>, &TileStore<TexelState>),
+    budget: u64,
+) -> Result<Vec<bool>> {
+    let mut foldable = vec![false; p.layout.slots.len()];
+    for (slot, st) in p.layout.slots.iter().enumerate() {
+        let shape = &p.scene.shapes[st.shape];
+        let repeats = uv_repeats(&shape.mesh);
+        if !shape.is_reconstructed() || repeats < MIN_REPEATS {
+            continue;
+        }
+        let mut census = Census::default();
+        for_each_sample(&p.layout, slot, &shape.mesh, stores, |s| census.add(s))?;
+        foldable[slot] = census
+            .resolution(budget)
+            .is_some_and(|res| finer_than_the_atlas(res, census.n, repeats));
+    }
+    Ok(foldable)
 }
 
 /// The largest power-of-two side whose fold (two [`Splat`]s of [`SPLAT_BYTES`] a texel while
@@ -254,6 +286,12 @@ impl Census {
     pub fn add(&mut self, s: &Sample) {
         self.n += 1;
         self.top = self.top.max(s.density);
+    }
+
+    /// The fold's side for these samples ([`resolution`]) within a `budget` of bytes
+    /// ([`max_res`]); `None` with too few samples.
+    pub fn resolution(&self, budget: u64) -> Option<u32> {
+        resolution(self.n).map(|r| r.min(max_res(budget)))
     }
 }
 
@@ -625,6 +663,54 @@ mod tests {
         // exactly twice as fine per side passes
         assert!(finer_than_the_atlas(64, 64 * 64 * 10 / 4, 10.0));
         assert!(!finer_than_the_atlas(64, 64 * 64 * 10 / 4 + 10, 10.0));
+    }
+
+    /// Which shapes the sigma filter leaves to the fold: of three 2 x 2 rectangles at 64
+    /// texels per unit (16384 observed texels each: a 32 x 32 fold), the one whose UVs tile
+    /// 256 times, not the one mapped once, nor the one tiled 4 times (a fold of its 4096
+    /// atlas texels a repeat would be coarser than they are).
+    #[test]
+    fn only_shapes_the_fold_may_take_skip_the_filter() {
+        use crate::atlas::layout::TexelState;
+        use crate::atlas::testing::Built;
+        let rect = |id: &str, scale: f32| {
+            let mut m = mesh::rectangle();
+            for uv in m.uvs.as_mut().unwrap() {
+                *uv *= scale;
+            }
+            crate::scene::Shape {
+                id: id.into(),
+                kind: "test".into(),
+                file: None,
+                mesh: m,
+                sides: crate::scene::Sides::Front,
+                emission: None,
+                reflectance: None,
+                material: Default::default(),
+            }
+        };
+        let shapes = vec![rect("once", 1.0), rect("tiled", 16.0), rect("coarse", 2.0)];
+        let b = Built::new(shapes, vec![], 64.0, vec![]);
+        let seen = TexelState {
+            weight: 1.0,
+            ..Default::default()
+        };
+        let state =
+            b.p.create_store(b.dir.path().join("state.tiles"), seen)
+                .unwrap();
+        let foldable = foldable_slots(&b.p, (&b.geom, &state), fold_budget(1024)).unwrap();
+        let by_shape: Vec<(&str, bool)> = (b.p.layout.slots.iter().zip(&foldable))
+            .map(|(st, &f)| (b.p.scene.shapes[st.shape].id.as_str(), f))
+            .collect();
+        assert_eq!(by_shape.len(), 3);
+        for (id, f) in by_shape {
+            assert_eq!(f, id == "tiled", "{id}");
+        }
+        // unobserved, nothing is left to the fold
+        let dark =
+            b.p.create_store(b.dir.path().join("dark.tiles"), TexelState::default());
+        let none = foldable_slots(&b.p, (&b.geom, &dark.unwrap()), fold_budget(1024)).unwrap();
+        assert_eq!(none, vec![false; 3]);
     }
 
     /// A kept fold's files carry the whole shape id, dots included (Blender's `Plane.001`).
