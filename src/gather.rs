@@ -64,7 +64,7 @@ use crate::rng::Rng;
 use crate::scatter;
 use crate::scene::{luminance, Mesh, Scene};
 use bytemuck::{Pod, Zeroable};
-use glam::{Vec2, Vec3};
+use glam::{DMat3, DVec3, Vec2, Vec3};
 use rayon::prelude::*;
 use std::f32::consts::{PI, TAU};
 use std::path::Path;
@@ -386,31 +386,21 @@ fn intercept_weights(pts: &[(usize, f64, f64)]) -> Option<Vec<f64>> {
     if pts.len() < 3 {
         return None;
     }
-    let mut m = [[0.0f64; 3]; 3];
-    for &(_, x, y) in pts {
-        let r = [1.0, x, y];
-        for (a, ra) in r.iter().enumerate() {
-            for (b, rb) in r.iter().enumerate() {
-                m[a][b] += ra * rb;
-            }
-        }
-    }
-    // the first row of the inverse (cofactors of the first column over the determinant)
-    let c0 = m[1][1] * m[2][2] - m[1][2] * m[2][1];
-    let c1 = m[0][2] * m[2][1] - m[0][1] * m[2][2];
-    let c2 = m[0][1] * m[1][2] - m[0][2] * m[1][1];
-    let det = m[0][0] * c0 + m[1][0] * c1 + m[2][0] * c2;
+    let row = |x: f64, y: f64| DVec3::new(1.0, x, y);
+    // the normal matrix, sum r r^T
+    let m = pts.iter().fold(DMat3::ZERO, |m, &(_, x, y)| {
+        let r = row(x, y);
+        m + DMat3::from_cols(r * r.x, r * r.y, r * r.z)
+    });
     // scale-free test: the spread of the points in both directions against their number
-    let scale = (m[1][1] * m[2][2]).max(f64::MIN_POSITIVE) * m[0][0];
+    let scale = (m.y_axis.y * m.z_axis.z).max(f64::MIN_POSITIVE) * m.x_axis.x;
+    let det = m.determinant();
     // (NaN fails the test too)
     if det.is_nan() || det <= 1e-6 * scale {
         return None;
     }
-    Some(
-        pts.iter()
-            .map(|&(_, x, y)| (c0 + c1 * x + c2 * y) / det)
-            .collect(),
-    )
+    let first = m.inverse().row(0);
+    Some(pts.iter().map(|&(_, x, y)| first.dot(row(x, y))).collect())
 }
 
 /// Per chart (numbered as in `tri_chart`), the density level of its triangles (charts never

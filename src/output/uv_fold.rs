@@ -63,15 +63,10 @@ pub fn fold_shapes(
     let mut used = vec![false; p.scene.shapes.len()];
     let mut found = Vec::new();
     for (slot, st) in p.layout.slots.iter().enumerate() {
-        let shape = &p.scene.shapes[st.shape];
-        let repeats = uv_repeats(&shape.mesh);
-        if !shape.is_reconstructed() || repeats < MIN_REPEATS {
+        let Some((repeats, census)) = tiled_census(p, slot, stores)? else {
             continue;
-        }
-        let each =
-            |f: &mut dyn FnMut(&Sample)| for_each_sample(&p.layout, slot, &shape.mesh, stores, f);
-        let mut census = Census::default();
-        each(&mut |s| census.add(s))?;
+        };
+        let shape = &p.scene.shapes[st.shape];
         let mut f = UvFold {
             shape: shape.id.clone(),
             repeats,
@@ -84,7 +79,7 @@ pub fn fold_shapes(
             f.decision = "coarse".into();
             if finer_than_the_atlas(res, census.n, repeats) {
                 let mut halves = Halves::new(res, census.top);
-                each(&mut |s| halves.add(s))?;
+                for_each_sample(&p.layout, slot, &shape.mesh, stores, |s| halves.add(s))?;
                 f.agreement = halves.agreement();
                 f.used = f.agreement > MIN_AGREEMENT;
                 f.decision = if f.used { "folded" } else { "disagree" }.into();
@@ -115,20 +110,32 @@ pub fn foldable_slots(
     stores: (&TileStore<TexelGeom>, &TileStore<TexelState>),
     budget: u64,
 ) -> Result<Vec<bool>> {
-    let mut foldable = vec![false; p.layout.slots.len()];
-    for (slot, st) in p.layout.slots.iter().enumerate() {
-        let shape = &p.scene.shapes[st.shape];
-        let repeats = uv_repeats(&shape.mesh);
-        if !shape.is_reconstructed() || repeats < MIN_REPEATS {
-            continue;
-        }
-        let mut census = Census::default();
-        for_each_sample(&p.layout, slot, &shape.mesh, stores, |s| census.add(s))?;
-        foldable[slot] = census
-            .resolution(budget)
-            .is_some_and(|res| finer_than_the_atlas(res, census.n, repeats));
+    (0..p.layout.slots.len())
+        .map(|slot| {
+            Ok(tiled_census(p, slot, stores)?.is_some_and(|(repeats, c)| {
+                c.resolution(budget)
+                    .is_some_and(|res| finer_than_the_atlas(res, c.n, repeats))
+            }))
+        })
+        .collect()
+}
+
+/// For a reconstructed shape whose UVs tile its texture [`MIN_REPEATS`] times or more (the
+/// shapes a fold is tried on), its repeats and the census of its samples (one streaming pass
+/// over its tiles); `None` for any other slot.
+fn tiled_census(
+    p: &Prepared,
+    slot: usize,
+    stores: (&TileStore<TexelGeom>, &TileStore<TexelState>),
+) -> Result<Option<(f32, Census)>> {
+    let shape = &p.scene.shapes[p.layout.slots[slot].shape];
+    let repeats = uv_repeats(&shape.mesh);
+    if !shape.is_reconstructed() || repeats < MIN_REPEATS {
+        return Ok(None);
     }
-    Ok(foldable)
+    let mut census = Census::default();
+    for_each_sample(&p.layout, slot, &shape.mesh, stores, |s| census.add(s))?;
+    Ok(Some((repeats, census)))
 }
 
 /// The largest power-of-two side whose fold (two [`Splat`]s of [`SPLAT_BYTES`] a texel while
