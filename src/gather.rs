@@ -639,9 +639,9 @@ pub struct GatherCache {
     known_pairs: Vec<f32>,
     /// `k`, the strata per side.
     strata: u32,
-    /// Per point `start[i]..start[i + 1]` of `hits`.
-    start: Vec<u64>,
-    hits: Vec<CachedHit>,
+    /// Per point, its cached hits: one exact-size slice each, kept as traced (concatenating
+    /// them held every hit twice at the peak, and a `Vec` grown by pushes up to twice over).
+    hits: Vec<Box<[CachedHit]>>,
     /// `pi / N`.
     scale: f32,
     pub stats: GatherStats,
@@ -662,44 +662,40 @@ pub fn trace_points_where(
     tick: Tick,
 ) -> GatherCache {
     let t0 = Instant::now();
-    let per_point: Vec<(Vec3, f32, Vec<CachedHit>)> = points
+    let per_point: Vec<(Vec3, f32, Box<[CachedHit]>)> = points
         .points
         .par_iter()
         .enumerate()
         .map(|(i, pt)| match owns(i) {
             true => {
-                let r = trace_point(ctx, i as u64, pt);
+                let (sum, pairs, cached) = trace_point(ctx, i as u64, pt);
                 tick(1);
-                r
+                (sum, pairs, cached.into_boxed_slice())
             }
-            false => (Vec3::ZERO, 0.0, Vec::new()),
+            false => (Vec3::ZERO, 0.0, Box::default()),
         })
         .collect();
     let traced = (0..per_point.len()).filter(|&i| owns(i)).count() as u64;
     let k = strata(ctx.rays);
     let scale = PI / (k * k) as f32;
-    let mut start = Vec::with_capacity(per_point.len() + 1);
-    let mut hits = Vec::new();
+    let mut hits = Vec::with_capacity(per_point.len());
     let mut fixed = Vec::with_capacity(per_point.len());
     let mut known_pairs = Vec::with_capacity(per_point.len());
     for (f, pairs, h) in per_point {
-        start.push(hits.len() as u64);
-        hits.extend_from_slice(&h);
+        hits.push(h);
         fixed.push(f * scale);
         known_pairs.push(pairs);
     }
-    start.push(hits.len() as u64);
     let stats = GatherStats {
         points: traced,
         rays: traced * (k * k) as u64,
-        cached_hits: hits.len() as u64,
+        cached_hits: hits.iter().map(|h| h.len() as u64).sum(),
         seconds: t0.elapsed().as_secs_f64(),
     };
     GatherCache {
         fixed,
         known_pairs,
         strata: k,
-        start,
         hits,
         scale,
         stats,
@@ -715,9 +711,8 @@ impl GatherCache {
             .par_iter()
             .enumerate()
             .map(|(i, f)| {
-                let hits = &self.hits[self.start[i] as usize..self.start[i + 1] as usize];
                 let (mut sum, mut pairs, mut first) = (Vec3::ZERO, self.known_pairs[i], 0.0f32);
-                for h in hits {
+                for h in self.hits[i].iter() {
                     let l = radiance.lookup(h.slot as usize, h.uv, h.chart).0 * h.weight;
                     sum += l;
                     let y = luminance(l);

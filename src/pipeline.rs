@@ -749,6 +749,7 @@ impl<'a> Run<'a> {
             photons_per_second: est.photons as f64 / est.photon_seconds.max(1e-9),
             gather_rays: est.gather_rays,
             gather_seconds: est.gather_seconds,
+            gather_cached_hits: est.gather_cached_hits,
             update_seconds: pass.update_seconds,
             sum_e_i: u.sum_e_i,
             sum_traced: u.sum_traced,
@@ -850,13 +851,14 @@ impl<'a> Run<'a> {
             &tick,
         )?;
         stage.finish();
-        let mut rays = 0;
+        let (mut rays, mut cached) = (0, 0);
         let cache = match self.gather.get() {
             Some(c) => c,
             None => {
                 let cache = self.trace_gather(&radiance, &r.state)?;
                 radiance.check()?;
                 rays = self.world.sum(cache.stats.rays);
+                cached = self.world.sum(cache.stats.cached_hits);
                 self.gather.get_or_init(|| cache)
             }
         };
@@ -888,6 +890,7 @@ impl<'a> Run<'a> {
         stage.finish();
         Ok(Estimate {
             gather_rays: rays,
+            gather_cached_hits: cached,
             gather_seconds: t.elapsed().as_secs_f64(),
             ..Default::default()
         })
@@ -1201,6 +1204,7 @@ struct Estimate {
     photons: u64,
     photon_seconds: f64,
     gather_rays: u64,
+    gather_cached_hits: u64,
     gather_seconds: f64,
 }
 

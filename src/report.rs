@@ -31,6 +31,10 @@ pub struct IterationStats {
     pub gather_rays: u64,
     #[serde(default)]
     pub gather_seconds: f64,
+    /// Of those rays, the hits on unobserved texels, kept (36 bytes each) and re-read with
+    /// every iteration's estimates: what the gather holds in memory.
+    #[serde(default)]
+    pub gather_cached_hits: u64,
     /// Seconds in the per-texel update.
     pub update_seconds: f64,
     /// Per channel, the sums over observed texels of E_i before the update and of the
@@ -169,6 +173,10 @@ impl UvFold {
             ),
             _ => "kept on the atlas: too few observed texels to fold".to_string(),
         };
+        let what = match self.decision == "disagree" && !self.atlas_filtered {
+            true => format!("{what} (unfiltered: the sigma filter had left it to the fold)"),
+            false => what,
+        };
         format!(
             "uv fold: '{}' tiles its UVs {:.1} times, {} observed texels, {what}",
             self.shape, self.repeats, self.samples
@@ -195,6 +203,12 @@ pub struct UvFold {
     /// fold would not be at least twice as fine per side as the atlas's own texels of one
     /// repeat); `"disagree"` (the repeats do not agree: the albedo does not follow the UVs).
     pub decision: String,
+    /// Whether the shape's atlas went through the sigma filter (`denoise_radius`). A shape the
+    /// fold may take is left to it unfiltered (`uv_fold::foldable_slots`: every test but the
+    /// repeats' agreement), so a `"disagree"` shape's `scene.xml` texture is its unfiltered
+    /// atlas.
+    #[serde(default)]
+    pub atlas_filtered: bool,
 }
 
 /// The projection's refinement, pass by pass: how far each view's render of the maps was
@@ -355,6 +369,7 @@ mod tests {
             agreement,
             used: decision == "folded",
             decision: decision.into(),
+            atlas_filtered: decision != "folded" && decision != "disagree",
         };
         let line = f("folded", 0.92).summary();
         assert!(
@@ -363,9 +378,14 @@ mod tests {
         );
         let line = f("disagree", 0.02).summary();
         assert!(
-            line.contains("disagree (0.02): kept on the atlas"),
+            line.contains("disagree (0.02): kept on the atlas") && line.contains("unfiltered"),
             "{line}"
         );
+        let filtered = UvFold {
+            atlas_filtered: true,
+            ..f("disagree", 0.02)
+        };
+        assert!(!filtered.summary().contains("unfiltered"));
         let line = f("coarse", 0.0).summary();
         assert!(
             line.contains("too few repeats") && !line.contains("agree"),

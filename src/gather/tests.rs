@@ -630,6 +630,10 @@ fn cached_hits_reevaluate_like_a_fresh_trace() {
     };
     let (cache, _) = trace(&fx);
     assert!(cache.stats.cached_hits > 0 && cache.stats.cached_hits < cache.stats.rays);
+    // what report.json's `gather_cached_hits` documents a kept hit to cost
+    assert_eq!(std::mem::size_of::<CachedHit>(), 36);
+    let kept: usize = cache.hits.iter().map(|h| h.len()).sum();
+    assert_eq!(kept as u64, cache.stats.cached_hits);
     // the ball's estimate changes; the room (observed) does not
     fx.set("ball", |s| {
         s.k_d = [0.8, 0.5, 0.2];

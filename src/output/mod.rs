@@ -121,7 +121,14 @@ pub fn write_outputs(
     let folded = match report.settings.uv_fold {
         true => {
             let budget = uv_fold::fold_budget(report.settings.memory_budget_mib);
-            let (used, found) = uv_fold::fold_shapes(p, (geom, state), out, budget)?;
+            let (used, mut found) = uv_fold::fold_shapes(p, (geom, state), out, budget)?;
+            // the shapes the sigma filter skipped: those that passed every test of the fold
+            // but the agreement (the census it counts is the same now as then)
+            let filtered = report.settings.denoise_radius > 0;
+            for f in &mut found {
+                f.atlas_filtered =
+                    filtered && !matches!(f.decision.as_str(), "folded" | "disagree");
+            }
             report.uv_fold = found;
             used
         }

@@ -713,6 +713,16 @@ mod tests {
         for (id, f) in by_shape {
             assert_eq!(f, id == "tiled", "{id}");
         }
+        // the output reads "left to the fold" off the fold's decisions (report.json's
+        // `atlas_filtered`): the shapes decided "folded" or "disagree" are those skipped
+        let out = tempfile::tempdir().unwrap();
+        let budget = fold_budget(1024);
+        let (_, found) = fold_shapes(&b.p, (&b.geom, &state), out.path(), budget).unwrap();
+        let taken: Vec<&str> = (found.iter())
+            .filter(|f| matches!(f.decision.as_str(), "folded" | "disagree"))
+            .map(|f| f.shape.as_str())
+            .collect();
+        assert_eq!(taken, vec!["tiled"]);
         // unobserved, nothing is left to the fold
         let dark =
             b.p.create_store(b.dir.path().join("dark.tiles"), TexelState::default());
