@@ -48,8 +48,10 @@ static CHECKPOINT_WRITES: AtomicU64 = AtomicU64::new(0);
 /// the refinement's residuals, and the state `ed_var` (92 bytes a texel, was 88). 10: the
 /// config it carries has the refinement's gate (`refine_gate`, `refine_gated_from`); bincode
 /// is not self-describing, so a version-9 checkpoint would not decode. 11: the config has
-/// `uv_fold`, and the report the fold's per-shape decisions.
-pub const VERSION: u32 = 11;
+/// `uv_fold`, and the report the fold's per-shape decisions. 12: the config has the uniform
+/// shapes' filter (`uniform_radius`, `uniform_tolerance`), the report its counts and time, the
+/// gather's kept hits and whether each fold candidate's atlas was filtered.
+pub const VERSION: u32 = 12;
 const MAGIC: &str = "KDMCKPT";
 /// The current manifest.
 pub const MANIFEST: &str = "progress.kdm";
@@ -468,13 +470,13 @@ mod tests {
             photons photons_per_texel batch_size max_depth smoothing_radius iterations \
             tolerance alpha0 update relaxation initial_indirect_share seed threads \
             checkpoint_every_batches checkpoint_every_seconds memory_budget_mib known_shapes \
-            photometric_scale uv_fold"
+            photometric_scale uv_fold uniform_radius uniform_tolerance"
             .split_whitespace()
             .collect();
         want.sort();
         assert_eq!(
             (VERSION, got),
-            (11, want.iter().map(|s| s.to_string()).collect::<Vec<_>>()),
+            (12, want.iter().map(|s| s.to_string()).collect::<Vec<_>>()),
             "the config's fields changed: bump VERSION and update this list"
         );
     }

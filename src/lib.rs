@@ -5,7 +5,8 @@
 //!
 //! ```text
 //! scene (Mitsuba XML or glTF, meshes) -> atlas (geometry store) -> projection (L_orig)
-//!   -> denoise (L_orig) -> direct light (E_d, caustics included) -> E_i (photon tracing) -> per-texel update (K_d) -> outputs / checkpoint
+//!   -> denoise (L_orig) -> direct light (E_d, caustics included) -> E_i (photon tracing) -> per-texel update (K_d)
+//!   -> shapes of one colour kept to one colour (K_d) -> outputs / checkpoint
 //! ```
 //!
 //! # Layers
@@ -15,7 +16,8 @@
 //!
 //! ```text
 //! L4  pipeline                       the order of the stages, start / resume / finish
-//! L3  checkpoint  confidence  output/  accuracy   what a run leaves: checkpoints, results,
+//! L3  uniform  checkpoint  confidence  output/  accuracy   what a run leaves: the final
+//!                                    K_d of one-colour shapes, checkpoints, results,
 //!                                    confidence, scores
 //! L2  project/  denoise  direct  gather  photon/  solve   the stages, plain functions
 //!                                    over tiles
@@ -60,6 +62,7 @@ pub mod accuracy;
 pub mod checkpoint;
 pub mod confidence;
 pub mod output;
+pub mod uniform;
 
 pub mod pipeline;
 

@@ -1085,6 +1085,19 @@ impl<'a> Run<'a> {
         }
         let p = &self.p;
         let (_, filled) = self.kd_step(&mut r, "final K_d")?;
+        let t = Instant::now();
+        let known: Vec<bool> = (p.layout.slots.iter())
+            .map(|st| !p.scene.shapes[st.shape].is_reconstructed())
+            .collect();
+        let uniform = crate::uniform::smooth_uniform(
+            (&p.layout, &known),
+            &self.charts,
+            &self.geom,
+            &mut r.state,
+            (self.cfg.uniform_radius, self.cfg.uniform_tolerance),
+            &self.scratch,
+        )?;
+        r.report.timings.uniform = t.elapsed().as_secs_f64();
         r.state.flush()?;
         debug_check(&self.geom, &r.state)?;
         let proj = r.proj;
@@ -1105,6 +1118,8 @@ impl<'a> Run<'a> {
             observed_texels: proj.observed_texels,
             denoised_texels: proj.denoised_texels,
             denoise_sigma_ratio: proj.denoise_sigma_ratio,
+            uniform_shapes: uniform.shapes,
+            uniform_texels: uniform.texels,
             filled_texels: filled.texels,
             fill_unrelaxed_texels: filled.unrelaxed,
             dense_direct_texels: r.report.counts.dense_direct_texels,

@@ -65,6 +65,9 @@ pub struct Timings {
     #[serde(default)]
     pub caustics: f64,
     pub update: f64,
+    /// The final filter of uniform shapes' `K_d` (`uniform`).
+    #[serde(default)]
+    pub uniform: f64,
     pub output: f64,
     pub total: f64,
 }
@@ -93,6 +96,12 @@ pub struct Counts {
     /// observed texel's luminance after the denoiser over before (1: nothing removed).
     #[serde(default)]
     pub denoise_sigma_ratio: f64,
+    /// Shapes found uniform (one colour) whose final `K_d` was filtered (`uniform`), and
+    /// their observed texels.
+    #[serde(default)]
+    pub uniform_shapes: u32,
+    #[serde(default)]
+    pub uniform_texels: u64,
     /// Covered texels no view saw (K_d filled from neighbours).
     pub filled_texels: u64,
     /// Of those, the ones left with the wave's fill because their texture's harmonic

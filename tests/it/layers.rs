@@ -21,7 +21,7 @@ const LAYERS: &[&[&str]] = &[
         "atlas",
     ],
     &["project", "denoise", "direct", "gather", "photon", "solve"],
-    &["checkpoint", "confidence", "output", "accuracy"],
+    &["uniform", "checkpoint", "confidence", "output", "accuracy"],
     &["pipeline"],
 ];
 /// The stage layer: its modules are independent of each other.
