@@ -66,14 +66,21 @@ pub fn relative_mad(ys: &mut [f32]) -> Option<f32> {
     Some(*ys.select_nth_unstable_by(mid, f32::total_cmp).1)
 }
 
-/// The observed texels' `K_d` luminances of a gathered slot texture.
-fn luminances(tex: &SlotTexture<Noisy>) -> Result<Vec<f32>> {
+/// The luminance of an observed texel's `K_d`, when finite and positive (the texels the
+/// gate counts and the filter reads).
+fn observed_albedo(s: &TexelState) -> Option<f32> {
+    let y = luminance(Vec3::from_array(s.k_d));
+    (s.weight > 0.0 && y.is_finite() && y > 0.0).then_some(y)
+}
+
+/// [`observed_albedo`] of every texel of `slot`, read straight from the store: the gate needs
+/// no texture of the slot, so a textured shape costs one read of its tiles.
+fn slot_albedos(layout: &Layout, state: &TileStore<TexelState>, slot: usize) -> Result<Vec<f32>> {
     let mut ys = Vec::new();
-    for t in 0..tex.grid.tiles() {
-        let recs = tex.tile(t)?;
-        for (off, _, _) in tex.grid.texels_of(t) {
-            if recs[off].chart != NONE {
-                ys.push(luminance(recs[off].l));
+    for t in layout.slot_tiles(slot) {
+        for (off, s) in state.read_tile(t as usize)?.iter().enumerate() {
+            if layout.texel_of(t, off as u32).is_some() {
+                ys.extend(observed_albedo(s));
             }
         }
     }
@@ -105,20 +112,19 @@ pub fn smooth_uniform(
         if known.get(slot).copied().unwrap_or(false) {
             continue;
         }
-        let c = &charts.slots[slot];
-        let tex = SlotTexture::gather(layout, slot, state, geom, scratch, "kd", |s, g| {
-            let kd = Vec3::from_array(s.k_d);
-            let ok = s.weight > 0.0 && kd.is_finite() && luminance(kd) > 0.0;
-            Noisy {
-                l: kd,
-                var: (k * luminance(kd)).powi(2),
-                chart: if ok { c.texel(g) } else { NONE },
-            }
-        })?;
-        match relative_mad(&mut luminances(&tex)?) {
+        match relative_mad(&mut slot_albedos(layout, state, slot)?) {
             Some(mad) if mad < UNIFORM_MAD => {}
             _ => continue,
         }
+        let c = &charts.slots[slot];
+        let tex = SlotTexture::gather(layout, slot, state, geom, scratch, "kd", |s, g| {
+            let y = observed_albedo(s);
+            Noisy {
+                l: Vec3::from_array(s.k_d),
+                var: (k * y.unwrap_or(0.0)).powi(2),
+                chart: if y.is_some() { c.texel(g) } else { NONE },
+            }
+        })?;
         let filtered = tex.map_windows(radius, scratch, "uniform", |v, w, h| {
             sigma_filter(v, w, h, radius, 1.0)
         })?;
