@@ -11,16 +11,18 @@
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use glam::Vec3;
-use kdmap::atlas::charts::Charts;
-use kdmap::atlas::hits::HitTable;
-use kdmap::atlas::layout::TexelState;
-use kdmap::atlas::slot_texture::Scratch;
+use kdmap::atlas::context::HitTable;
+use kdmap::atlas::store::TexelState;
+use kdmap::atlas::texture::Scratch;
+use kdmap::atlas::uv::Charts;
 use kdmap::atlas::{build_geometry, prepare};
+use kdmap::base::progress::Mode;
+use kdmap::base::rng::Rng;
 use kdmap::config::Config;
-use kdmap::light::EmitterSampler;
-use kdmap::photon::{begin_pass, finish_pass, photon_pass, AlbedoTextures, PassContext};
-use kdmap::progress::Mode;
-use kdmap::rng::Rng;
+use kdmap::physics::light::EmitterSampler;
+use kdmap::stages::indirect::photon::{
+    begin_pass, finish_pass, photon_pass, AlbedoTextures, PassContext,
+};
 use rayon::prelude::*;
 use std::path::Path;
 use std::time::{Duration, Instant};

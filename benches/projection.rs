@@ -12,12 +12,12 @@
 //! Run with `cargo bench --bench projection`.
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
-use kdmap::atlas::charts::Charts;
-use kdmap::atlas::hits::HitTable;
-use kdmap::atlas::layout::TexelState;
+use kdmap::atlas::context::HitTable;
+use kdmap::atlas::store::TexelState;
+use kdmap::atlas::uv::Charts;
 use kdmap::atlas::{build_geometry, prepare};
+use kdmap::base::progress::Mode;
 use kdmap::config::Config;
-use kdmap::progress::Mode;
 use std::path::Path;
 use std::time::Duration;
 
@@ -31,12 +31,12 @@ fn bench(c: &mut Criterion) {
         build_geometry(&p, &dir.path().join("geometry.tiles"), Mode::Quiet).expect("geometry");
     let charts = Charts::new(&p.scene, &p.layout, &p.atlases).expect("charts");
     let hits = HitTable::new(&p, &charts);
-    let scratch = kdmap::atlas::slot_texture::Scratch::new(dir.path(), 1 << 30);
+    let scratch = kdmap::atlas::texture::Scratch::new(dir.path(), 1 << 30);
     let covered: u64 = {
         let mut st = p
             .create_store(dir.path().join("probe.tiles"), TexelState::default())
             .expect("store");
-        kdmap::project::run(
+        kdmap::stages::project::run(
             &p,
             &cfg,
             (&hits, &charts),
@@ -70,7 +70,7 @@ fn bench(c: &mut Criterion) {
                             let mut st = p
                                 .create_store(dir.path().join("state.tiles"), TexelState::default())
                                 .expect("store");
-                            kdmap::project::run(
+                            kdmap::stages::project::run(
                                 &p,
                                 &cfg,
                                 (&hits, &charts),
@@ -90,12 +90,12 @@ fn bench(c: &mut Criterion) {
 }
 
 fn shrink(c: &mut Criterion) {
-    use kdmap::project::{shrink_residual, PixelInfo};
+    use kdmap::stages::project::{shrink_residual, PixelInfo};
     let (w, h) = (4096usize, 3072usize);
     let mut photo = Vec::with_capacity(w * h);
     let mut residual = Vec::with_capacity(w * h);
     for i in 0..w * h {
-        let mut r = kdmap::rng::Rng::new(1, 0, 0, i as u64);
+        let mut r = kdmap::base::rng::Rng::new(1, 0, 0, i as u64);
         let texture = if i % w < w / 2 { 0.3 * r.f32() } else { 0.0 };
         let e = 0.02 * (r.f32() + r.f32() + r.f32() - 1.5) * 2.0;
         let render = glam::Vec3::splat(1.0 + texture);

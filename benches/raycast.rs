@@ -6,8 +6,8 @@
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use glam::{Vec3, Vec3A};
-use kdmap::accel::Accel;
-use kdmap::rng::Rng;
+use kdmap::base::rng::Rng;
+use kdmap::physics::accel::Accel;
 use obvhs::triangle::Triangle;
 use rayon::prelude::*;
 use std::hint::black_box;

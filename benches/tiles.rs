@@ -13,15 +13,17 @@
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use glam::Vec3;
-use kdmap::atlas::charts::Charts;
-use kdmap::atlas::hits::HitTable;
-use kdmap::atlas::layout::TexelState;
-use kdmap::atlas::slot_texture::Scratch;
+use kdmap::atlas::context::HitTable;
+use kdmap::atlas::store::TexelState;
+use kdmap::atlas::texture::Scratch;
+use kdmap::atlas::uv::Charts;
 use kdmap::atlas::{build_geometry, prepare};
+use kdmap::base::progress::Mode;
 use kdmap::config::Config;
-use kdmap::light::EmitterSampler;
-use kdmap::photon::{add_deposits, trace_batch, AlbedoTextures, Deposit, PassContext, PathCounts};
-use kdmap::progress::Mode;
+use kdmap::physics::light::EmitterSampler;
+use kdmap::stages::indirect::photon::{
+    add_deposits, trace_batch, AlbedoTextures, Deposit, PassContext, PathCounts,
+};
 use rayon::prelude::*;
 use std::path::Path;
 use std::time::Duration;

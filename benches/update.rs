@@ -16,15 +16,15 @@
 //! Run with `cargo bench --bench update`.
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
-use kdmap::atlas::charts::Charts;
-use kdmap::atlas::layout::{flags, TexelGeom, TexelState};
-use kdmap::atlas::slot_texture::Scratch;
-use kdmap::atlas::tiles::map_tiles;
+use kdmap::atlas::store::map_tiles;
+use kdmap::atlas::store::{flags, TexelGeom, TexelState};
+use kdmap::atlas::texture::Scratch;
+use kdmap::atlas::uv::Charts;
 use kdmap::atlas::{build_geometry, prepare};
+use kdmap::base::progress::Mode;
+use kdmap::base::rng::Rng;
 use kdmap::config::{Config, UpdateRule};
-use kdmap::progress::Mode;
-use kdmap::rng::Rng;
-use kdmap::solve::{compare_update_tile, fill_unobserved_all, kd_tile};
+use kdmap::stages::solve::{compare_update_tile, fill_unobserved_all, kd_tile};
 use std::path::Path;
 use std::time::Duration;
 
@@ -153,9 +153,9 @@ fn pools() -> Vec<(usize, rayon::ThreadPool)> {
 fn bench_fill(
     c: &mut Criterion,
     pools: &[(usize, rayon::ThreadPool)],
-    p: &kdmap::atlas::prepared::Prepared,
-    geom: &kdmap::atlas::tiles::TileStore<TexelGeom>,
-    state: &kdmap::atlas::tiles::TileStore<TexelState>,
+    p: &kdmap::atlas::context::RunContext,
+    geom: &kdmap::atlas::store::TileStore<TexelGeom>,
+    state: &kdmap::atlas::store::TileStore<TexelState>,
     window: usize,
     dir: &Path,
 ) {

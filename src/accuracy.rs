@@ -8,19 +8,19 @@
 //! comparable with `textures/<id>_albedo.png`) and `<id>_diff.png` (`|K_d - K_true|` per
 //! channel, x4).
 
-use crate::atlas::layout::{flags, TexelGeom, TexelState};
-use crate::atlas::texture::gather;
-use crate::atlas::tiles::TileStore;
-use crate::atlas::unwrap::ShapeAtlas;
-use crate::atlas::{prepare_layout, state_dir, Prepared};
-use crate::confidence::{kd_rel_stderr, Calibration, CalibrationSums};
-use crate::error::{Error, Result};
-use crate::fsio;
+use crate::atlas::store::TileStore;
+use crate::atlas::store::{flags, TexelGeom, TexelState};
+use crate::atlas::texture::read_slot;
+use crate::atlas::uv::ShapeAtlas;
+use crate::atlas::{prepare_layout, state_dir, RunContext};
+use crate::base::error::{Error, Result};
+use crate::base::fsio;
+use crate::base::progress::Mode;
 use crate::image::{write_exr_rgb, write_png_srgb};
-use crate::progress::Mode;
 use crate::report::Report;
 use crate::scene::truth::{Reflectance, Truth};
 use crate::scene::{luminance, Mesh, Rgb};
+use crate::stages::confidence::{kd_rel_stderr, Calibration, CalibrationSums};
 use glam::{Vec2, Vec3};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -85,7 +85,7 @@ fn footprint_mean(
 /// square (row-major, `None` where uncovered), or `None` if the slot's shape has no truth.
 pub fn bake_slot(
     truth: &Truth,
-    p: &Prepared,
+    p: &RunContext,
     geom: &TileStore<TexelGeom>,
     slot: usize,
 ) -> Result<Option<Vec<Option<Rgb>>>> {
@@ -121,7 +121,7 @@ pub fn bake_slot(
 /// albedo averaged over the texel's square ([`bake_slot`]).
 pub fn accuracy(
     truth: &Truth,
-    p: &Prepared,
+    p: &RunContext,
     geom: &TileStore<TexelGeom>,
     state: &TileStore<TexelState>,
 ) -> Result<Vec<ShapeAccuracy>> {
@@ -138,7 +138,7 @@ pub fn accuracy(
 /// texel it was computed from (row-major), or `None` if the slot's shape has no truth.
 pub fn score_slot(
     truth: &Truth,
-    p: &Prepared,
+    p: &RunContext,
     geom: &TileStore<TexelGeom>,
     state: &TileStore<TexelState>,
     slot: usize,
@@ -146,7 +146,7 @@ pub fn score_slot(
     let Some(truth) = bake_slot(truth, p, geom, slot)? else {
         return Ok(None);
     };
-    let per_texel = gather(&p.layout, slot, state, geom, |s, _| {
+    let per_texel = read_slot(&p.layout, slot, state, geom, |s, _| {
         (
             Vec3::from_array(s.k_d),
             s.flags & flags::OBSERVED != 0,

@@ -26,10 +26,10 @@
 //! returns a one-line [`Error::Io`] naming the file; the previous checkpoint is untouched
 //! (snapshots are deleted only after the new manifest is durable), so `--resume` continues
 //! from it once there is room. The `KDMAP_FAULT` test hooks are described in
-//! [`crate::fsio`].
+//! [`crate::base::fsio`].
 
-use crate::error::{Error, Result};
-use crate::fsio::{self, fault, fnv1a, write_counted, Fault, Fnv};
+use crate::base::error::{Error, Result};
+use crate::base::fsio::{self, fault, fnv1a, write_counted, Fault, Fnv};
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 use std::fs::File;

@@ -3,7 +3,7 @@
 //! setting has a documented unit, and impossible combinations are refused here, not deep in a
 //! stage.
 
-use crate::error::{Error, Location, Result};
+use crate::base::error::{Error, Location, Result};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -164,10 +164,10 @@ pub struct Overrides {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Method {
-    /// Gathered from the observed radiance of the surfaces around each point (crate::gather):
+    /// Gathered from the observed radiance of the surfaces around each point (crate::stages::indirect::gather):
     /// converges in one or two passes. The default.
     Gather,
-    /// Traced forward from the lights with the current `K_d` (crate::photon), the paper's
+    /// Traced forward from the lights with the current `K_d` (crate::stages::indirect::photon), the paper's
     /// method: the reference.
     Photons,
 }
@@ -1238,7 +1238,7 @@ mod tests {
             e.to_string().starts_with("r.toml: preset = \"turbo\""),
             "{e}"
         );
-        assert_eq!(e.exit_code(), crate::error::exit::CONFIG);
+        assert_eq!(e.exit_code(), crate::base::error::exit::CONFIG);
     }
 
     #[test]
@@ -1296,7 +1296,7 @@ mod tests {
             ..Default::default()
         };
         let e = Config::load(&p, &ov).unwrap_err();
-        assert_eq!(e.exit_code(), crate::error::exit::CONFIG);
+        assert_eq!(e.exit_code(), crate::base::error::exit::CONFIG);
         let e = e.to_string();
         assert!(e.contains("run.toml") && e.contains("photons"), "{e}");
     }

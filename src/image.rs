@@ -4,8 +4,8 @@
 //!
 //! Pixels are stored row-major with row 0 at the top, as OpenEXR and Mitsuba's film store them.
 
-use crate::error::{Error, Result};
-use crate::fsio;
+use crate::base::error::{Error, Result};
+use crate::base::fsio;
 use crate::scene::Sensor;
 use exr::prelude::{
     self as x, f16, Encoding, FlatSamples, LayerAttributes, ReadChannels, ReadLayers,

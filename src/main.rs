@@ -1,20 +1,20 @@
 //! The `kdmap` command line: parses arguments (clap), runs one subcommand, and turns any
 //! error into a single `error: ...` line on stderr with the exit code of its kind
-//! (`kdmap::error::exit`; clap's usage errors exit with 2). Results go to stdout (text, or a
+//! (`kdmap::base::error::exit`; clap's usage errors exit with 2). Results go to stdout (text, or a
 //! JSON document with `--json`), progress and notes to stderr in the form `--progress` and
 //! `--quiet` choose; only this file and `progress` talk to the terminal. A closed stdout
 //! (`kdmap inspect ... | head`) ends the output quietly with exit code 0. SIGINT / SIGTERM
-//! stop `reconstruct` and `project` at a safe point (`kdmap::interrupt`), exit code 130.
+//! stop `reconstruct` and `project` at a safe point (`kdmap::base::interrupt`), exit code 130.
 //!
 //! Started by an MPI launcher (`mpirun -np N kdmap ...`, a build with `--features mpi`), every
-//! rank runs the command (`kdmap::comm`); rank 0 prints results, progress and errors, the
+//! rank runs the command (`kdmap::base::comm`); rank 0 prints results, progress and errors, the
 //! other ranks only errors of their own, prefixed by their rank.
 
 use clap::{Parser, Subcommand, ValueEnum};
 use glam::Vec3;
+use kdmap::base::progress::Mode;
 use kdmap::config::{Config, Method, Overrides, Preset};
 use kdmap::pipeline::{self, RunStage, Start};
-use kdmap::progress::Mode;
 use kdmap::scene::{luminance, Emitter, Scene, Sides};
 use kdmap::{Error, Result};
 use std::fmt::Write as _;
@@ -142,14 +142,14 @@ enum Command {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    let job = match kdmap::comm::init() {
+    let job = match kdmap::base::comm::init() {
         Ok(job) => job,
         Err(msg) => {
             let _ = writeln!(std::io::stderr(), "error: {msg}");
-            return ExitCode::from(kdmap::error::exit::CONFIG);
+            return ExitCode::from(kdmap::base::error::exit::CONFIG);
         }
     };
-    let world = kdmap::comm::world();
+    let world = kdmap::base::comm::world();
     let mode = match world.is_root() {
         true => cli.mode(),
         false => Mode::Quiet,
@@ -207,7 +207,7 @@ fn emit(text: &str) -> Result<()> {
 }
 
 fn run(command: Command, mode: Mode) -> Result<()> {
-    let root = kdmap::comm::world().is_root();
+    let root = kdmap::base::comm::world().is_root();
     match command {
         Command::Reconstruct {
             input,
@@ -228,7 +228,7 @@ fn run(command: Command, mode: Mode) -> Result<()> {
                 seed,
                 threads,
             };
-            kdmap::interrupt::install()?;
+            kdmap::base::interrupt::install()?;
             reconstruct(&input, &out, &ov, resume, mode)
         }
         Command::Project {
@@ -237,7 +237,7 @@ fn run(command: Command, mode: Mode) -> Result<()> {
             preset,
             threads,
         } => {
-            kdmap::interrupt::install()?;
+            kdmap::base::interrupt::install()?;
             project(&input, &out, preset, threads, mode)
         }
         // the read-only commands answer once, on rank 0
@@ -257,10 +257,10 @@ fn pool(threads: usize) -> Result<rayon::ThreadPool> {
 }
 
 fn reconstruct(input: &Path, out: &Path, ov: &Overrides, resume: bool, mode: Mode) -> Result<()> {
-    let cfg = kdmap::comm::world().agree(Config::load(input, ov))?;
+    let cfg = kdmap::base::comm::world().agree(Config::load(input, ov))?;
     let (report, start) =
         pool(cfg.threads)?.install(|| pipeline::reconstruct_resumable(&cfg, out, mode, resume))?;
-    if !kdmap::comm::world().is_root() {
+    if !kdmap::base::comm::world().is_root() {
         return Ok(());
     }
     if start == Start::AlreadyFinished {
@@ -324,7 +324,7 @@ fn accuracy(out: &Path, truth: &Path, json: bool) -> Result<()> {
 }
 
 /// The calibration of the predicted K_d standard errors, one line per populated bin.
-fn write_calibration(t: &mut String, c: &kdmap::confidence::Calibration) {
+fn write_calibration(t: &mut String, c: &kdmap::stages::confidence::Calibration) {
     if c.texels == 0 {
         return;
     }
@@ -353,7 +353,7 @@ fn write_calibration(t: &mut String, c: &kdmap::confidence::Calibration) {
 fn inspect_checkpoint(out: &Path, json: bool, mode: Mode) -> Result<()> {
     let (m, notes) = pipeline::load_checkpoint(out);
     for n in &notes {
-        kdmap::progress::note(mode, n);
+        kdmap::base::progress::note(mode, n);
     }
     let dir = kdmap::atlas::state_dir(out);
     let Some(m) = m else {
@@ -440,7 +440,7 @@ fn project(
         threads,
         ..Default::default()
     };
-    let world = kdmap::comm::world();
+    let world = kdmap::base::comm::world();
     let cfg = world.agree(Config::load(input, &ov))?;
     let (p, stats) = pool(cfg.threads)?.install(|| pipeline::run_projection(&cfg, out, mode))?;
     if !world.is_root() {
@@ -528,7 +528,7 @@ fn summary_json(scene: &Scene) -> serde_json::Value {
         .emitters
         .iter()
         .map(|e| {
-            let p = kdmap::light::emitter_power(scene, e);
+            let p = kdmap::physics::light::emitter_power(scene, e);
             let mut v = emitter_json(scene, e);
             v["power"] = json!(p);
             v["power_luminance"] = json!(luminance(p));
@@ -585,8 +585,8 @@ fn inspect(input: &Path, json: bool) -> Result<()> {
 
 type RunPlan = std::result::Result<
     (
-        kdmap::atlas::density::DensityPlan,
-        kdmap::atlas::density::Needs,
+        kdmap::atlas::uv::DensityPlan,
+        kdmap::atlas::uv::density::Needs,
     ),
     String,
 >;
@@ -595,28 +595,28 @@ type RunPlan = std::result::Result<
 /// an error text if the run could not start (no photos).
 fn plan_run(cfg: &Config, scene: &Scene) -> RunPlan {
     let views =
-        kdmap::atlas::prepared::match_views(scene, cfg, Mode::Quiet).map_err(|e| e.to_string())?;
-    let accel = kdmap::accel::Accel::build(scene);
-    let plan = kdmap::atlas::prepared::plan_density(cfg, scene, &accel, &views);
+        kdmap::atlas::context::match_views(scene, cfg, Mode::Quiet).map_err(|e| e.to_string())?;
+    let accel = kdmap::physics::accel::Accel::build(scene);
+    let plan = kdmap::atlas::context::plan_density(cfg, scene, &accel, &views);
     let sensors: Vec<usize> = views.iter().map(|v| v.0).collect();
-    let pixels = kdmap::atlas::density::photo_pixels(scene, &sensors);
+    let pixels = kdmap::atlas::uv::density::photo_pixels(scene, &sensors);
     let gather = match cfg.method {
         kdmap::config::Method::Gather => {
-            let spacing = kdmap::gather::shape_spacing(cfg, scene);
+            let spacing = kdmap::stages::indirect::gather::shape_spacing(cfg, scene);
             scene
                 .shapes
                 .iter()
                 .zip(spacing)
                 .filter(|(s, _)| s.in_atlas())
                 .map(|(s, d)| {
-                    kdmap::atlas::density::gather_bytes(s.mesh.area(), d, cfg.gather_rays)
+                    kdmap::atlas::uv::density::gather_bytes(s.mesh.area(), d, cfg.gather_rays)
                 })
                 .sum()
         }
         kdmap::config::Method::Photons => 0,
     };
     let budget = cfg.memory_budget_mib << 20;
-    let needs = kdmap::atlas::density::needs(scene, &plan, pixels, (budget, gather));
+    let needs = kdmap::atlas::uv::density::needs(scene, &plan, pixels, (budget, gather));
     Ok((plan, needs))
 }
 
@@ -721,7 +721,7 @@ fn summary(scene: &Scene) -> String {
     }
     let _ = writeln!(s, "emitters: {}", scene.emitters.len());
     for e in &scene.emitters {
-        let p = kdmap::light::emitter_power(scene, e);
+        let p = kdmap::physics::light::emitter_power(scene, e);
         let what = match e {
             Emitter::Point {
                 position,

@@ -27,37 +27,37 @@
 //! on every rank alike. Rank 0 alone writes checkpoints and outputs; a resumed run restores
 //! rank 0's checkpoint and sends it to the others, so it continues under any N.
 
-mod share;
+mod ranks;
 
-use crate::atlas::charts::Charts;
-use crate::atlas::check::{check_geometry, check_state};
-use crate::atlas::hits::HitTable;
-use crate::atlas::layout::{TexelGeom, TexelState};
-use crate::atlas::slot_texture::{Scratch, SlotTexture};
-use crate::atlas::tiles::{map_tiles, TileStore};
-use crate::atlas::{build_geometry, prepare, state_dir, Prepared};
+use crate::atlas::context::HitTable;
+use crate::atlas::store::{check_geometry, check_state};
+use crate::atlas::store::{map_tiles, TileStore};
+use crate::atlas::store::{TexelGeom, TexelState};
+use crate::atlas::texture::{Scratch, SlotTexture};
+use crate::atlas::uv::Charts;
+use crate::atlas::{build_geometry, prepare, state_dir, RunContext};
+use crate::base::comm::{self, World};
+use crate::base::error::{Error, Result};
+use crate::base::fsio;
+use crate::base::interrupt;
+use crate::base::progress::{self, note, Mode, Stage};
 use crate::checkpoint::{self as ck, Manifest, Writer};
-use crate::comm::{self, World};
 use crate::config::{Config, Method, UpdateRule};
-use crate::error::{Error, Result};
-use crate::fsio;
-use crate::gather::{
+use crate::output::{output_units, uv_fold, write_map, write_outputs};
+use crate::physics::light::EmitterSampler;
+use crate::report::{Counts, IterationStats, Refinement, Report};
+use crate::stages::indirect::gather::{
     trace_points_where, write_accum, GatherCache, GatherContext, GatherPoints, Radiance,
     POINT_FILTER_Z,
 };
-use crate::interrupt;
-use crate::light::EmitterSampler;
-use crate::output::{output_units, uv_fold, write_map, write_outputs};
-use crate::photon::{
+use crate::stages::indirect::photon::{
     begin_pass, finish_pass, photon_pass_shared, smooth_accum, AlbedoTextures, PassContext, Paths,
 };
-use crate::progress::{self, note, Mode, Stage};
-use crate::project::{ProjectionStats, Shard};
-use crate::report::{Counts, IterationStats, Refinement, Report};
-use crate::solve::{init_indirect_tile, kd_step, update_step, Filled};
-use crate::{direct, project};
+use crate::stages::project::{ProjectionStats, Shard};
+use crate::stages::solve::{init_indirect_tile, kd_step, update_step, Filled};
+use crate::stages::{direct, project};
+use ranks::GATHER_CHUNK;
 use serde::{Deserialize, Serialize};
-use share::GATHER_CHUNK;
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 use std::time::Instant;
@@ -192,7 +192,11 @@ pub fn reconstruct_resumable(
 
 /// Steps 1-2 on their own: atlas, projection, and the luminance and coverage maps in
 /// `<out>/maps/`. Returns the projection statistics.
-pub fn run_projection(cfg: &Config, out: &Path, mode: Mode) -> Result<(Prepared, ProjectionStats)> {
+pub fn run_projection(
+    cfg: &Config,
+    out: &Path,
+    mode: Mode,
+) -> Result<(RunContext, ProjectionStats)> {
     let world = comm::world();
     let opened = || -> Result<_> {
         let p = prepare(cfg, mode)?;
@@ -227,14 +231,14 @@ pub fn run_projection(cfg: &Config, out: &Path, mode: Mode) -> Result<(Prepared,
     for slot in 0..p.layout.slots.len() {
         let (l, id) = (&p.layout, p.slot_id(slot));
         let g = |name: &str, f: &(dyn Fn(&TexelState) -> glam::Vec3 + Sync)| {
-            SlotTexture::gather(l, slot, &state, &geom, &scratch, name, |s, _| f(s))
+            SlotTexture::read(l, slot, &state, &geom, &scratch, name, |s, _| f(s))
         };
         let lum = g("lum", &|s| glam::Vec3::from_array(s.l_orig))?;
         let wt = g("weight", &|s| glam::Vec3::splat(s.weight))?;
-        let obs = SlotTexture::gather(l, slot, &state, &geom, &scratch, "obs", |s, _| {
+        let obs = SlotTexture::read(l, slot, &state, &geom, &scratch, "obs", |s, _| {
             (s.weight > 0.0) as u8
         })?;
-        let cov = SlotTexture::gather(l, slot, &state, &geom, &scratch, "cov", |_, g| {
+        let cov = SlotTexture::read(l, slot, &state, &geom, &scratch, "cov", |_, g| {
             g.covered() as u8
         })?;
         write_map(&maps, id, "luminance", &lum, &obs, true, &scratch)?;
@@ -249,13 +253,13 @@ pub fn run_projection(cfg: &Config, out: &Path, mode: Mode) -> Result<(Prepared,
 /// may take are left unfiltered: the fold averages their noise over the repeats, and the
 /// filter would only blur their detail (see `uv_fold::foldable_slots`).
 fn denoise(
-    p: &Prepared,
+    p: &RunContext,
     cfg: &Config,
     (charts, geom): (&Charts, &TileStore<TexelGeom>),
     state: &mut TileStore<TexelState>,
     scratch: &Scratch,
     fold: bool,
-) -> Result<crate::denoise::DenoiseStats> {
+) -> Result<crate::stages::denoise::DenoiseStats> {
     let params = (cfg.denoise_radius, cfg.denoise_z);
     let skip = match fold && cfg.uv_fold && cfg.denoise_radius > 0 {
         true => {
@@ -264,7 +268,9 @@ fn denoise(
         }
         false => Vec::new(),
     };
-    crate::denoise::denoise_luminance(&p.layout, charts, geom, state, params, scratch, &skip)
+    crate::stages::denoise::denoise_luminance(
+        &p.layout, charts, geom, state, params, scratch, &skip,
+    )
 }
 
 /// The working directory of this rank: rank 0's is the run's checkpoint directory, the
@@ -280,8 +286,8 @@ fn work_dir(out: &Path, world: &World) -> PathBuf {
 /// synced through `share`.
 fn with_shard<R>(world: &World, f: impl FnOnce(&Shard) -> R) -> R {
     let owns = |u: usize| world.owns(u as u64);
-    let sync = |s: &mut TileStore<TexelState>| share::share_tiles(world, s);
-    let pixels = |img: &mut [Option<glam::Vec3>], unit| share::share_pixels(world, img, unit);
+    let sync = |s: &mut TileStore<TexelState>| ranks::share_tiles(world, s);
+    let pixels = |img: &mut [Option<glam::Vec3>], unit| ranks::share_pixels(world, img, unit);
     f(&Shard {
         owns: &owns,
         sync: &sync,
@@ -308,7 +314,7 @@ struct Run<'a> {
     mode: Mode,
     /// The processes of the run (one, or the ranks of an MPI job).
     world: &'static World,
-    p: Prepared,
+    p: RunContext,
     /// This rank's working directory (see [`work_dir`]); rank 0's holds the checkpoints.
     dir: PathBuf,
     state_path: PathBuf,
@@ -402,7 +408,7 @@ impl<'a> Run<'a> {
         let p = prepare(cfg, mode)?;
         let load_s = t.elapsed().as_secs_f64();
         // the scene itself (meshes, BVH, photos): what a run needs beside the budget
-        let load_rss = crate::mem::peak_mib();
+        let load_rss = crate::base::mem::peak_mib();
         let dir = work_dir(out, world);
         fsio::create_dir(&dir)?;
         let hash = p.fingerprint(cfg)?;
@@ -551,12 +557,12 @@ impl<'a> Run<'a> {
         let (p, cfg, world) = (&self.p, &self.cfg, self.world);
         let owns = |t: usize| world.owns(t as u64);
         let sums = direct::run_tiles(p, cfg, &self.charts, &self.geom, state, self.mode, &owns)?;
-        share::share_tiles(world, state)?;
+        ranks::share_tiles(world, state)?;
         // every rank holds every tile now, and measures the same noise on it
         direct::sampling::estimate(p, &self.charts, &self.geom, state, &self.scratch)?;
         let mine = sums.into_iter().enumerate().map(|(t, s)| (t as u64, s));
         let mine = mine.filter(|(t, _)| world.owns(*t)).collect();
-        let all = share::share_serde(world, mine)?;
+        let all = ranks::share_serde(world, mine)?;
         let sums: Vec<_> = all.into_iter().map(|(_, s)| s).collect();
         Ok(direct::DirectStats::from_tiles(&sums))
     }
@@ -566,7 +572,10 @@ impl<'a> Run<'a> {
     /// stream), its irradiance
     /// smoothed like a photon `E_i`. It depends on no `K_d`, so it is traced once, here; a
     /// scene without such materials skips it. Nothing is saved if it is interrupted.
-    fn caustics(&self, state: &mut TileStore<TexelState>) -> Result<crate::photon::PassStats> {
+    fn caustics(
+        &self,
+        state: &mut TileStore<TexelState>,
+    ) -> Result<crate::stages::indirect::photon::PassStats> {
         let (cfg, p, world, charts) = (&self.cfg, &self.p, self.world, &self.charts);
         if !p.scene.shapes.iter().any(|s| s.known().is_some()) {
             return Ok(Default::default());
@@ -586,7 +595,7 @@ impl<'a> Run<'a> {
         let stage = Stage::after(mode, "caustics", n, "photons", progress::SHOW_AFTER);
         let mut last = 0;
         let owns = |b: u64| world.owns(b);
-        let mut route = |traced| share::route_batches(world, traced);
+        let mut route = |traced| ranks::route_batches(world, traced);
         let stats = photon_pass_shared(&ctx, state, 0, &owns, &mut route, |done, _| {
             let photons = ctx.photons_in(done);
             stage.inc(photons - last);
@@ -621,7 +630,7 @@ impl<'a> Run<'a> {
                 .and_then(|()| self.p.open_store(&self.state_path)),
             false => self.p.create_store(&self.state_path, TexelState::default()),
         })?;
-        share::broadcast_store(world, &mut state)?;
+        ranks::broadcast_store(world, &mut state)?;
         let mut report = m.payload.report;
         report.settings = self.cfg.clone();
         let at = match m.payload.stage {
@@ -804,8 +813,7 @@ impl<'a> Run<'a> {
         let padding = cfg.atlas.padding + 2;
         // the textures stay through the pass, beside the pass's own mapped window
         let keep = self.scratch.with_budget(2 * self.scratch.budget);
-        let albedo =
-            AlbedoTextures::gather(&p.layout, charts, &r.state, &self.geom, padding, &keep)?;
+        let albedo = AlbedoTextures::read(&p.layout, charts, &r.state, &self.geom, padding, &keep)?;
         pass.update_seconds += t.elapsed().as_secs_f64();
         let mut ctx = PassContext::new(p, cfg, (sampler, charts, self.hits(), &albedo), n as u64);
         ctx.group_batches = self.group_batches();
@@ -823,7 +831,7 @@ impl<'a> Run<'a> {
     /// flux / bin area ([`finish_pass`]) and the box filter of `smoothing_radius`.
     fn finish_accum(&self, state: &mut TileStore<TexelState>) -> Result<()> {
         let (p, r) = (&self.p, self.cfg.smoothing_radius);
-        share::share_tiles(self.world, state)?;
+        ranks::share_tiles(self.world, state)?;
         finish_pass(&self.geom, state, self.window)?;
         if r > 0 {
             smooth_accum(&p.layout, &self.charts, &self.geom, state, r, &self.scratch)?;
@@ -865,8 +873,8 @@ impl<'a> Run<'a> {
         // each rank evaluates the chunks of points it traced; then every rank has every value
         let (mut values, mut variance) = cache.evaluate(&radiance);
         radiance.check()?;
-        share::share_points(self.world, &mut values)?;
-        share::share_points(self.world, &mut variance)?;
+        ranks::share_points(self.world, &mut values)?;
+        ranks::share_points(self.world, &mut variance)?;
         drop(radiance);
         std::fs::remove_file(&path).map_err(|e| crate::Error::io(&path, e))?;
         let (points, layout, charts, geom) = (
@@ -956,7 +964,7 @@ impl<'a> Run<'a> {
         if let Some(p) = self.points.get() {
             return Ok(p);
         }
-        let spacing = crate::gather::shape_spacing(&self.cfg, &self.p.scene);
+        let spacing = crate::stages::indirect::gather::shape_spacing(&self.cfg, &self.p.scene);
         let texels = self.p.layout.slots.iter();
         let total = texels.map(|s| s.width as u64 * s.height as u64).sum();
         let stage = Stage::after(
@@ -994,7 +1002,7 @@ impl<'a> Run<'a> {
         ctx: &PassContext,
         n: u32,
         pass: &PassResume,
-    ) -> Result<crate::photon::PassStats> {
+    ) -> Result<crate::stages::indirect::photon::PassStats> {
         let cfg = &self.cfg;
         if pass.batches_done == 0 {
             begin_pass(&mut r.state, self.window)?;
@@ -1019,7 +1027,7 @@ impl<'a> Run<'a> {
             ..
         } = r;
         let owns = |b: u64| world.owns(b);
-        let mut route = |traced| share::route_batches(world, traced);
+        let mut route = |traced| ranks::route_batches(world, traced);
         let first = pass.batches_done;
         let traced = photon_pass_shared(ctx, state, first, &owns, &mut route, |done, state| {
             let photons = ctx.photons_in(done);
@@ -1032,7 +1040,7 @@ impl<'a> Run<'a> {
             let stop = done < batches && interrupt::agreed();
             // rank 0's clock decides; every rank first makes its tiles current there
             if done < batches && (stop || world.any(due)) {
-                share::share_tiles(world, state)?;
+                ranks::share_tiles(world, state)?;
             }
             if *root && done < batches && (due || stop) {
                 let progress = Progress {
@@ -1089,7 +1097,7 @@ impl<'a> Run<'a> {
         let known: Vec<bool> = (p.layout.slots.iter())
             .map(|st| !p.scene.shapes[st.shape].is_reconstructed())
             .collect();
-        let uniform = crate::uniform::smooth_uniform(
+        let uniform = crate::stages::one_colour::smooth_uniform(
             (&p.layout, &known),
             &self.charts,
             &self.geom,
@@ -1164,7 +1172,7 @@ impl<'a> Run<'a> {
                  for per-texel data); working state on disk {:.1} GB",
                 r.writer.bytes_written as f64 / 1e6,
                 r.writer.seconds,
-                crate::mem::peak_mib(),
+                crate::base::mem::peak_mib(),
                 self.cfg.memory_budget_mib,
                 r.report.resources.store_bytes as f64 / 1e9
             ),

@@ -292,8 +292,8 @@ impl Resources {
     /// Records the peak RSS and the communication so far after `stage`.
     pub fn after(&mut self, stage: &str) {
         self.peak_rss_mib
-            .push((stage.to_string(), crate::mem::peak_mib()));
-        let world = crate::comm::world();
+            .push((stage.to_string(), crate::base::mem::peak_mib()));
+        let world = crate::base::comm::world();
         let t = world.traffic();
         self.ranks = world.size();
         self.communication

@@ -8,7 +8,7 @@ use kdmap::pipeline::Progress;
 use libfuzzer_sys::fuzz_target;
 
 fn with_header(payload: &[u8]) -> Vec<u8> {
-    let sum = kdmap::fsio::fnv1a(payload);
+    let sum = kdmap::base::fsio::fnv1a(payload);
     let mut out = format!("KDMCKPT {VERSION} {sum:016x} {}\n", payload.len()).into_bytes();
     out.extend_from_slice(payload);
     out

@@ -3,8 +3,8 @@
 //! temporary file per process (the store is file-backed by design).
 #![no_main]
 
-use kdmap::atlas::layout::TexelState;
-use kdmap::atlas::tiles::TileStore;
+use kdmap::atlas::store::TexelState;
+use kdmap::atlas::store::TileStore;
 use libfuzzer_sys::fuzz_target;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicUsize, Ordering};

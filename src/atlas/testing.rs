@@ -1,19 +1,19 @@
 //! Test fixture shared by the stages' unit tests: a scene prepared at a given density, with
 //! its geometry store and charts (built the way a run builds them).
 
-use super::charts::Charts;
-use super::layout::TexelGeom;
-use super::slot_texture::{Grid, Scratch, SlotTexture};
-use super::tiles::TileStore;
-use super::unwrap::AtlasSettings;
-use super::{build_geometry, Prepared};
-use crate::progress::Mode;
+use super::{build_geometry, RunContext};
+use crate::atlas::store::TexelGeom;
+use crate::atlas::store::TileStore;
+use crate::atlas::texture::{Grid, Scratch, SlotTexture};
+use crate::atlas::uv::AtlasSettings;
+use crate::atlas::uv::Charts;
+use crate::base::progress::Mode;
 use crate::scene::{mesh, Emitter, Scene, Shape, Sides};
 
 /// A prepared scene, its geometry store (in `dir`, beside any other store a test makes) and
 /// charts.
 pub struct Built {
-    pub p: Prepared,
+    pub p: RunContext,
     pub dir: tempfile::TempDir,
     pub geom: TileStore<TexelGeom>,
     pub charts: Charts,
@@ -39,7 +39,7 @@ impl Built {
             texels_per_unit,
             ..Default::default()
         };
-        let p = Prepared::with_levels(scene, &settings, levels, 16).unwrap();
+        let p = RunContext::with_levels(scene, &settings, levels, 16).unwrap();
         let dir = tempfile::tempdir().unwrap();
         let geom = build_geometry(&p, &dir.path().join("geom.tiles"), Mode::Quiet).unwrap();
         let charts = Charts::new(&p.scene, &p.layout, &p.atlases).unwrap();

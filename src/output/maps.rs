@@ -4,14 +4,14 @@
 //! re-render texture `L_render = K_d / pi (E_d + E_i)`.
 
 use super::plot::{draw_legend, fill, legend_height, ErrorScale, NO_DATA};
-use crate::atlas::layout::{flags, TexelGeom, TexelState};
-use crate::atlas::slot_texture::{Scratch, SlotTexture};
-use crate::atlas::tiles::TileStore;
-use crate::atlas::Prepared;
-use crate::confidence::{kd_stderr, ConfidenceSums};
-use crate::fsio;
+use crate::atlas::store::TileStore;
+use crate::atlas::store::{flags, TexelGeom, TexelState};
+use crate::atlas::texture::{Scratch, SlotTexture};
+use crate::atlas::RunContext;
+use crate::base::fsio;
 use crate::image::{auto_exposure_with, srgb8, write_exr_rgb_fn, write_png_rows};
 use crate::report::Confidence;
+use crate::stages::confidence::{kd_stderr, ConfidenceSums};
 use crate::{Error, Result};
 use glam::Vec3;
 use std::f32::consts::PI;
@@ -47,7 +47,10 @@ pub fn colorless(s: &TexelState) -> Vec3 {
 /// (count, per scale step, the observed texels whose relative error exceeds it, and pick the
 /// scale from that, see [`ErrorScale::from_exceedance`]) and the confidence summary of
 /// `report.json` (see `confidence`).
-pub fn scan_state(p: &Prepared, state: &TileStore<TexelState>) -> Result<(ErrorScale, Confidence)> {
+pub fn scan_state(
+    p: &RunContext,
+    state: &TileStore<TexelState>,
+) -> Result<(ErrorScale, Confidence)> {
     let mut exceed = [0u64; 9];
     let mut total = 0u64;
     let mut confidence = ConfidenceSums::default();
@@ -146,7 +149,7 @@ pub fn write_map(
 /// `scratch`'s budget). Returns the slot's dilated `L_render` texture for re-rendering, made
 /// within `keep` (it is kept while every view is re-rendered).
 pub fn write_slot(
-    p: &Prepared,
+    p: &RunContext,
     geom: &TileStore<TexelGeom>,
     state: &TileStore<TexelState>,
     slot: usize,
@@ -162,12 +165,12 @@ pub fn write_slot(
     }
     let l = &p.layout;
     let tex = |name: &str, f: &TexelFn| {
-        SlotTexture::gather(l, slot, state, geom, scratch, name, |s, _| f(s))
+        SlotTexture::read(l, slot, state, geom, scratch, name, |s, _| f(s))
     };
-    let cov = SlotTexture::gather(l, slot, state, geom, scratch, "cov", |_, g| {
+    let cov = SlotTexture::read(l, slot, state, geom, scratch, "cov", |_, g| {
         g.covered() as u8
     })?;
-    let obs = SlotTexture::gather(l, slot, state, geom, scratch, "obs", |s, _| {
+    let obs = SlotTexture::read(l, slot, state, geom, scratch, "obs", |s, _| {
         observed(s) as u8
     })?;
 
@@ -215,7 +218,7 @@ pub fn write_slot(
     for (name, f, mask) in each {
         write_map(&maps, id, name, &tex(name, f)?, mask, true, scratch)?;
     }
-    SlotTexture::gather(l, slot, state, geom, scratch, "l_render", |s, _| {
+    SlotTexture::read(l, slot, state, geom, scratch, "l_render", |s, _| {
         l_render(s)
     })?
     .dilated(&cov, TEXTURE_DILATE_PASSES, keep)

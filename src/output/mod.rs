@@ -39,23 +39,23 @@ pub mod uv_fold;
 
 pub use maps::write_map;
 
-use crate::atlas::hits::HitTable;
-use crate::atlas::layout::{TexelGeom, TexelState};
-use crate::atlas::slot_texture::{Scratch, SlotTexture};
-use crate::atlas::tiles::TileStore;
-use crate::atlas::Prepared;
-use crate::error::{Error, Result};
-use crate::fsio;
+use crate::atlas::context::HitTable;
+use crate::atlas::store::TileStore;
+use crate::atlas::store::{TexelGeom, TexelState};
+use crate::atlas::texture::{Scratch, SlotTexture};
+use crate::atlas::RunContext;
+use crate::base::error::{Error, Result};
+use crate::base::fsio;
+use crate::base::progress::Tick;
 use crate::image::write_pixmap_png;
-use crate::progress::Tick;
-use crate::render::Texture;
+use crate::physics::render::Texture;
 use crate::report::Report;
 use glam::Vec3;
 use std::path::Path;
 use std::time::Instant;
 
 /// The units of [`write_outputs`]' progress: every texture's texels and every view's pixels.
-pub fn output_units(p: &Prepared) -> u64 {
+pub fn output_units(p: &RunContext) -> u64 {
     let texels: u64 = p
         .layout
         .slots
@@ -70,7 +70,7 @@ pub fn output_units(p: &Prepared) -> u64 {
 }
 
 /// Pixels of sensor `si`'s photo.
-fn view_pixels(p: &Prepared, si: usize) -> u64 {
+fn view_pixels(p: &RunContext, si: usize) -> u64 {
     let s = &p.scene.sensors[si];
     s.width as u64 * s.height as u64
 }
@@ -82,7 +82,7 @@ fn view_pixels(p: &Prepared, si: usize) -> u64 {
 /// `tick` gets each shape's texels once its textures and maps are written, and each view's
 /// pixels once it is re-rendered ([`output_units`] in all).
 pub fn write_outputs(
-    p: &Prepared,
+    p: &RunContext,
     hits: &HitTable,
     (geom, state): (&TileStore<TexelGeom>, &TileStore<TexelState>),
     report: &mut Report,

@@ -8,8 +8,8 @@
 //! stay shared. Numbers are written in Rust's shortest round-trip form, so reading the file
 //! back gives the same `f32` bits.
 
-use crate::atlas::unwrap::ShapeAtlas;
-use crate::fsio::write_atomic;
+use crate::atlas::uv::ShapeAtlas;
+use crate::base::fsio::write_atomic;
 use crate::scene::Shape;
 use crate::Result;
 use std::fmt::Write as _;
@@ -98,7 +98,7 @@ pub fn mtl_text(id: &str) -> String {
 
 /// Write `<dir>/<id>.obj`, and `<dir>/<id>.mtl` for a shape with an atlas.
 pub fn write_shape_mesh(dir: &Path, shape: &Shape, atlas: Option<&ShapeAtlas>) -> Result<()> {
-    crate::fsio::create_dir(dir)?;
+    crate::base::fsio::create_dir(dir)?;
     let material = atlas.is_some();
     let obj = dir.join(format!("{}.obj", shape.id));
     write_atomic(&obj, obj_text(shape, atlas, material).as_bytes())?;
@@ -146,7 +146,7 @@ pub fn write_shape_uv_mesh(dir: &Path, shape: &Shape) -> Result<()> {
     let Some(text) = obj_text_input_uv(shape) else {
         return Ok(());
     };
-    crate::fsio::create_dir(dir)?;
+    crate::base::fsio::create_dir(dir)?;
     write_atomic(&dir.join(format!("{}_uv.obj", shape.id)), text.as_bytes())
 }
 

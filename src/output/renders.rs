@@ -2,7 +2,7 @@
 //! re-rendered from the recovered maps, side by side with its photo.
 //!
 //! A pixel is the mean of `k x k` stratified sub-pixel rays, as Mitsuba's box-filtered film
-//! is ([`render::Film::Box`](crate::render::Film::Box)): a ray that hits a reconstructed shape
+//! is ([`render::Film::Box`](crate::physics::render::Film::Box)): a ray that hits a reconstructed shape
 //! reads its radiance texture `L_render = K_d / pi (E_d + E_i)` bilinearly; one that hits an
 //! emitter shape sees its known area radiance from the front and black from behind (the
 //! emitter is not reconstructed); a ray that hits nothing contributes black. Misses count in
@@ -21,17 +21,17 @@
 
 use super::font::{draw_text, text_height, text_width};
 use super::plot::{draw_legend, legend_height, ErrorScale};
-use crate::atlas::hits::HitTable;
-use crate::atlas::Prepared;
-use crate::camera::Camera;
-use crate::fsio;
+use crate::atlas::context::HitTable;
+use crate::atlas::RunContext;
+use crate::base::fsio;
 use crate::image::{
     auto_exposure, read_sensor_image, write_exr_rgb, write_pixmap_png, write_png_srgb, Image,
 };
-use crate::project::{PixelInfo, View};
-use crate::render::{apply_pixel_filter, render_view_with, Film, Plan, Texture};
+use crate::physics::camera::Camera;
+use crate::physics::render::{apply_pixel_filter, render_view_with, Film, Plan, Texture};
 use crate::report::ViewShapeRow;
 use crate::scene::{luminance, Scene};
+use crate::stages::project::{PixelInfo, View};
 use crate::{Error, Result};
 use glam::Vec3;
 use std::path::Path;
@@ -45,7 +45,7 @@ pub const SUPERSAMPLE: u32 = 4;
 /// emitters. Pixels lying flat on one chart reuse the view's corner rays; the others are
 /// traced.
 pub fn render_recovered(
-    p: &Prepared,
+    p: &RunContext,
     hits: &HitTable,
     view: &View,
     textures: &[Option<Texture>],
@@ -185,7 +185,7 @@ fn write_masks_json(dir: &Path, scene: &Scene) -> Result<()> {
 /// Re-render view `(sensor index, photo path)`, write its EXR, PNG and comparison PNG into
 /// `dir`, and return its table rows.
 pub fn write_view(
-    p: &Prepared,
+    p: &RunContext,
     hits: &HitTable,
     textures: &[Option<Texture>],
     (si, photo_path): (usize, &Path),
@@ -241,7 +241,7 @@ fn srgb8(v: f32) -> u8 {
 /// error legend under the third panel. The first two share `exposure`; error is shown where
 /// the pixel's center lies on a reconstructed shape and the photo is not black.
 fn compare_image(
-    p: &Prepared,
+    p: &RunContext,
     view: &View,
     photo: &Image,
     render: &[Vec3],

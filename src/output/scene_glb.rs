@@ -14,10 +14,10 @@
 //! anyway); UVs are texel coordinates over the texture size (glTF's v runs down, like the
 //! atlas's y, so no flip).
 
-use crate::atlas::unwrap::ShapeAtlas;
-use crate::camera::fov_x_degrees;
-use crate::error::Error;
-use crate::fsio::write_atomic;
+use crate::atlas::uv::ShapeAtlas;
+use crate::base::error::Error;
+use crate::base::fsio::write_atomic;
+use crate::physics::camera::fov_x_degrees;
 use crate::scene::gltf::{gltf_camera_to_world, spot_cone};
 use crate::scene::{Emitter, KnownBsdf, Material, Scene, Sensor, Shape, Sides};
 use crate::Result;

@@ -12,8 +12,8 @@
 //! Shapes are written in input order, so shape indices (and `shape_<index>` ids) survive a
 //! round trip through `scene::mitsuba::load`.
 
-use crate::error::Error;
-use crate::fsio::write_atomic;
+use crate::base::error::Error;
+use crate::base::fsio::write_atomic;
 use crate::scene::{
     Emitter, EnvMap, FovAxis, KnownBsdf, PixelFilter, Rgb, Scene, Sensor, Shape, Sides,
 };

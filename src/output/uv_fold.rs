@@ -39,10 +39,10 @@
 //! Written by hand: a weighted scatter into a wrapping grid is a few lines, and no crate
 //! resamples between an atlas and a mesh's UVs.
 
-use crate::atlas::layout::{Layout, TexelGeom, TexelState};
-use crate::atlas::tiles::TileStore;
-use crate::atlas::Prepared;
-use crate::error::Result;
+use crate::atlas::store::TileStore;
+use crate::atlas::store::{Layout, TexelGeom, TexelState};
+use crate::atlas::RunContext;
+use crate::base::error::Result;
 use crate::image::{write_exr_rgb, write_png_srgb};
 use crate::report::UvFold;
 use crate::scene::{luminance, Mesh};
@@ -55,7 +55,7 @@ use std::path::Path;
 /// each and the fold itself, whose side is capped so that it takes at most `budget` bytes.
 /// Returns, per shape, whether `scene.xml` is to use its fold, and what each fold found.
 pub fn fold_shapes(
-    p: &Prepared,
+    p: &RunContext,
     stores: (&TileStore<TexelGeom>, &TileStore<TexelState>),
     out: &Path,
     budget: u64,
@@ -106,7 +106,7 @@ pub fn fold_budget(memory_budget_mib: u64) -> u64 {
 /// fold averages their noise over the repeats and the filter would only take detail.
 /// One streaming pass over each such shape's tiles.
 pub fn foldable_slots(
-    p: &Prepared,
+    p: &RunContext,
     stores: (&TileStore<TexelGeom>, &TileStore<TexelState>),
     budget: u64,
 ) -> Result<Vec<bool>> {
@@ -124,7 +124,7 @@ pub fn foldable_slots(
 /// shapes a fold is tried on), its repeats and the census of its samples (one streaming pass
 /// over its tiles); `None` for any other slot.
 fn tiled_census(
-    p: &Prepared,
+    p: &RunContext,
     slot: usize,
     stores: (&TileStore<TexelGeom>, &TileStore<TexelState>),
 ) -> Result<Option<(f32, Census)>> {
@@ -152,7 +152,7 @@ pub fn max_res(budget: u64) -> u32 {
 /// `textures/<id>_albedo_uv.exr|png` and `meshes/<id>_uv.obj` for a kept fold.
 fn write_fold(out: &Path, shape: &crate::scene::Shape, tex: &UvTexture) -> Result<()> {
     let dir = out.join("textures");
-    crate::fsio::create_dir(&dir)?;
+    crate::base::fsio::create_dir(&dir)?;
     // names built whole: an id may hold a dot (Blender's "Plane.001")
     let name = |ext: &str| dir.join(format!("{}_albedo_uv.{ext}", shape.id));
     let r = tex.res;
@@ -678,7 +678,7 @@ mod tests {
     /// atlas texels a repeat would be coarser than they are).
     #[test]
     fn only_shapes_the_fold_may_take_skip_the_filter() {
-        use crate::atlas::layout::TexelState;
+        use crate::atlas::store::TexelState;
         use crate::atlas::testing::Built;
         let rect = |id: &str, scale: f32| {
             let mut m = mesh::rectangle();

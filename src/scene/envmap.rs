@@ -21,7 +21,7 @@
 //! The map is read with the `exr` crate (OpenEXR) or the `image` crate's Radiance decoder
 //! (`.hdr`, RGBE), directly: `crate::image` sits above the scene in the layering.
 
-use crate::error::Error;
+use crate::base::error::Error;
 use crate::scene::{luminance, Rgb};
 use crate::Result;
 use glam::{Mat3, Mat4, Vec3};

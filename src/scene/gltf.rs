@@ -28,7 +28,7 @@
 //! Every refusal is one line naming the file and the JSON path or node, e.g.
 //! `scene.gltf, nodes[3] 'Cam': orthographic cameras are not supported`.
 
-use crate::error::{Error, Location};
+use crate::base::error::{Error, Location};
 use crate::scene::{Emitter, Scene, Sensor, Shape};
 use crate::Result;
 use glam::DMat4;

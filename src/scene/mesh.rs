@@ -32,7 +32,7 @@
 //! normals, each vertex's the angle-weighted mean of its faces' normals
 //! ([`compute_vertex_normals`]); the caller does that after `to_world` since Mitsuba does.
 
-use crate::error::{Error, Location};
+use crate::base::error::{Error, Location};
 use crate::scene::Mesh;
 use crate::Result;
 use glam::{Vec2, Vec3};

@@ -31,7 +31,7 @@
 //! sensor and emitter ids must be usable as file names; emitter values must be non-negative;
 //! sensor and sphere transforms may not shear either (Mitsuba only checks scale).
 
-use crate::error::{Error, Location};
+use crate::base::error::{Error, Location};
 use crate::scene::{
     mesh, Emitter, EnvMap, KnownMaterial, Material, Mesh, ReflectanceSpec, Rgb, Scene, Shape, Sides,
 };

@@ -5,7 +5,7 @@
 //! scoring a run against it is `crate::accuracy`.
 
 use super::{mitsuba, Mesh, ReflectanceSpec, Rgb};
-use crate::error::{Error, Result};
+use crate::base::error::{Error, Result};
 use glam::{Vec2, Vec3};
 use std::collections::HashMap;
 use std::path::Path;

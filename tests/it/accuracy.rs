@@ -10,12 +10,12 @@
 //! bounds.
 
 use kdmap::accuracy::ShapeAccuracy;
-use kdmap::atlas::layout::{TexelGeom, TexelState};
-use kdmap::atlas::tiles::TileStore;
+use kdmap::atlas::store::TileStore;
+use kdmap::atlas::store::{TexelGeom, TexelState};
 use kdmap::atlas::{prepare, state_dir};
+use kdmap::base::progress::Mode;
 use kdmap::config::{Config, Method};
 use kdmap::pipeline::{reconstruct, run_projection};
-use kdmap::progress::Mode;
 use kdmap::scene::truth::{Reflectance, Truth};
 use std::path::Path;
 

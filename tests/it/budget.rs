@@ -9,10 +9,10 @@
 //! Also: a memory budget too small for the harmonic relaxation of the unobserved texels keeps
 //! the wave's fill for those textures and says so in the report, never silently.
 
+use kdmap::base::progress::Mode;
 use kdmap::config::{Config, Density, Method};
 use kdmap::image::read_exr;
 use kdmap::pipeline::reconstruct;
-use kdmap::progress::Mode;
 use std::path::Path;
 
 /// The E_i map of the back wall after one photon pass (`budget` sets the photons).

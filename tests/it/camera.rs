@@ -1,11 +1,11 @@
-//! Proof that `kdmap::camera` reproduces Mitsuba 3's perspective camera: primary rays cast
+//! Proof that `kdmap::physics::camera` reproduces Mitsuba 3's perspective camera: primary rays cast
 //! through every pixel of the fixture scenes' training views hit geometry exactly where the
 //! Mitsuba renders are lit. Also holds the one-off fixture re-encoding (ignored by default).
 
 use glam::Vec3;
-use kdmap::accel::Accel;
-use kdmap::camera::Camera;
 use kdmap::image::{read_exr, read_sensor_image, write_exr_rgb, write_png_srgb, Image};
+use kdmap::physics::accel::Accel;
+use kdmap::physics::camera::Camera;
 use kdmap::scene::{luminance, Scene};
 use std::path::{Path, PathBuf};
 

@@ -258,8 +258,8 @@ fn a_real_full_tmpfs_fails_in_one_line_and_resume_ends_bit_for_bit() {
 /// it is an ENOSPC error naming the file instead.
 #[test]
 fn a_tile_store_larger_than_the_disk_is_refused_at_creation() {
-    use kdmap::atlas::layout::TexelState;
-    use kdmap::atlas::tiles::TileStore;
+    use kdmap::atlas::store::TexelState;
+    use kdmap::atlas::store::TileStore;
     let tmp = tempfile::tempdir().unwrap();
     let mnt = tmp.path().join("mnt");
     std::fs::create_dir(&mnt).unwrap();

@@ -4,8 +4,8 @@
 //! error of the right kind (`Input` for a user's file, `Corrupt` for kdmap's own state).
 //! Inputs are inline or small files under `tests/fixtures/fuzz/<target>/`.
 
+use kdmap::base::error::Error;
 use kdmap::checkpoint::{self, Manifest, Snapshot};
-use kdmap::error::Error;
 use kdmap::scene::mesh;
 use std::path::{Path, PathBuf};
 

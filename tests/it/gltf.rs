@@ -6,8 +6,8 @@
 //! with one located line.
 
 use glam::{Vec2, Vec3};
-use kdmap::camera::{fov_x_degrees, Camera};
 use kdmap::config::{Config, Overrides};
+use kdmap::physics::camera::{fov_x_degrees, Camera};
 use kdmap::scene::{self, mitsuba, Emitter};
 use serde_json::json;
 use std::path::{Path, PathBuf};
@@ -142,9 +142,9 @@ fn inspect_takes_gltf_and_refuses_broken_files_in_one_located_line() {
 
 /// Reconstruct `cfg` into a temp dir and score it against the true albedo of `truth`.
 fn reconstruct_and_score(cfg: &Config, truth: &Path) -> Vec<kdmap::accuracy::ShapeAccuracy> {
-    use kdmap::atlas::layout::{TexelGeom, TexelState};
-    use kdmap::atlas::tiles::TileStore;
-    use kdmap::progress::Mode;
+    use kdmap::atlas::store::TileStore;
+    use kdmap::atlas::store::{TexelGeom, TexelState};
+    use kdmap::base::progress::Mode;
     let out = tempfile::tempdir().unwrap();
     kdmap::pipeline::reconstruct(cfg, out.path(), Mode::Quiet).unwrap();
     let p = kdmap::atlas::prepare(cfg, Mode::Quiet).unwrap();

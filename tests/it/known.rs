@@ -4,12 +4,12 @@
 //! pins a shape's albedo.
 
 use kdmap::accuracy::ShapeAccuracy;
-use kdmap::atlas::layout::{TexelGeom, TexelState};
-use kdmap::atlas::tiles::TileStore;
+use kdmap::atlas::store::TileStore;
+use kdmap::atlas::store::{TexelGeom, TexelState};
 use kdmap::atlas::{prepare, state_dir};
+use kdmap::base::progress::Mode;
 use kdmap::config::Config;
 use kdmap::pipeline::reconstruct;
-use kdmap::progress::Mode;
 use kdmap::scene::truth::Truth;
 use std::path::{Path, PathBuf};
 use std::process::Command;

@@ -4,21 +4,21 @@
 //! file is read back and compared with what it must hold.
 
 use glam::{Vec2, Vec3};
-use kdmap::atlas::layout::{flags, TexelGeom, TexelState};
-use kdmap::atlas::slot_texture::Scratch;
-use kdmap::atlas::texture::gather;
-use kdmap::atlas::tiles::TileStore;
-use kdmap::atlas::{state_dir, Prepared};
-use kdmap::camera::Camera;
+use kdmap::atlas::store::TileStore;
+use kdmap::atlas::store::{flags, TexelGeom, TexelState};
+use kdmap::atlas::texture::read_slot;
+use kdmap::atlas::texture::Scratch;
+use kdmap::atlas::{state_dir, RunContext};
+use kdmap::base::progress::{no_tick, Mode};
 use kdmap::config::Config;
 use kdmap::image::{read_exr, read_sensor_image};
 use kdmap::output::renders::xy_chromaticity;
 use kdmap::output::write_outputs;
+use kdmap::physics::camera::Camera;
 use kdmap::pipeline::run_projection;
-use kdmap::progress::{no_tick, Mode};
-use kdmap::project::View;
 use kdmap::report::{IterationStats, Report};
 use kdmap::scene::{luminance, mitsuba, Emitter};
+use kdmap::stages::project::View;
 use std::f32::consts::PI;
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
@@ -41,7 +41,7 @@ fn error_of(x: u32, y: u32) -> f32 {
 struct Run {
     _dir: tempfile::TempDir,
     out: PathBuf,
-    p: Prepared,
+    p: RunContext,
     geom: TileStore<TexelGeom>,
     state: TileStore<TexelState>,
     report: Report,
@@ -101,8 +101,8 @@ fn run() -> &'static Run {
         let out = std::env::var_os("KDMAP_OUTPUT_DIR")
             .map(PathBuf::from)
             .unwrap_or_else(|| dir.path().join("out"));
-        let charts = kdmap::atlas::charts::Charts::new(&p.scene, &p.layout, &p.atlases).unwrap();
-        let hits = kdmap::atlas::hits::HitTable::new(&p, &charts);
+        let charts = kdmap::atlas::uv::Charts::new(&p.scene, &p.layout, &p.atlases).unwrap();
+        let hits = kdmap::atlas::context::HitTable::new(&p, &charts);
         let scratch = Scratch::new(dir.path(), 1 << 28);
         write_outputs(
             &p,
@@ -125,7 +125,7 @@ fn run() -> &'static Run {
     })
 }
 
-fn recon_ids(p: &Prepared) -> Vec<String> {
+fn recon_ids(p: &RunContext) -> Vec<String> {
     p.layout
         .slots
         .iter()
@@ -185,7 +185,7 @@ fn every_contract_file_exists() {
 
 /// Per slot: (state records in texture order, covered mask).
 fn texture_state(r: &Run, slot: usize) -> (Vec<TexelState>, Vec<bool>) {
-    gather(&r.p.layout, slot, &r.state, &r.geom, |s, g| {
+    read_slot(&r.p.layout, slot, &r.state, &r.geom, |s, g| {
         (*s, g.covered())
     })
     .unwrap()

@@ -7,21 +7,21 @@
 //! - `KDMAP_REFINE_PASSES=<n>` overrides `project::REFINE_PASSES` (0 = the plain weighted mean).
 
 use glam::{Vec2, Vec3};
-use kdmap::atlas::charts::Charts;
-use kdmap::atlas::hits::HitTable;
-use kdmap::atlas::layout::{TexelGeom, TexelState};
-use kdmap::atlas::slot_texture::{Scratch, SlotTexture};
-use kdmap::atlas::tiles::TileStore;
-use kdmap::atlas::{build_geometry, prepare, state_dir, Prepared};
-use kdmap::camera::Camera;
+use kdmap::atlas::context::HitTable;
+use kdmap::atlas::store::TileStore;
+use kdmap::atlas::store::{TexelGeom, TexelState};
+use kdmap::atlas::texture::{Scratch, SlotTexture};
+use kdmap::atlas::uv::Charts;
+use kdmap::atlas::{build_geometry, prepare, state_dir, RunContext};
+use kdmap::base::progress::Mode;
 use kdmap::config::Config;
 use kdmap::config::REFINE_PASSES;
 use kdmap::image::{read_exr, read_sensor_image, write_exr_rgb, write_png_srgb, Image};
 use kdmap::output::write_map;
-use kdmap::progress::Mode;
-use kdmap::project::{ProjectionStats, View};
-use kdmap::render::{bilinear, render_view, Film, Texture};
+use kdmap::physics::camera::Camera;
+use kdmap::physics::render::{bilinear, render_view, Film, Texture};
 use kdmap::scene::luminance;
+use kdmap::stages::project::{ProjectionStats, View};
 use std::path::{Path, PathBuf};
 
 fn fixture(scene_dir: &str) -> PathBuf {
@@ -54,7 +54,7 @@ fn refine_passes() -> u32 {
 /// The projection stage (`project::run`: the weighted mean, then `passes` refinement passes),
 /// with the luminance maps written to `<out>/maps` and read back as a user would. Returns the
 /// prepared scene and the maps by shape.
-fn project(cfg: &Config, out: &Path, passes: u32) -> (Prepared, Vec<Option<Image>>) {
+fn project(cfg: &Config, out: &Path, passes: u32) -> (RunContext, Vec<Option<Image>>) {
     let (p, maps, _) = project_stats(cfg, out, passes);
     (p, maps)
 }
@@ -64,7 +64,7 @@ fn project_stats(
     cfg: &Config,
     out: &Path,
     passes: u32,
-) -> (Prepared, Vec<Option<Image>>, ProjectionStats) {
+) -> (RunContext, Vec<Option<Image>>, ProjectionStats) {
     let mut cfg = cfg.clone();
     cfg.refine_passes = passes;
     let p = prepare(&cfg, Mode::Quiet).unwrap();
@@ -77,7 +77,7 @@ fn project_stats(
     let charts = Charts::new(&p.scene, &p.layout, &p.atlases).unwrap();
     let hits = HitTable::new(&p, &charts);
     let scratch = Scratch::new(&dir, 1 << 30);
-    let stats = kdmap::project::run(
+    let stats = kdmap::stages::project::run(
         &p,
         &cfg,
         (&hits, &charts),
@@ -97,11 +97,11 @@ fn project_stats(
     for (slot, st) in p.layout.slots.iter().enumerate() {
         let id = &p.scene.shapes[st.shape].id;
         let (l, sc) = (&p.layout, &scratch);
-        let lum = SlotTexture::gather(l, slot, &state, &geom, sc, "lum", |s, _| {
+        let lum = SlotTexture::read(l, slot, &state, &geom, sc, "lum", |s, _| {
             Vec3::from_array(s.l_orig)
         })
         .unwrap();
-        let observed = SlotTexture::gather(l, slot, &state, &geom, sc, "obs", |s, _| {
+        let observed = SlotTexture::read(l, slot, &state, &geom, sc, "obs", |s, _| {
             (s.weight > 0.0) as u8
         })
         .unwrap();
@@ -115,7 +115,7 @@ fn project_stats(
     (p, maps, stats)
 }
 
-fn textures<'a>(p: &'a Prepared, maps: &'a [Option<Image>]) -> Vec<Option<Texture<'a>>> {
+fn textures<'a>(p: &'a RunContext, maps: &'a [Option<Image>]) -> Vec<Option<Texture<'a>>> {
     maps.iter()
         .enumerate()
         .map(|(i, m)| {
@@ -137,7 +137,7 @@ fn textures<'a>(p: &'a Prepared, maps: &'a [Option<Image>]) -> Vec<Option<Textur
 /// reference. On failure an x10 error image is written to `target/tmp` (`CARGO_TARGET_TMPDIR`).
 fn reprojection_error(
     label: &str,
-    p: &Prepared,
+    p: &RunContext,
     maps: &[Option<Image>],
     photos: &[(usize, PathBuf)],
 ) -> Vec<(String, f64, usize)> {
@@ -272,7 +272,7 @@ struct Field {
 type FieldTexture = (Image, Vec<[Vec2; 3]>);
 
 impl Field {
-    fn cbox_tex(p: &Prepared, root: &Path) -> Field {
+    fn cbox_tex(p: &RunContext, root: &Path) -> Field {
         let tex = p
             .scene
             .shapes
@@ -330,7 +330,7 @@ impl Field {
     }
 
     /// The field at a point of triangle `tri` of shape `shape`.
-    fn at(&self, p: &Prepared, shape: usize, tri: usize, q: Vec3) -> Vec3 {
+    fn at(&self, p: &RunContext, shape: usize, tri: usize, q: Vec3) -> Vec3 {
         let [a, b, c] = p.scene.shapes[shape].mesh.triangle(tri);
         let (e1, e2, e) = (b - a, c - a, q - a);
         let (d11, d12, d22) = (e1.dot(e1), e1.dot(e2), e2.dot(e2));
@@ -348,7 +348,7 @@ impl Field {
 /// of `shape`, relative to the field's mean there. `tiles` holds every tile's
 /// `(geometry, state)`.
 fn map_error(
-    p: &Prepared,
+    p: &RunContext,
     field: &Field,
     maps: &[Option<Image>],
     tiles: &[(Vec<TexelGeom>, Vec<TexelState>)],
@@ -391,7 +391,7 @@ fn stores(out: &Path) -> (TileStore<TexelGeom>, TileStore<TexelState>) {
 /// to each pixel, written to `dir` and put in `cfg.views` in place of the photos. Returns
 /// `(sensor, file)` per view.
 fn synthetic_photos(
-    p: &Prepared,
+    p: &RunContext,
     field: &Field,
     cfg: &mut Config,
     dir: &Path,
@@ -417,7 +417,7 @@ fn synthetic_photos(
 }
 
 /// Every tile of the geometry and state stores a run left in `out`.
-fn read_tiles(p: &Prepared, out: &Path) -> Vec<(Vec<TexelGeom>, Vec<TexelState>)> {
+fn read_tiles(p: &RunContext, out: &Path) -> Vec<(Vec<TexelGeom>, Vec<TexelState>)> {
     let (geom, state) = stores(out);
     (0..p.layout.tile_count as usize)
         .map(|t| (geom.read_tile(t).unwrap(), state.read_tile(t).unwrap()))
@@ -429,7 +429,7 @@ const WALLS: [&str; 3] = ["ceiling", "left", "right"];
 
 /// Per wall of [`WALLS`], [`map_error`] of `maps` against `field`.
 fn wall_errors(
-    p: &Prepared,
+    p: &RunContext,
     field: &Field,
     maps: &[Option<Image>],
     tiles: &[(Vec<TexelGeom>, Vec<TexelState>)],
@@ -621,7 +621,7 @@ impl Field {
     /// the photos cannot resolve, so what is left is the projection's own doing), the two
     /// boxes in front of them are 8x brighter than any of it, the rest constant. A texel of
     /// the wall or floor that took anything from a box's silhouette shows it at once.
-    fn occlusion(p: &Prepared) -> Field {
+    fn occlusion(p: &RunContext) -> Field {
         let n = 64u32;
         let pattern: Vec<Vec3> = (0..n * n)
             .map(|i| {
@@ -915,7 +915,7 @@ fn bin_areas_sum_to_mesh_areas_at_low_density() {
 
 /// Per shape of a projection left in `out`: `(shape id, texel index within the run, luminance,
 /// predicted standard deviation sqrt(l_var))` of every observed texel.
-fn observed_luminance(p: &Prepared, out: &Path) -> Vec<(String, usize, f32, f32)> {
+fn observed_luminance(p: &RunContext, out: &Path) -> Vec<(String, usize, f32, f32)> {
     let mut v = Vec::new();
     for (t, (_, ss)) in read_tiles(p, out).into_iter().enumerate() {
         let slot = p.layout.slot_of_tile(t as u32);
@@ -936,7 +936,7 @@ fn observed_luminance(p: &Prepared, out: &Path) -> Vec<(String, usize, f32, f32)
 fn photo_noise(seed: u64) -> impl Fn(usize, usize, Vec3) -> Vec3 {
     move |si: usize, i: usize, v: Vec3| {
         let rel = 0.016 / luminance(v).max(0.04).sqrt();
-        let n = kdmap::rng::Rng::new(seed, si as u64, 0, i as u64).normal();
+        let n = kdmap::base::rng::Rng::new(seed, si as u64, 0, i as u64).normal();
         v * (1.0 + rel * n).max(0.0)
     }
 }

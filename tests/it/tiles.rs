@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use bytemuck::{Pod, Zeroable};
-use kdmap::atlas::tiles::{window_tiles_for_budget, TileStore, HEADER_BYTES};
+use kdmap::atlas::store::{window_tiles_for_budget, TileStore, HEADER_BYTES};
 
 type TestResult = Result<(), Box<dyn std::error::Error>>;
 

@@ -3,9 +3,9 @@
 //! nothing the run reconstructed, which must be refused rather than scored as 0.00%.
 
 use kdmap::accuracy::score_run;
+use kdmap::base::progress::Mode;
 use kdmap::config::{Config, Preset};
 use kdmap::pipeline::reconstruct;
-use kdmap::progress::Mode;
 use std::path::Path;
 use std::process::Command;
 

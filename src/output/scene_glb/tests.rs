@@ -166,7 +166,7 @@ fn glb_round_trips_through_the_gltf_crate_and_kdmap() {
     );
     let cam = &back.sensors[0];
     assert!(cam.to_world.abs_diff_eq(scene.sensors[0].to_world, 1e-5));
-    let fx = crate::camera::fov_x_degrees(cam.fov, cam.fov_axis, 2.0);
+    let fx = crate::physics::camera::fov_x_degrees(cam.fov, cam.fov_axis, 2.0);
     assert!((fx - 40.0).abs() < 1e-3, "{fx}");
     assert_eq!(back.emitters.len(), 4);
     for (a, b) in back.emitters.iter().zip(&scene.emitters) {

@@ -2,7 +2,7 @@
 //! Mitsuba's formulas written out independently and brute-force quadrature.
 
 use super::*;
-use crate::rng::Rng;
+use crate::base::rng::Rng;
 use std::f32::consts::PI;
 
 /// Mitsuba's `uv_to_direction`.

@@ -46,12 +46,12 @@ pub fn gltf_camera_to_world(world: &DMat4) -> Option<Mat4> {
 /// The size of an OpenEXR photo from its header (first part's data window).
 fn photo_size(photo: &Path) -> Result<(u32, u32)> {
     let meta = exr::meta::MetaData::read_from_file(photo, false).map_err(|e| {
-        crate::error::Error::input(photo, format!("not a readable OpenEXR file: {e}"))
+        crate::base::error::Error::input(photo, format!("not a readable OpenEXR file: {e}"))
     })?;
     let h = meta
         .headers
         .first()
-        .ok_or_else(|| crate::error::Error::input(photo, "OpenEXR file without a header"))?;
+        .ok_or_else(|| crate::base::error::Error::input(photo, "OpenEXR file without a header"))?;
     Ok((h.layer_size.width() as u32, h.layer_size.height() as u32))
 }
 

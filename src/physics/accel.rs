@@ -1,0 +1,243 @@
+//! Ray casting over the whole scene: one obvhs CWBVH over every triangle of every shape.
+//!
+//! Closest hit returns (shape, triangle, barycentrics, distance); `occluded` answers shadow
+//! rays with `ray_traverse_miss`, which stops at the first hit (obvhs' any-hit traversal does
+//! not). obvhs reports primitive ids in BVH order, so we keep our triangles in that order and
+//! map back through `primitive_indices` once, at build time. Its triangle test is not
+//! watertight, so callers offset ray origins with [`offset_origin`].
+
+use crate::scene::Scene;
+use glam::{Vec3, Vec3A};
+use obvhs::{
+    cwbvh::{builder::build_cwbvh_from_tris, CwBvh},
+    ray::{Ray, RayHit},
+    triangle::Triangle,
+    BvhBuildParams,
+};
+use std::time::Duration;
+
+/// A closest-hit record.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Hit {
+    /// Index into `Scene::shapes`.
+    pub shape: u32,
+    /// Triangle index within that shape's mesh.
+    pub tri: u32,
+    /// Barycentric weights of vertices 1 and 2 (vertex 0 gets `1 - b1 - b2`).
+    pub b1: f32,
+    pub b2: f32,
+    /// Distance along the (unit) ray direction.
+    pub t: f32,
+    /// The BVH primitive index (see [`Accel::prim_ids`]).
+    pub prim: u32,
+}
+
+/// The scene's acceleration structure. Immutable and `Sync`: share it across threads.
+pub struct Accel {
+    bvh: CwBvh,
+    /// Triangles in BVH primitive order.
+    tris: Vec<Triangle>,
+    /// (shape, triangle) for each BVH primitive.
+    ids: Vec<(u32, u32)>,
+}
+
+impl Accel {
+    /// Build over all shapes of the scene (emitters included: they occlude too).
+    pub fn build(scene: &Scene) -> Accel {
+        let mut tris = Vec::with_capacity(scene.triangle_count());
+        let mut ids = Vec::with_capacity(scene.triangle_count());
+        for (si, s) in scene.shapes.iter().enumerate() {
+            for t in 0..s.mesh.triangles.len() {
+                let [a, b, c] = s.mesh.triangle(t);
+                tris.push(Triangle {
+                    v0: a.into(),
+                    v1: b.into(),
+                    v2: c.into(),
+                });
+                ids.push((si as u32, t as u32));
+            }
+        }
+        Self::from_triangles(tris, ids)
+    }
+
+    /// Build from a raw triangle soup (`ids` names each triangle's (shape, tri)).
+    pub fn from_triangles(tris: Vec<Triangle>, ids: Vec<(u32, u32)>) -> Accel {
+        assert_eq!(tris.len(), ids.len());
+        if tris.is_empty() {
+            return Accel {
+                bvh: CwBvh::default(),
+                tris,
+                ids,
+            };
+        }
+        let bvh = build_cwbvh_from_tris(
+            &tris,
+            BvhBuildParams::medium_build(),
+            &mut Duration::default(),
+        );
+        let order = &bvh.primitive_indices;
+        let tris_o = order.iter().map(|&i| tris[i as usize]).collect();
+        let ids_o = order.iter().map(|&i| ids[i as usize]).collect();
+        Accel {
+            bvh,
+            tris: tris_o,
+            ids: ids_o,
+        }
+    }
+
+    pub fn triangle_count(&self) -> usize {
+        self.tris.len()
+    }
+
+    /// `(shape, triangle)` of every BVH primitive, in BVH order: a [`Hit::prim`] indexes it,
+    /// and tables laid out in this order are read with one lookup per hit.
+    pub fn prim_ids(&self) -> &[(u32, u32)] {
+        &self.ids
+    }
+
+    /// Closest hit along `origin + t * dir` for `t` in `(0, tmax)`. `dir` must be unit length.
+    #[inline]
+    pub fn intersect(&self, origin: Vec3, dir: Vec3, tmax: f32) -> Option<Hit> {
+        if self.tris.is_empty() {
+            return None;
+        }
+        let ray = Ray::new(origin.into(), dir.into(), 0.0, tmax);
+        let mut hit = RayHit::none();
+        let tris = &self.tris;
+        if !self
+            .bvh
+            .ray_traverse(ray, &mut hit, |r, id| tris[id].intersect(r))
+        {
+            return None;
+        }
+        let id = hit.primitive_id as usize;
+        let tri = &self.tris[id];
+        let p: Vec3A = ray.origin + ray.direction * hit.t;
+        let (b1, b2) = barycentric(tri, p);
+        let (shape, t) = self.ids[id];
+        Some(Hit {
+            shape,
+            tri: t,
+            b1,
+            b2,
+            t: hit.t,
+            prim: id as u32,
+        })
+    }
+
+    /// Whether anything blocks the segment from `origin` along unit `dir` before `tmax`.
+    #[inline]
+    pub fn occluded(&self, origin: Vec3, dir: Vec3, tmax: f32) -> bool {
+        if self.tris.is_empty() {
+            return false;
+        }
+        let ray = Ray::new(origin.into(), dir.into(), 0.0, tmax);
+        let tris = &self.tris;
+        !self
+            .bvh
+            .ray_traverse_miss(ray, |r, id| tris[id].intersect(r))
+    }
+}
+
+/// Barycentric weights (of v1, v2) of point `p` in the triangle's plane.
+fn barycentric(t: &Triangle, p: Vec3A) -> (f32, f32) {
+    let e1 = t.v1 - t.v0;
+    let e2 = t.v2 - t.v0;
+    let d = p - t.v0;
+    let d11 = e1.dot(e1);
+    let d12 = e1.dot(e2);
+    let d22 = e2.dot(e2);
+    let dp1 = d.dot(e1);
+    let dp2 = d.dot(e2);
+    let den = d11 * d22 - d12 * d12;
+    if den == 0.0 {
+        return (0.0, 0.0);
+    }
+    let b1 = (d22 * dp1 - d12 * dp2) / den;
+    let b2 = (d11 * dp2 - d12 * dp1) / den;
+    (b1.clamp(0.0, 1.0), b2.clamp(0.0, 1.0 - b1.clamp(0.0, 1.0)))
+}
+
+/// Offset a ray origin off a surface at `p` with geometric normal `n`, towards the side `dir`
+/// leaves on, by an epsilon that scales with the coordinates' magnitude (the triangle test is
+/// not watertight and f32 positions carry relative error).
+#[inline]
+pub fn offset_origin(p: Vec3, n: Vec3, dir: Vec3) -> Vec3 {
+    let scale = p.abs().max_element().max(1.0);
+    let eps = 1e-4 * scale;
+    if n.dot(dir) >= 0.0 {
+        p + n * eps
+    } else {
+        p - n * eps
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::base::rng::Rng;
+
+    fn soup(n: usize, seed: u64) -> (Vec<Triangle>, Vec<(u32, u32)>) {
+        let mut r = Rng::new(seed, 0, 0, 0);
+        let mut tris = Vec::new();
+        for _ in 0..n {
+            let c = Vec3A::new(r.f32(), r.f32(), r.f32()) * 4.0 - 2.0;
+            let mut v = || c + Vec3A::new(r.f32(), r.f32(), r.f32()) * 0.6 - 0.3;
+            tris.push(Triangle {
+                v0: v(),
+                v1: v(),
+                v2: v(),
+            });
+        }
+        let ids = (0..n as u32).map(|i| (0, i)).collect();
+        (tris, ids)
+    }
+
+    /// The BVH's closest hit and occlusion agree with testing every triangle.
+    #[test]
+    fn closest_hit_matches_brute_force() {
+        let (tris, ids) = soup(500, 7);
+        let accel = Accel::from_triangles(tris.clone(), ids);
+        let mut r = Rng::new(9, 0, 0, 0);
+        let mut hits = 0;
+        for _ in 0..2000 {
+            let o = Vec3::new(r.f32(), r.f32(), r.f32()) * 8.0 - 4.0;
+            let d = (Vec3::new(r.f32(), r.f32(), r.f32()) * 2.0 - 1.0).normalize();
+            let ray = Ray::new(o.into(), d.into(), 0.0, f32::INFINITY);
+            let (mut best, mut bi) = (f32::INFINITY, usize::MAX);
+            for (i, t) in tris.iter().enumerate() {
+                let h = t.intersect(&ray);
+                if h < best {
+                    best = h;
+                    bi = i;
+                }
+            }
+            let got = accel.intersect(o, d, f32::INFINITY);
+            match got {
+                None => assert!(best.is_infinite()),
+                Some(h) => {
+                    hits += 1;
+                    assert_eq!(h.tri as usize, bi);
+                    assert!((h.t - best).abs() <= 1e-5 * best.max(1.0));
+                    // barycentrics reproduce the hit point
+                    let t = &tris[bi];
+                    let p = t.v0 * (1.0 - h.b1 - h.b2) + t.v1 * h.b1 + t.v2 * h.b2;
+                    let q = Vec3A::from(o) + Vec3A::from(d) * h.t;
+                    assert!((p - q).length() < 1e-3, "{p} vs {q}");
+                }
+            }
+            assert!(!accel.occluded(o, d, best * 0.999));
+            if best.is_finite() {
+                assert!(accel.occluded(o, d, best * 1.001 + 1e-4));
+            }
+        }
+        assert!(hits > 100, "too few hits ({hits}) to mean anything");
+    }
+
+    #[test]
+    fn empty_scene_never_hits() {
+        let a = Accel::from_triangles(vec![], vec![]);
+        assert!(a.intersect(Vec3::ZERO, Vec3::Z, 1.0).is_none());
+        assert!(!a.occluded(Vec3::ZERO, Vec3::Z, 1.0));
+    }
+}

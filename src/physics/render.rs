@@ -1,0 +1,459 @@
+//! Looking at texture-space results through a camera: sub-pixel primary rays, the hit's atlas
+//! coordinates, a bilinear texture lookup. Used to re-render the input views from recovered
+//! maps (outputs), by the projection's refinement, and to check projection (a luminance map
+//! re-projected must give back the photo).
+
+use crate::base::rng::Rng;
+use crate::image::Image;
+use crate::physics::accel::{offset_origin, Accel};
+use crate::physics::bsdf_sampling;
+use crate::physics::camera::Camera;
+use crate::scene::{Emitter, PixelFilter, Scene, Sides};
+use glam::{Vec2, Vec3};
+use rayon::prelude::*;
+
+/// Texels a renderer can look up: `width x height` linear RGB, row 0 = top. Implemented by
+/// the atlas's slot textures (whole or tiled) and by a plain row-major slice ([`RowMajor`]).
+pub trait Texels: Sync {
+    fn width(&self) -> u32;
+    fn height(&self) -> u32;
+    /// Texel `(x, y)`, inside the texture.
+    fn texel(&self, x: u32, y: u32) -> Vec3;
+}
+
+/// A row-major `width x height` slice as [`Texels`].
+pub struct RowMajor<'a> {
+    pub width: u32,
+    pub height: u32,
+    pub texels: &'a [Vec3],
+}
+
+impl Texels for RowMajor<'_> {
+    fn width(&self) -> u32 {
+        self.width
+    }
+    fn height(&self) -> u32 {
+        self.height
+    }
+    #[inline]
+    fn texel(&self, x: u32, y: u32) -> Vec3 {
+        self.texels[(y * self.width + x) as usize]
+    }
+}
+
+impl Texels for Image {
+    fn width(&self) -> u32 {
+        self.width
+    }
+    fn height(&self) -> u32 {
+        self.height
+    }
+    #[inline]
+    fn texel(&self, x: u32, y: u32) -> Vec3 {
+        self.pixels[(y * self.width + x) as usize]
+    }
+}
+
+/// A per-shape texture and the shape's atlas coordinates.
+pub struct Texture<'a> {
+    pub texels: &'a dyn Texels,
+    /// Per-triangle corner coordinates in texel units (the shape's atlas).
+    pub corner_uv: &'a [[Vec2; 3]],
+}
+
+/// Bilinear lookup at continuous texel coordinates (texel (i, j) has its center at
+/// (i + 0.5, j + 0.5)), clamped to the texture.
+pub fn bilinear(texels: &dyn Texels, uv: Vec2) -> Vec3 {
+    let (width, height) = (texels.width(), texels.height());
+    let fx = (uv.x - 0.5).clamp(0.0, (width - 1) as f32);
+    let fy = (uv.y - 0.5).clamp(0.0, (height - 1) as f32);
+    let (x0, y0) = (fx.floor() as u32, fy.floor() as u32);
+    let (x1, y1) = ((x0 + 1).min(width - 1), (y0 + 1).min(height - 1));
+    let (tx, ty) = (fx - x0 as f32, fy - y0 as f32);
+    let g = |x: u32, y: u32| texels.texel(x, y);
+    let top = g(x0, y0) * (1.0 - tx) + g(x1, y0) * tx;
+    let bot = g(x0, y1) * (1.0 - tx) + g(x1, y1) * tx;
+    top * (1.0 - ty) + bot * ty
+}
+
+/// How a rendered pixel treats its sub-pixel rays that do not see a texture.
+#[derive(Clone, Copy)]
+pub enum Film<'a> {
+    /// The mean over the sub-pixel rays that hit a textured shape; `None` where none does
+    /// (projection refinement compares only what the maps cover).
+    HitsOnly,
+    /// Mitsuba's box-filtered film: every sub-pixel ray counts in the mean; a ray that hits
+    /// an emitter shape sees its radiance from the front and black from behind, a miss sees
+    /// the environment emitters (black without one). Pixels that lie wholly on emitters or
+    /// the environment take `photo`'s value (the light is not reconstructed, so it never
+    /// shows as error). Always `Some`.
+    Box { scene: &'a Scene, photo: &'a Image },
+}
+
+/// What one sub-pixel ray sees.
+enum Seen {
+    Texture(Vec3),
+    Emitter(Vec3),
+    /// Radiance through (or absorbed by) known materials: counts in a box film's mean.
+    Known(Vec3),
+    Nothing,
+}
+
+/// A pixel known to lie on one plane of one shape, within one chart of its atlas: the texel
+/// coordinates where its four corners land (top-left, top-right, bottom-left, bottom-right),
+/// so it renders with no rays (texture coordinates vary affinely across a pixel on a plane
+/// to well within a texel).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FlatPixel {
+    pub shape: u32,
+    pub uv: [Vec2; 4],
+}
+
+/// Render one view: each pixel from `k x k` stratified sub-pixel rays reading the texture of
+/// the shape they hit (`textures[shape]`, bilinear), combined as `film` says. The one renderer
+/// of texture-space maps: the re-rendered views of the outputs and the projection's
+/// refinement both use it.
+pub fn render_view(
+    accel: &Accel,
+    camera: &Camera,
+    textures: &[Option<Texture>],
+    k: u32,
+    film: Film,
+) -> Vec<Option<Vec3>> {
+    render_view_with(accel, camera, textures, k, film, &|_, _| Plan::Trace)
+}
+
+/// How [`render_view_with`] renders one pixel.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Plan {
+    /// Sub-pixel rays.
+    Trace,
+    /// No rays: the pixel lies wholly on one chart of a textured shape (texture coordinates
+    /// interpolated from its corners).
+    Flat(FlatPixel),
+    /// Not at all (`None`): the caller has no use for it.
+    Skip,
+}
+
+/// [`render_view`] where `plan(x, y)` says how to render each pixel: flat pixels read the
+/// texture at the same `k x k` sub-pixel positions with their texture coordinates
+/// interpolated from the pixel's corners instead of traced.
+pub fn render_view_with(
+    accel: &Accel,
+    camera: &Camera,
+    textures: &[Option<Texture>],
+    k: u32,
+    film: Film,
+    plan: &(dyn Fn(u32, u32) -> Plan + Sync),
+) -> Vec<Option<Vec3>> {
+    let (w, h) = (camera.width(), camera.height());
+    let k = k.max(1);
+    (0..h)
+        .into_par_iter()
+        .flat_map_iter(|y| {
+            (0..w).map(move |x| match plan(x, y) {
+                Plan::Skip => None,
+                Plan::Flat(f) => flat_pixel(textures, k, &f)
+                    .or_else(|| pixel(accel, camera, textures, k, film, x, y)),
+                Plan::Trace => pixel(accel, camera, textures, k, film, x, y),
+            })
+        })
+        .collect()
+}
+
+/// The mean of the texture over `k x k` sub-pixel positions of a flat pixel (`None` if its
+/// shape has no texture).
+fn flat_pixel(textures: &[Option<Texture>], k: u32, f: &FlatPixel) -> Option<Vec3> {
+    let tex = textures.get(f.shape as usize)?.as_ref()?;
+    let [a, b, c, d] = f.uv;
+    let mut sum = Vec3::ZERO;
+    for j in 0..k {
+        let ty = (j as f32 + 0.5) / k as f32;
+        let (l, r) = (a.lerp(c, ty), b.lerp(d, ty));
+        for i in 0..k {
+            let tx = (i as f32 + 0.5) / k as f32;
+            sum += bilinear(tex.texels, l.lerp(r, tx));
+        }
+    }
+    Some(sum / (k * k) as f32)
+}
+
+/// Apply a film's pixel filter to an image of pixel means (what [`render_view`] makes: a box
+/// film): every pixel becomes the mean of its neighbours within the filter's reach weighted
+/// by the filter integrated over each neighbour's square ([`PixelFilter::pixel_weights`]),
+/// over the neighbours that have a value (`None` stays `None`). A box filter returns the
+/// image as it is. This is the photo a `tent` or `gaussian` film records, to the extent the
+/// radiance is flat within each pixel.
+pub fn apply_pixel_filter(
+    pixels: &[Option<Vec3>],
+    width: u32,
+    height: u32,
+    filter: PixelFilter,
+) -> Vec<Option<Vec3>> {
+    if filter.is_box() {
+        return pixels.to_vec();
+    }
+    let wts = filter.pixel_weights();
+    let n = filter.reach() as i64;
+    let (w, h) = (width as i64, height as i64);
+    (0..h)
+        .into_par_iter()
+        .flat_map_iter(|y| {
+            let wts = &wts;
+            (0..w).map(move |x| {
+                pixels[(y * w + x) as usize]?;
+                let (mut sum, mut total) = (Vec3::ZERO, 0.0f32);
+                for dy in -n..=n {
+                    for dx in -n..=n {
+                        let (nx, ny) = (x + dx, y + dy);
+                        if nx < 0 || ny < 0 || nx >= w || ny >= h {
+                            continue;
+                        }
+                        if let Some(v) = pixels[(ny * w + nx) as usize] {
+                            let k = wts[(dx + n) as usize] * wts[(dy + n) as usize];
+                            sum += v * k;
+                            total += k;
+                        }
+                    }
+                }
+                Some(sum / total)
+            })
+        })
+        .collect()
+}
+
+/// One pixel of [`render_view`].
+fn pixel(
+    accel: &Accel,
+    camera: &Camera,
+    textures: &[Option<Texture>],
+    k: u32,
+    film: Film,
+    x: u32,
+    y: u32,
+) -> Option<Vec3> {
+    let scene = match film {
+        Film::Box { scene, .. } => Some(scene),
+        Film::HitsOnly => None,
+    };
+    let (mut sum, mut hits, mut on_emitter) = (Vec3::ZERO, 0u32, 0u32);
+    for j in 0..k {
+        for i in 0..k {
+            let px = x as f32 + (i as f32 + 0.5) / k as f32;
+            let py = y as f32 + (j as f32 + 0.5) / k as f32;
+            let stream = ((y as u64 * camera.width() as u64 + x as u64) * k as u64 + j as u64)
+                * k as u64
+                + i as u64;
+            match trace(accel, camera, textures, scene, (px, py), stream) {
+                Seen::Texture(v) => {
+                    sum += v;
+                    hits += 1;
+                }
+                Seen::Emitter(v) => {
+                    sum += v;
+                    on_emitter += 1;
+                }
+                Seen::Known(v) => sum += v,
+                Seen::Nothing => {}
+            }
+        }
+    }
+    match film {
+        Film::HitsOnly => (hits > 0).then(|| sum / hits as f32),
+        Film::Box { photo, .. } if on_emitter == k * k && photo.is_valid(x, y) => {
+            Some(photo.get(x, y))
+        }
+        Film::Box { .. } => Some(sum / (k * k) as f32),
+    }
+}
+
+/// Mixed into the seed of the re-renders' paths through known materials.
+const RENDER_TAG: u64 = 0x7e4d_e5ca_77e2_0001;
+
+/// What the ray through continuous pixel coordinates `(px, py)` sees; emitters and known
+/// materials (mirrors, glass: one path sampled through them, its random numbers a function
+/// of `stream`) only with `scene` (else they are `Nothing`).
+fn trace(
+    accel: &Accel,
+    camera: &Camera,
+    textures: &[Option<Texture>],
+    scene: Option<&Scene>,
+    (px, py): (f32, f32),
+    stream: u64,
+) -> Seen {
+    let (mut o, mut d) = camera.ray(px, py);
+    let mut weight = Vec3::ONE;
+    let mut rng = None;
+    for bounce in 0..=bsdf_sampling::MAX_SPECULAR {
+        let Some(hit) = accel.intersect(o, d, f32::INFINITY) else {
+            return match (bounce, scene.map(|s| environment(s, d))) {
+                (_, None) => Seen::Nothing,
+                (0, Some(seen)) => seen,
+                (_, Some(Seen::Emitter(v))) => Seen::Known(v * weight),
+                (_, Some(_)) => Seen::Known(Vec3::ZERO),
+            };
+        };
+        let si = hit.shape as usize;
+        if let Some(tex) = textures.get(si).and_then(|t| t.as_ref()) {
+            let c = tex.corner_uv[hit.tri as usize];
+            let uv = c[0] * (1.0 - hit.b1 - hit.b2) + c[1] * hit.b1 + c[2] * hit.b2;
+            let v = bilinear(tex.texels, uv) * weight;
+            return match bounce {
+                0 => Seen::Texture(v),
+                _ => Seen::Known(v),
+            };
+        }
+        let Some(shape) = scene.map(|s| &s.shapes[si]) else {
+            return Seen::Nothing;
+        };
+        let n = shape.mesh.shading_normal(hit.tri as usize, hit.b1, hit.b2);
+        if let Some(radiance) = shape.emission {
+            let v = if n.dot(d) < 0.0 {
+                radiance * weight
+            } else {
+                Vec3::ZERO
+            };
+            return match bounce {
+                0 => Seen::Emitter(v),
+                _ => Seen::Known(v),
+            };
+        }
+        let Some(known) = shape.known() else {
+            return Seen::Nothing;
+        };
+        if shape.sides == Sides::Front && n.dot(d) >= 0.0 {
+            return Seen::Known(Vec3::ZERO);
+        }
+        let rng = rng.get_or_insert_with(|| Rng::new(RENDER_TAG, 0, stream, 0));
+        let Some(sc) = bsdf_sampling::sample(&known.bsdf, d, n, rng) else {
+            return Seen::Known(Vec3::ZERO);
+        };
+        weight *= sc.weight;
+        let ng = shape
+            .mesh
+            .face_normal_raw(hit.tri as usize)
+            .normalize_or_zero();
+        o = offset_origin(o + d * hit.t, ng, sc.dir);
+        d = sc.dir;
+    }
+    Seen::Known(Vec3::ZERO)
+}
+
+/// What a ray along `d` that leaves the scene sees: the environment emitters' radiance.
+fn environment(scene: &Scene, d: Vec3) -> Seen {
+    let envs = scene.emitters.iter().filter_map(|e| match e {
+        Emitter::Environment(env) => Some(env.eval(d)),
+        _ => None,
+    });
+    envs.reduce(|a, b| a + b)
+        .map_or(Seen::Nothing, Seen::Emitter)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A one-pixel impulse spreads by the tent's per-pixel weights (1/8, 3/4, 1/8 per
+    /// axis); a box leaves it alone; missing pixels drop out of the weighted mean.
+    #[test]
+    fn pixel_filter_spreads_an_impulse_by_the_kernel() {
+        let mut img = vec![Some(Vec3::ZERO); 25];
+        img[12] = Some(Vec3::ONE);
+        assert_eq!(apply_pixel_filter(&img, 5, 5, PixelFilter::Box), img);
+        let t = apply_pixel_filter(&img, 5, 5, PixelFilter::Tent { radius: 1.0 });
+        let v = |i: usize| t[i].unwrap().x;
+        assert!((v(12) - 0.75 * 0.75).abs() < 1e-4, "{}", v(12));
+        assert!((v(11) - 0.75 * 0.125).abs() < 1e-4);
+        assert!((v(6) - 0.125 * 0.125).abs() < 1e-4);
+        assert_eq!(v(0), 0.0);
+        let sum: f32 = (0..25).map(v).sum();
+        assert!((sum - 1.0).abs() < 1e-4);
+        // A hole: the center's neighbours renormalize over what is there.
+        img[11] = None;
+        let t = apply_pixel_filter(&img, 5, 5, PixelFilter::Tent { radius: 1.0 });
+        assert!(t[11].is_none());
+        assert!((t[12].unwrap().x - 0.5625 / (1.0 - 0.09375)).abs() < 1e-4);
+    }
+
+    /// A ray that leaves the scene sees the environment (in a box film, through the same
+    /// lookup as the light); without one, nothing.
+    #[test]
+    fn escaping_rays_see_the_environment() {
+        use crate::scene::{EnvMap, FovAxis, Sensor};
+        let px: Vec<Vec3> = (0..8 * 5).map(|i| Vec3::splat(i as f32)).collect();
+        let env = EnvMap::from_pixels(None, 1.0, glam::Mat4::IDENTITY, 8, 5, px);
+        let sensor = Sensor::simple(
+            "c",
+            glam::Mat4::IDENTITY,
+            40.0,
+            FovAxis::X,
+            (4, 4),
+            PixelFilter::Box,
+        );
+        // one triangle behind the camera, out of view
+        let mesh = crate::scene::Mesh {
+            positions: vec![
+                -Vec3::Z * 5.0,
+                Vec3::new(1.0, 0.0, -5.0),
+                Vec3::new(0.0, 1.0, -5.0),
+            ],
+            triangles: vec![[0, 1, 2]],
+            ..Default::default()
+        };
+        let shape = crate::scene::Shape {
+            id: "t".into(),
+            kind: "test".into(),
+            file: None,
+            mesh,
+            sides: crate::scene::Sides::Front,
+            emission: None,
+            reflectance: None,
+            material: Default::default(),
+        };
+        let mut scene = Scene {
+            path: "t.xml".into(),
+            shapes: vec![shape],
+            emitters: vec![Emitter::Environment(std::sync::Arc::new(env.clone()))],
+            sensors: vec![sensor.clone()],
+            files: vec![],
+        };
+        let accel = Accel::build(&scene);
+        let cam = Camera::from_sensor(&sensor);
+        let (_, d) = cam.ray(1.3, 2.6);
+        match trace(&accel, &cam, &[], Some(&scene), (1.3, 2.6), 0) {
+            Seen::Emitter(v) => assert_eq!(v, env.eval(d)),
+            _ => panic!("the sky is not seen"),
+        }
+        assert!(matches!(
+            trace(&accel, &cam, &[], None, (1.3, 2.6), 0),
+            Seen::Nothing
+        ));
+        scene.emitters.clear();
+        assert!(matches!(
+            trace(&accel, &cam, &[], Some(&scene), (1.3, 2.6), 0),
+            Seen::Nothing
+        ));
+    }
+
+    #[test]
+    fn bilinear_is_exact_at_centers_and_linear_between() {
+        let v = vec![
+            Vec3::splat(0.0),
+            Vec3::splat(1.0),
+            Vec3::splat(2.0),
+            Vec3::splat(3.0),
+        ];
+        let t = RowMajor {
+            width: 2,
+            height: 2,
+            texels: &v,
+        };
+        let bilinear = |_: &RowMajor, _w: u32, _h: u32, uv: Vec2| bilinear(&t, uv);
+        assert_eq!(bilinear(&t, 2, 2, Vec2::new(0.5, 0.5)), Vec3::splat(0.0));
+        assert_eq!(bilinear(&t, 2, 2, Vec2::new(1.5, 1.5)), Vec3::splat(3.0));
+        assert_eq!(bilinear(&t, 2, 2, Vec2::new(1.0, 0.5)), Vec3::splat(0.5));
+        assert_eq!(bilinear(&t, 2, 2, Vec2::new(1.0, 1.0)), Vec3::splat(1.5));
+        // clamped outside
+        assert_eq!(bilinear(&t, 2, 2, Vec2::new(-3.0, 0.5)), Vec3::splat(0.0));
+    }
+}

@@ -1,0 +1,223 @@
+//! Where a photo is noisier than its overall level: a local noise level for the residual
+//! shrinkage ([`super::shrink_residual`]), raised above the view's level only where the
+//! residual is rough and the surface the render shows there is smooth.
+//!
+//! A view's noise level (the median relative residual) is one number, but a rendered or shot
+//! photo's relative noise is not uniform: a dim ceiling lit only by interreflection is two or
+//! three times as noisy as a lit wall. Under the one level the shrinkage took that noise for
+//! signal and every refinement pass fitted more of it (mirror-cbox's grazing ceiling: 6.8%
+//! per-texel error after the weighted mean, 16% after four passes, 21% after eight, its mean
+//! pulled down as the spread hit `K_d <= 1`). Unresolved texture looks as rough as noise in a
+//! single residual (lights' grass: 1.4-2.7 times the view's level), so the level is raised
+//! only where the current render is smoother than the residual: there the maps hold no detail
+//! the residual could be the rest of. The roughness estimator is a median of pixel
+//! differences over a block's window, the least of four directions: differences drop what is
+//! smooth, the median the pixels of a few edges, the least direction a straight edge. It is
+//! a few medians, so it is written here.
+
+use rayon::prelude::*;
+
+/// Side of the square blocks of pixels that share one local level.
+const NOISE_BLOCK: usize = 8;
+/// Pixels beyond a block's sides on each side of the window its level is taken over
+/// (24 x 24 pixels in all).
+const NOISE_REACH: usize = 8;
+/// Fewest pixel pairs a direction needs to give a level.
+const MIN_PAIRS: usize = 32;
+/// The four pixel directions whose differences are compared.
+const DIRECTIONS: [(i64, i64); 4] = [(1, 0), (0, 1), (1, 1), (1, -1)];
+
+/// Per pixel, the relative noise level the shrinkage judges the residual against: `sigma`
+/// (the view's level), or the residual's local roughness `rough` (per block, from
+/// [`block_roughness`]) where that is larger and the render's local roughness is smaller than
+/// it. `log_render` is the logarithm of the render (so its differences are relative too), per
+/// pixel and `None` where there is none; `width` pixels per row. The render's roughness is
+/// taken only for blocks whose residual is rougher than `sigma` (elsewhere the level is
+/// `sigma` anyway).
+pub fn pixel_noise(
+    rough: &[f32],
+    log_render: &[Option<f32>],
+    width: usize,
+    sigma: f32,
+) -> Vec<f32> {
+    let smooth = roughness(log_render, width, &|b| rough[b] > sigma);
+    let level: Vec<f32> = rough
+        .iter()
+        .zip(&smooth)
+        .map(|(&r, &s)| if r > sigma && s < r { r } else { sigma })
+        .collect();
+    per_pixel(&level, log_render.len(), width)
+}
+
+/// Per block of [`NOISE_BLOCK`] x [`NOISE_BLOCK`] pixels, the roughness of the relative
+/// residual `e` (`None` where there is none; `width` pixels per row) over the block's window
+/// (see [`roughness`]): the residual's local noise level, 0 where too few pixels have a value.
+pub fn block_roughness(e: &[Option<f32>], width: usize) -> Vec<f32> {
+    roughness(e, width, &|_| true)
+}
+
+/// Per pixel of an image of `len` pixels, `width` per row, the value of its block.
+pub fn per_pixel(blocks: &[f32], len: usize, width: usize) -> Vec<f32> {
+    let bw = width.div_ceil(NOISE_BLOCK);
+    (0..len)
+        .map(|i| blocks[(i / width / NOISE_BLOCK) * bw + (i % width) / NOISE_BLOCK])
+        .collect()
+}
+
+/// Per block of [`NOISE_BLOCK`] x [`NOISE_BLOCK`] pixels (row by row), the roughness of `v`
+/// (an image `width` wide) over the window around it: for each of [`DIRECTIONS`] the median
+/// `|v(p) - v(p + d)|` over the pairs that both have a value, as a standard deviation of `v`
+/// (`1.4826 / sqrt 2` x, exact for Gaussian noise), and the least of the four. 0 where no
+/// direction has [`MIN_PAIRS`] pairs, and for the blocks `wanted` refuses.
+fn roughness(v: &[Option<f32>], width: usize, wanted: &(dyn Fn(usize) -> bool + Sync)) -> Vec<f32> {
+    let height = v.len() / width.max(1);
+    let (bw, bh) = (width.div_ceil(NOISE_BLOCK), height.div_ceil(NOISE_BLOCK));
+    // rows of blocks in parallel, each block on its own: the same numbers for any threads
+    let rows: Vec<Vec<f32>> = (0..bh)
+        .into_par_iter()
+        .map(|by| {
+            let mut diffs = Vec::new();
+            let y = window(by, height);
+            (0..bw)
+                .map(|bx| match wanted(by * bw + bx) {
+                    true => least_direction(v, width, height, (window(bx, width), y), &mut diffs),
+                    false => 0.0,
+                })
+                .collect()
+        })
+        .collect();
+    rows.concat()
+}
+
+/// The pixel range of block `b`'s window along an axis of `n` pixels.
+fn window(b: usize, n: usize) -> (i64, i64) {
+    let lo = (b * NOISE_BLOCK).saturating_sub(NOISE_REACH);
+    let hi = ((b + 1) * NOISE_BLOCK + NOISE_REACH).min(n);
+    (lo as i64, hi as i64)
+}
+
+/// The least over [`DIRECTIONS`] of the scaled median absolute difference within a window
+/// (`diffs` is scratch space).
+fn least_direction(
+    v: &[Option<f32>],
+    width: usize,
+    height: usize,
+    ((x0, x1), (y0, y1)): ((i64, i64), (i64, i64)),
+    diffs: &mut Vec<u32>,
+) -> f32 {
+    let (w, h) = (width as i64, height as i64);
+    let mut best = f32::INFINITY;
+    for (dx, dy) in DIRECTIONS {
+        diffs.clear();
+        // pairs whose second pixel lies inside the image too
+        let (xa, xb) = (x0.max(-dx), x1.min(w - dx));
+        for y in y0.max(-dy)..y1.min(h - dy) {
+            let (row, next) = ((y * w) as usize, ((y + dy) * w + dx) as usize);
+            for x in xa..xb {
+                if let (Some(a), Some(b)) = (v[row + x as usize], v[next + x as usize]) {
+                    // the bits of a non-negative float order as the float does
+                    diffs.push((a - b).abs().to_bits());
+                }
+            }
+        }
+        if diffs.len() >= MIN_PAIRS {
+            let mid = diffs.len() / 2;
+            let m = f32::from_bits(*diffs.select_nth_unstable(mid).1);
+            best = best.min(1.4826 * m / std::f32::consts::SQRT_2);
+        }
+    }
+    if best.is_finite() {
+        best
+    } else {
+        0.0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::base::rng::Rng;
+
+    /// Standard normal numbers, a pure function of `stream` and the index.
+    fn gauss(stream: u64, n: usize) -> Vec<f32> {
+        (0..n)
+            .map(|i| Rng::new(11, stream, 0, i as u64).normal())
+            .collect()
+    }
+
+    const N: usize = 64;
+
+    /// `sigma` times white noise on an N x N image.
+    fn noise(stream: u64, sigma: f32) -> Vec<Option<f32>> {
+        gauss(stream, N * N)
+            .iter()
+            .map(|g| Some(sigma * g))
+            .collect()
+    }
+
+    fn spread(v: &[f32]) -> (f32, f32) {
+        let lo = v.iter().copied().fold(f32::INFINITY, f32::min);
+        let hi = v.iter().copied().fold(0.0, f32::max);
+        (lo, hi)
+    }
+
+    #[test]
+    fn white_noise_gives_its_standard_deviation() {
+        let r = roughness(&noise(1, 0.03), N, &|_| true);
+        let (lo, hi) = spread(&r);
+        // the least of four medians of 300-576 pairs sits a little below the truth
+        assert!(lo > 0.8 * 0.03 && hi < 1.1 * 0.03, "{lo} {hi}");
+    }
+
+    #[test]
+    fn smooth_ramps_and_straight_edges_are_not_noise() {
+        // noise of 1%, plus a ramp of 2% per pixel across the rows and a step of 50% along a
+        // column: the plain median |v| would be dominated by both, the vertical differences
+        // hold neither
+        let mut v = noise(2, 0.01);
+        for (i, x) in v.iter_mut().enumerate() {
+            let px = i % N;
+            let step = if px >= 29 { 0.5 } else { 0.0 };
+            *x = x.map(|x| x + 0.02 * px as f32 + step);
+        }
+        let (lo, hi) = spread(&roughness(&v, N, &|_| true));
+        assert!(lo > 0.008 && hi < 0.012, "{lo} {hi}");
+    }
+
+    #[test]
+    fn pixels_without_a_value_are_skipped_and_an_empty_window_has_no_level() {
+        let mut v = noise(3, 0.02);
+        for x in v.iter_mut().step_by(2) {
+            *x = None;
+        }
+        // only the vertical pairs are left, so the least of four is no longer biased low
+        let (lo, hi) = spread(&roughness(&v, N, &|_| true));
+        assert!(lo > 0.75 * 0.02 && hi < 1.25 * 0.02, "{lo} {hi}");
+        assert!(roughness(&[None; 100], 10, &|_| true)
+            .iter()
+            .all(|&s| s == 0.0));
+    }
+
+    #[test]
+    fn the_level_rises_only_where_the_render_is_smooth() {
+        // the residual is 3% noise everywhere; the render is flat (with 0.1% noise) on the
+        // left half and textured (10% noise) on the right; the view's level is 1%
+        let e = noise(4, 0.03);
+        let render: Vec<Option<f32>> = noise(5, 1.0)
+            .iter()
+            .enumerate()
+            .map(|(i, g)| g.map(|g| g * if i % N < N / 2 { 0.001 } else { 0.1 }))
+            .collect();
+        let level = pixel_noise(&block_roughness(&e, N), &render, N, 0.01);
+        for y in 0..N {
+            let (left, right) = (level[y * N + 8], level[y * N + N - 8]);
+            assert!(left > 0.024 && left < 0.033, "{left}");
+            assert_eq!(right, 0.01);
+        }
+        // and never falls below the view's level
+        let quiet = noise(6, 0.001);
+        assert!(pixel_noise(&block_roughness(&quiet, N), &render, N, 0.01)
+            .iter()
+            .all(|&s| s == 0.01));
+    }
+}

@@ -1,0 +1,386 @@
+//! A photo as the projection reads it: its pixels classified with primary rays (clean pixels
+//! see one plane of one shape, away from emitters) and sampled only where they are clean.
+//!
+//! The rays are cast once per view: one through every pixel corner (kept, for rendering flat
+//! pixels without rays) and one through every pixel center. A clean pixel sees nothing but
+//! one plane of one shape, so a surface point that projects into it and lies on that plane is
+//! visible from the camera: the projection needs no occlusion rays of its own.
+
+use crate::atlas::context::HitTable;
+use crate::atlas::uv::NONE;
+use crate::image::Image;
+use crate::physics::accel::{Accel, Hit};
+use crate::physics::camera::Camera;
+use crate::physics::render::FlatPixel;
+use crate::scene::Scene;
+use glam::{Vec2, Vec3};
+use rayon::prelude::*;
+
+/// What the primary ray through a pixel center found.
+#[derive(Debug, Clone, Copy)]
+pub struct PixelInfo {
+    /// Shape index hit at the pixel center, `u32::MAX` for none.
+    pub shape: u32,
+    /// Unit geometric normal there.
+    pub normal: Vec3,
+    /// `normal . point` of the hit point: the plane the pixel sees.
+    pub plane: f32,
+    /// Whether the whole pixel lies on one plane of one shape and its value is valid.
+    pub clean: bool,
+}
+
+/// The hit of the ray through a pixel corner: BVH primitive ([`NONE`] for a miss) and
+/// barycentrics.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Corner {
+    prim: u32,
+    b1: f32,
+    b2: f32,
+}
+
+/// One photo with its per-pixel classification, ready to be sampled.
+pub struct View<'a> {
+    pub camera: Camera,
+    pub image: &'a Image,
+    pub pixels: Vec<PixelInfo>,
+    /// `(w + 1) x (h + 1)` pixel corners, row-major.
+    corners: Vec<Corner>,
+}
+
+/// Tolerance of "on the same plane" at distance `t` from the camera (relative `1e-3`, as the
+/// camera's own precision allows).
+fn plane_tol(t: f32) -> f32 {
+    1e-3 * t + 1e-6
+}
+
+/// The rays through every pixel corner of `camera`: `(hit, hit point)`, row-major.
+fn trace_corners(accel: &Accel, camera: &Camera) -> Vec<Option<(Hit, Vec3)>> {
+    let (w, h) = (camera.width(), camera.height());
+    (0..=h)
+        .into_par_iter()
+        .flat_map_iter(|gy| {
+            (0..=w).map(move |gx| {
+                let (o, d) = camera.ray(gx as f32, gy as f32);
+                accel
+                    .intersect(o, d, f32::INFINITY)
+                    .map(|hit| (hit, o + d * hit.t))
+            })
+        })
+        .collect()
+}
+
+/// Classify every pixel of `image` as seen by `camera`, given the hits of its corner rays
+/// (`corners`, `(w + 1) x (h + 1)`). A pixel is clean when its four corners land on the plane
+/// of the shape hit at its center, no corner within one pixel of it lands on an emitter, and
+/// its value is valid. The emitter guard is there because an emitter is orders of magnitude
+/// brighter than what borders it, so even a sliver of it between the rays ruins the pixel: in
+/// both fixtures' cam_train_0 a corner of the light slipped between the corner rays of a
+/// ceiling pixel (1.3 against 0.09 around it) and streaked the ceiling's luminance map.
+fn classify(
+    scene: &Scene,
+    accel: &Accel,
+    camera: &Camera,
+    image: &Image,
+    corners: &[Option<(Hit, Vec3)>],
+) -> Vec<PixelInfo> {
+    let (w, h) = (camera.width(), camera.height());
+    let gw = (w + 1) as usize;
+    let at = |gx: u32, gy: u32| corners[gy as usize * gw + gx as usize];
+    let emits = |s: u32| scene.shapes[s as usize].emission.is_some();
+    // per pixel: whether any of its corners hits an emitter
+    let touches: Vec<bool> = (0..h)
+        .into_par_iter()
+        .flat_map_iter(|y| {
+            (0..w).map(move |x| {
+                [(x, y), (x + 1, y), (x, y + 1), (x + 1, y + 1)]
+                    .iter()
+                    .any(|&(gx, gy)| at(gx, gy).is_some_and(|(hit, _)| emits(hit.shape)))
+            })
+        })
+        .collect();
+    // A blurring film spreads an emitter over `reach` more pixels.
+    let r = 1 + camera.filter().reach();
+    let near_emitter = |x: u32, y: u32| {
+        (y.saturating_sub(r)..(y + r + 1).min(h)).any(|ny| {
+            (x.saturating_sub(r)..(x + r + 1).min(w)).any(|nx| touches[(ny * w + nx) as usize])
+        })
+    };
+    let infos: Vec<PixelInfo> = (0..h)
+        .into_par_iter()
+        .flat_map_iter(|y| {
+            (0..w).map(move |x| {
+                let (o, d) = camera.ray(x as f32 + 0.5, y as f32 + 0.5);
+                let Some(hit) = accel.intersect(o, d, f32::INFINITY) else {
+                    return PixelInfo {
+                        shape: u32::MAX,
+                        normal: Vec3::ZERO,
+                        plane: 0.0,
+                        clean: false,
+                    };
+                };
+                let mesh = &scene.shapes[hit.shape as usize].mesh;
+                let nrm = mesh.face_normal_raw(hit.tri as usize).normalize_or_zero();
+                let c = o + d * hit.t;
+                let tol = plane_tol(hit.t);
+                let coplanar = [(x, y), (x + 1, y), (x, y + 1), (x + 1, y + 1)].iter().all(
+                    |&(gx, gy)| match at(gx, gy) {
+                        Some((h2, p)) => h2.shape == hit.shape && (p - c).dot(nrm).abs() <= tol,
+                        None => false,
+                    },
+                );
+                PixelInfo {
+                    shape: hit.shape,
+                    normal: nrm,
+                    plane: nrm.dot(c),
+                    clean: coplanar && !near_emitter(x, y) && image.is_valid(x, y),
+                }
+            })
+        })
+        .collect();
+    erode_to_filter(infos, camera)
+}
+
+/// With a film filter that reaches `n > 0` pixels beyond the pixel (tent, gaussian), a pixel's
+/// value mixes its neighbours': it stays clean only if every pixel within `n` is clean and
+/// sees the same plane of the same shape. A box filter changes nothing.
+fn erode_to_filter(infos: Vec<PixelInfo>, camera: &Camera) -> Vec<PixelInfo> {
+    let n = camera.filter().reach() as i64;
+    if n == 0 {
+        return infos;
+    }
+    let (w, h) = (camera.width() as i64, camera.height() as i64);
+    let eye = camera.position();
+    (0..h)
+        .into_par_iter()
+        .flat_map_iter(|y| {
+            let infos = &infos;
+            (0..w).map(move |x| {
+                let mut p = infos[(y * w + x) as usize];
+                if !p.clean {
+                    return p;
+                }
+                let tol = plane_tol((p.normal.dot(eye) - p.plane).abs());
+                let same = |q: &PixelInfo| {
+                    q.clean
+                        && q.shape == p.shape
+                        && q.normal.dot(p.normal) > 0.99
+                        && (q.plane - p.plane).abs() <= tol
+                };
+                p.clean = (-n..=n).all(|dy| {
+                    (-n..=n).all(|dx| {
+                        let (nx, ny) = (x + dx, y + dy);
+                        nx >= 0
+                            && ny >= 0
+                            && nx < w
+                            && ny < h
+                            && same(&infos[(ny * w + nx) as usize])
+                    })
+                });
+                p
+            })
+        })
+        .collect()
+}
+
+impl<'a> View<'a> {
+    /// Cast the view's corner and center rays and classify its pixels.
+    pub fn new(scene: &Scene, accel: &Accel, camera: Camera, image: &'a Image) -> View<'a> {
+        let hits = trace_corners(accel, &camera);
+        let pixels = classify(scene, accel, &camera, image, &hits);
+        let corners = hits
+            .iter()
+            .map(|h| match h {
+                Some((hit, _)) => Corner {
+                    prim: hit.prim,
+                    b1: hit.b1,
+                    b2: hit.b2,
+                },
+                None => Corner {
+                    prim: NONE,
+                    b1: 0.0,
+                    b2: 0.0,
+                },
+            })
+            .collect();
+        View {
+            camera,
+            image,
+            pixels,
+            corners,
+        }
+    }
+
+    /// The same view (camera, pixel classification, corners) of another photo of the same
+    /// size: no rays are cast again.
+    pub fn with_image<'b>(&self, image: &'b Image) -> View<'b> {
+        View {
+            camera: self.camera.clone(),
+            image,
+            pixels: self.pixels.clone(),
+            corners: self.corners.clone(),
+        }
+    }
+
+    /// Per pixel, whether a clean pixel lies within `n` pixels of it (the clean mask for
+    /// `n = 0`).
+    pub fn near_clean(&self, n: u32) -> Vec<bool> {
+        let (w, h) = (self.camera.width() as i64, self.camera.height() as i64);
+        let n = n as i64;
+        let clean = |x: i64, y: i64| {
+            x >= 0 && y >= 0 && x < w && y < h && self.pixels[(y * w + x) as usize].clean
+        };
+        (0..h)
+            .flat_map(|y| {
+                (0..w).map(move |x| (-n..=n).any(|dy| (-n..=n).any(|dx| clean(x + dx, y + dy))))
+            })
+            .collect()
+    }
+
+    /// A clean pixel whose four corners lie on one chart, with their texel coordinates (see
+    /// [`FlatPixel`]); `None` for every other pixel.
+    pub fn flat(&self, hits: &HitTable, x: u32, y: u32) -> Option<FlatPixel> {
+        let w = self.camera.width();
+        let px = &self.pixels[(y * w + x) as usize];
+        if !px.clean {
+            return None;
+        }
+        let gw = (w + 1) as usize;
+        let mut uv = [Vec2::ZERO; 4];
+        let mut chart = None;
+        for (k, (gx, gy)) in [(x, y), (x + 1, y), (x, y + 1), (x + 1, y + 1)]
+            .into_iter()
+            .enumerate()
+        {
+            let c = self.corners[gy as usize * gw + gx as usize];
+            if c.prim == NONE {
+                return None;
+            }
+            let pr = hits.prim(c.prim);
+            if pr.shape != px.shape || pr.chart == NONE || chart.is_some_and(|ch| ch != pr.chart) {
+                return None;
+            }
+            chart = Some(pr.chart);
+            uv[k] = pr.uv[0] * (1.0 - c.b1 - c.b2) + pr.uv[1] * c.b1 + pr.uv[2] * c.b2;
+        }
+        Some(FlatPixel {
+            shape: px.shape,
+            uv,
+        })
+    }
+
+    /// Whether pixel `(x, y)` is a clean pixel seeing point `q` of `shape` (geometric normal
+    /// `n`): the plane it sees is `q`'s, within `tol`.
+    fn sees(&self, x: i64, y: i64, q: Vec3, shape: u32, n: Vec3, tol: f32) -> bool {
+        let (w, h) = (self.camera.width() as i64, self.camera.height() as i64);
+        if x < 0 || y < 0 || x >= w || y >= h {
+            return false;
+        }
+        let p = &self.pixels[(y * w + x) as usize];
+        p.clean
+            && p.shape == shape
+            && p.normal.dot(n).abs() > 0.99
+            && (p.normal.dot(q) - p.plane).abs() <= tol
+    }
+
+    /// The photo's radiance at surface point `q` of `shape` (geometric normal `n`), projected
+    /// to continuous pixel coordinates `pix`, if the view sees it: bilinear when the four
+    /// nearest pixels are clean pixels seeing `q`'s plane, else the containing pixel if it is,
+    /// else `None` (occluded, on an edge, off the film).
+    pub fn sample(&self, pix: Vec2, q: Vec3, shape: u32, n: Vec3) -> Option<Vec3> {
+        self.sample_from(pix, q, shape, n, &|x, y| self.image.get(x, y))
+    }
+
+    /// [`View::sample`] reading pixel values from `get` instead of the photo (a residual of
+    /// the same size, say), with the same lookups.
+    pub fn sample_from<T: Value>(
+        &self,
+        pix: Vec2,
+        q: Vec3,
+        shape: u32,
+        n: Vec3,
+        get: &dyn Fn(u32, u32) -> T,
+    ) -> Option<T> {
+        let tol = plane_tol((q - self.camera.position()).length());
+        let sees = |x: i64, y: i64| self.sees(x, y, q, shape, n, tol);
+        let fx = pix.x - 0.5;
+        let fy = pix.y - 0.5;
+        let (x0, y0) = (fx.floor() as i64, fy.floor() as i64);
+        let (tx, ty) = (fx - x0 as f32, fy - y0 as f32);
+        let quad = [(x0, y0), (x0 + 1, y0), (x0, y0 + 1), (x0 + 1, y0 + 1)];
+        if quad.iter().all(|&(x, y)| sees(x, y)) {
+            let g = |x: i64, y: i64| get(x as u32, y as u32);
+            let top = g(x0, y0) * (1.0 - tx) + g(x0 + 1, y0) * tx;
+            let bot = g(x0, y0 + 1) * (1.0 - tx) + g(x0 + 1, y0 + 1) * tx;
+            return Some(top * (1.0 - ty) + bot * ty);
+        }
+        let (x, y) = (pix.x.floor() as i64, pix.y.floor() as i64);
+        sees(x, y).then(|| get(x as u32, y as u32))
+    }
+}
+
+/// What a view's pixels can hold for sampling: values that mix linearly (radiance, or a
+/// radiance with a second image's value beside it, [`Pair`]).
+pub trait Value:
+    Copy
+    + Default
+    + std::ops::Add<Output = Self>
+    + std::ops::AddAssign
+    + std::ops::Mul<f32, Output = Self>
+    + std::ops::Div<f32, Output = Self>
+{
+}
+
+impl<T> Value for T where
+    T: Copy
+        + Default
+        + std::ops::Add<Output = T>
+        + std::ops::AddAssign
+        + std::ops::Mul<f32, Output = T>
+        + std::ops::Div<f32, Output = T>
+{
+}
+
+/// Two images' values at one pixel, a level (the photo's relative noise there) and the
+/// shrinkage's keep factor, sampled together (one set of lookups for all four).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Pair(pub Vec3, pub Vec3, pub f32, pub f32);
+
+impl std::ops::Add for Pair {
+    type Output = Pair;
+    fn add(self, o: Pair) -> Pair {
+        Pair(self.0 + o.0, self.1 + o.1, self.2 + o.2, self.3 + o.3)
+    }
+}
+
+impl std::ops::AddAssign for Pair {
+    fn add_assign(&mut self, o: Pair) {
+        self.0 += o.0;
+        self.1 += o.1;
+        self.2 += o.2;
+        self.3 += o.3;
+    }
+}
+
+impl std::ops::Mul<f32> for Pair {
+    type Output = Pair;
+    fn mul(self, k: f32) -> Pair {
+        Pair(self.0 * k, self.1 * k, self.2 * k, self.3 * k)
+    }
+}
+
+impl std::ops::Div<f32> for Pair {
+    type Output = Pair;
+    fn div(self, k: f32) -> Pair {
+        Pair(self.0 / k, self.1 / k, self.2 / k, self.3 / k)
+    }
+}
+
+/// Classify every pixel of `image` as seen by `camera` (see [`View::new`]).
+pub fn classify_pixels(
+    scene: &Scene,
+    accel: &Accel,
+    camera: &Camera,
+    image: &Image,
+) -> Vec<PixelInfo> {
+    classify(scene, accel, camera, image, &trace_corners(accel, camera))
+}
