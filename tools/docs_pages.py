@@ -256,9 +256,9 @@ def accuracy_page(entries, order=()):
     if anchored:
         out.append("## Mitsuba 3 inverse rendering (anchor)\n")
         out.append("`tools/mitsuba_inverse.py`: Mitsuba 3's `prb` integrator and Adam on "
-                   "256x256 textures, 150 iterations, scored by the same held-out judge; "
-                   "cells are kdmap / anchor.\n")
+                   "256x256 textures, 150 iterations, scored by the same held-out judge.\n")
         if scored:
+            out.append("Held-out figures as above, kdmap / anchor (the same run).\n")
             rows = []
             for s, e in scored.items():
                 c = get(e, "anchor", "compare")
@@ -296,7 +296,8 @@ def performance_page(entries, order=()):
     anchored = {s: e for s, e in latest.items() if isinstance(e.get("anchor"), dict)}
     out.append("## Reconstruction\n")
     out.append("Wall time and peak RSS of the process (`wait4`), photons traced per second of "
-               "photon pass, and the gather's rays (all iterations) with their rate.\n")
+               "photon pass (`-`: the run traced none), and the gather's rays (all iterations) "
+               "with their rate.\n")
     head = ["scene", "wall s", "peak RSS MiB", "M photons/s", "M gather rays", "M rays/s"]
     if anchored:
         head.append("speed-up over the anchor")
@@ -313,11 +314,11 @@ def performance_page(entries, order=()):
         rows.append(r)
     out.append(table(head, rows) + "\n")
 
-    stages = []
+    stages = []  # in report.json's order, those of 0.005 s or more in some scene
     for e in latest.values():
-        for k, v in e["timings"].items():
-            if k != "total" and k not in stages and _num(v) and v >= 0.005:
-                stages.append(k)
+        stages += [k for k in e["timings"] if k != "total" and k not in stages]
+    stages = [k for k in stages if any(_num(e["timings"].get(k)) and e["timings"][k] >= 0.005
+                                       for e in latest.values())]
     out.append("## Time per stage\n")
     out.append("Seconds per stage (`timings` of `report.json`); stages under 0.005 s in every "
                "scene are left out.\n")
@@ -335,9 +336,13 @@ def performance_page(entries, order=()):
         rows = []
         for s, e in anchored.items():
             a = e["anchor"]
-            mode = "150 iterations run" if a.get("mode") == "full" and a.get("iterations") == 150 \
-                else (f"{a.get('iterations')} iterations run" if a.get("mode") == "full"
-                      else f"extrapolated from {a.get('measured_iterations') or '-'}")
+            if a.get("mode") == "full":
+                mode = f"{a.get('iterations')} iterations run"
+            else:
+                timed = get(a, "settings", "time_only_iterations")
+                if timed is None and _num(a.get("measured_iterations")):
+                    timed = a["measured_iterations"] - 1  # after the warm-up
+                mode = f"extrapolated from {timed if timed is not None else '-'} iterations"
             rows.append([label(s, e), mode, fixed(a.get("seconds_per_iteration"), 2),
                          fixed(a.get("compile_seconds")), fixed(a.get("anchor_seconds"), 0),
                          fixed(a.get("peak_rss_mib"), 0), fixed(a.get("kdmap_wall_seconds")),

@@ -4,6 +4,7 @@
     python3 tools/nightly.py                      # full settings, every shipped scene
     python3 tools/nightly.py --quick              # smoke run (small settings)
     python3 tools/nightly.py --scenes cbox --photons 2e6 --iterations 4 --spp 32
+    python3 tools/nightly.py --pages-only         # rewrite docs/accuracy.md, performance.md
 
 Creates (or reuses) the virtual environment `.venv/` in the repository root with
 tools/requirements.txt, and re-runs itself in it. Then:
