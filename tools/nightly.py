@@ -4,6 +4,7 @@
     python3 tools/nightly.py                      # full settings, every shipped scene
     python3 tools/nightly.py --quick              # smoke run (small settings)
     python3 tools/nightly.py --scenes cbox --photons 2e6 --iterations 4 --spp 32
+    python3 tools/nightly.py --pages-only         # rewrite docs/accuracy.md, performance.md
 
 Creates (or reuses) the virtual environment `.venv/` in the repository root with
 tools/requirements.txt, and re-runs itself in it. Then:
@@ -25,7 +26,9 @@ tools/requirements.txt, and re-runs itself in it. Then:
    kdmap wall seconds, both from this run) under the history key "anchor";
 5. appends one JSON line per scene to the history (default bench-history/history.jsonl,
    git-ignored; --history or $KDMAP_BENCH_HISTORY to keep it elsewhere) and redraws the
-   PNG plots beside it (tools/plot_history.py).
+   PNG plots beside it (tools/plot_history.py);
+6. rewrites docs/accuracy.md and docs/performance.md from the whole history (per scene its
+   newest full run; tools/docs_pages.py). `--pages-only` does only this, running nothing.
 
 Exit code 0 when every scene ran and its table checked out; 1 otherwise (the reasons are
 printed at the end and stored in the history line's `failures`).
@@ -439,6 +442,13 @@ def main():
         "KDMAP_BENCH_HISTORY", os.path.join(REPO, "bench-history", "history.jsonl")),
                     help="JSON-lines history file (default: bench-history/history.jsonl)")
     ap.add_argument("--plots", help="plot directory (default: plots/ beside the history)")
+    ap.add_argument("--docs", default=os.path.join(REPO, "docs"),
+                    help="where the generated pages accuracy.md and performance.md go "
+                    "(default: docs/)")
+    ap.add_argument("--no-pages", action="store_true",
+                    help="do not rewrite the pages (e.g. for a trial history)")
+    ap.add_argument("--pages-only", action="store_true",
+                    help="only rewrite the pages from the existing history; runs nothing")
     ap.add_argument("--spp", type=int, help=f"Mitsuba samples per pixel (default {DEFAULT_SPP})")
     ap.add_argument("--floor", action="store_true",
                     help="also render the true scenes in Mitsuba (noise floor of the held-out error)")
@@ -475,6 +485,9 @@ def main():
     if args.anchor_iterations < 1:
         ap.error("--anchor-iterations must be >= 1")
 
+    if args.pages_only:  # the standard library suffices: no venv, no build, no run
+        sys.path.insert(0, TOOLS)
+        return write_pages(args)
     ensure_venv()
     sys.path.insert(0, TOOLS)
     if args.quick:
@@ -547,6 +560,8 @@ def main():
     except Exception as e:
         failures.append(f"plotting failed: {type(e).__name__}: {e}")
 
+    if not args.no_pages and write_pages(args) != 0:
+        failures.append("writing the pages failed (see above)")
     print_summary(records)
     log(f"history: {args.history}; harness took {time.perf_counter() - t_start:.0f} s")
     if failures:
@@ -554,6 +569,19 @@ def main():
         for f in failures:
             print(f"  {f}", file=sys.stderr)
         return 1
+    return 0
+
+
+def write_pages(args):
+    """docs/accuracy.md and docs/performance.md from the history (tools/docs_pages.py)."""
+    import docs_pages
+
+    try:
+        written = docs_pages.write_pages(args.history, args.docs, SCENES)
+    except Exception as e:
+        log(f"pages from {args.history}: {type(e).__name__}: {e}")
+        return 1
+    log(f"pages: {', '.join(os.path.relpath(p) for p in written)} (from {args.history})")
     return 0
 
 
