@@ -123,6 +123,16 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Print the run-config keys: `--defaults` as an annotated TOML file holding every default
+    /// (a config to start from), `--markdown` as the reference page `docs/config.md`.
+    Config {
+        /// The annotated default run config (TOML); the default output.
+        #[arg(long, conflicts_with = "markdown")]
+        defaults: bool,
+        /// The key reference as Markdown.
+        #[arg(long)]
+        markdown: bool,
+    },
     /// Steps 1-2 of the method on their own: unwrap the atlas, project every photo onto it and
     /// write the luminance and coverage maps to `<out>/maps/` (with PNG previews).
     Project {
@@ -245,6 +255,11 @@ fn run(command: Command, mode: Mode) -> Result<()> {
         Command::Inspect { scene, json } => inspect(&scene, json),
         Command::InspectCheckpoint { out, json } => inspect_checkpoint(&out, json, mode),
         Command::Accuracy { out, truth, json } => accuracy(&out, &truth, json),
+        Command::Config { markdown, .. } => emit(&if markdown {
+            kdmap::config::keys::markdown()
+        } else {
+            kdmap::config::keys::default_toml()
+        }),
     }
 }
 

@@ -30,6 +30,7 @@ const FOLDERS: &[(&str, &[Layer])] = &[
             (&["pipeline"], Listed),
         ],
     ),
+    ("config", &[(&["raw", "validate", "keys"], Independent)]),
     (
         "base",
         &[(
