@@ -420,3 +420,24 @@ fn re_exports_resolve_to_the_defining_sibling() {
         Some(m("atlas::context::prepare"))
     );
 }
+
+#[test]
+fn the_architecture_page_names_every_source_file() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let page = std::fs::read_to_string(root.join("docs/architecture.md")).unwrap();
+    let src = root.join("src");
+    let mut files = Vec::new();
+    rust_files(&src, &mut files);
+    let mut missing: Vec<String> = files
+        .iter()
+        .filter(|f| !f.ends_with("tests.rs") && !f.ends_with("testing.rs"))
+        .map(|f| f.strip_prefix(&src).unwrap().display().to_string())
+        .filter(|rel| !page.contains(&format!("`{rel}`")))
+        .collect();
+    missing.sort();
+    assert!(
+        missing.is_empty(),
+        "docs/architecture.md does not name: {}",
+        missing.join(", ")
+    );
+}
