@@ -194,7 +194,7 @@ pub struct Sample {
     /// UV of its centre (OBJ convention, `v` up; not wrapped).
     pub uv: Vec2,
     pub kd: Vec3,
-    /// Pixels' worth of observation per unit area ([`SHARPNESS`] is applied in [`fold`]).
+    /// Pixels' worth of observation per unit area ([`SHARPNESS`] is applied in [`Splat::add`]).
     pub density: f32,
 }
 

@@ -47,7 +47,7 @@
 //! fused luminance ([`fused_variance`]: the photo noise through the weights, or the views'
 //! scatter where larger), from which `confidence` makes the standard error of `K_d`; its
 //! photo-noise part is then measured by running the projection again on perturbed photos
-//! ([`probe`]).
+//! ([`noise_probe`]).
 
 mod noise;
 pub mod noise_probe;
