@@ -41,16 +41,11 @@ use std::sync::atomic::{AtomicU64, Ordering};
 /// them).
 static CHECKPOINT_WRITES: AtomicU64 = AtomicU64::new(0);
 
-/// Manifest format version this build reads and writes. 6: the automatic atlas has density
-/// levels per triangle, so a run of version 5 has another texel layout for the same inputs.
-/// 8: `E_d` holds the caustics (light by way of mirrors and glass), which a version-7 state
-/// of a scene with such materials has in none of its irradiance. 9: the report it carries has
-/// the refinement's residuals, and the state `ed_var` (92 bytes a texel, was 88). 10: the
-/// config it carries has the refinement's gate (`refine_gate`, `refine_gated_from`); bincode
-/// is not self-describing, so a version-9 checkpoint would not decode. 11: the config has
-/// `uv_fold`, and the report the fold's per-shape decisions. 12: the config has the uniform
-/// shapes' filter (`uniform_radius`, `uniform_tolerance`), the report its counts and time, the
-/// gather's kept hits and whether each fold candidate's atlas was filtered.
+/// Manifest format version this build reads and writes; a checkpoint of another version is
+/// refused. It changes with anything a checkpoint holds: the texel layout for given inputs,
+/// what the state's fields mean and their size (92 bytes a texel), and the fields of the
+/// config and report it carries (bincode is not self-describing, so a checkpoint with other
+/// fields would not decode).
 pub const VERSION: u32 = 12;
 const MAGIC: &str = "KDMCKPT";
 /// The current manifest.

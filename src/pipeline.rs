@@ -3,7 +3,7 @@
 //! ```text
 //! scene -> atlas (geometry store) -> projection (L_orig) -> denoise (L_orig)
 //!   -> direct light (E_d) -> caustics (E_d += light by way of mirrors and glass, photons)
-//!   -> [ K_d (eqs. 3-5) -> E_i (photon pass) -> compare and update (eqs. 6-9) ] x iterations
+//!   -> [ K_d (eqs. 3-5) -> E_i (gather or photons) -> compare and update (eqs. 6-9) ] x iterations
 //!   -> final K_d -> outputs
 //! ```
 //!
@@ -20,7 +20,7 @@
 //! `<out>/checkpoint`, rank `r` in `<out>/checkpoint/rank-<r>`). This module decides who
 //! computes what: tiles of the projection (and bands of rows of its refinement renders) and of
 //! the direct light, batches of a photon pass, chunks of gather points, unit `u` by rank
-//! `u mod N`; `share` combines the results in unit order (a photon batch's deposits go to the
+//! `u mod N`; `ranks` combines the results in unit order (a photon batch's deposits go to the
 //! rank of their tile, whose tiles are shared after the pass and before a checkpoint), so
 //! every rank's state is the same bits after each stage, whatever N. The rest (the denoising
 //! of L_orig, the per-texel update, smoothing, fill) runs
@@ -283,7 +283,7 @@ fn work_dir(out: &Path, world: &World) -> PathBuf {
 }
 
 /// `f` with the projection's share of the work on this rank: tiles and row bands `u mod N`,
-/// synced through `share`.
+/// synced through `ranks::share_tiles`.
 fn with_shard<R>(world: &World, f: impl FnOnce(&Shard) -> R) -> R {
     let owns = |u: usize| world.owns(u as u64);
     let sync = |s: &mut TileStore<TexelState>| ranks::share_tiles(world, s);
@@ -295,7 +295,7 @@ fn with_shard<R>(world: &World, f: impl FnOnce(&Shard) -> R) -> R {
     })
 }
 
-/// The stores' invariants after a stage, in debug builds (`atlas::check`).
+/// The stores' invariants after a stage, in debug builds (`atlas::store::check`).
 fn debug_check(geom: &TileStore<TexelGeom>, state: &TileStore<TexelState>) -> Result<()> {
     if cfg!(debug_assertions) {
         check_state(state, geom)?;
@@ -1209,8 +1209,8 @@ fn open_scratch(state_dir: &Path, budget: u64) -> Result<Scratch> {
 const CAUSTIC_PASS: u64 = u64::MAX;
 
 /// The caustic pass traces the solver's photon budget over this (25 per covered texel by
-/// default). Measured on mirror-cbox (held-out albedo): 25 per texel 3.91%, 100 3.86%, 400
-/// 3.84%, for 3.4, 11 and 48 s: its noise is not what limits the walls.
+/// default): at that count its noise is not what limits mirror-cbox's walls, and four or
+/// sixteen times the photons cost three or fourteen times the pass's time for almost no gain.
 const CAUSTIC_SHARE: u64 = 4;
 
 /// The error of a run stopped by a signal after checkpoint `seq` was written in `dir`.

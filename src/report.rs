@@ -54,7 +54,7 @@ pub struct Timings {
     pub load: f64,
     pub atlas: f64,
     pub projection: f64,
-    /// The projection's noise probe (part of `projection`; see `project::probe`).
+    /// The projection's noise probe (part of `projection`; see `project::noise_probe`).
     #[serde(default)]
     pub noise_probe: f64,
     pub direct: f64,

@@ -1,6 +1,6 @@
 //! Typed errors for the library: every refusal names the file (and line/element where known)
 //! and says what is wrong, in one line, so `main` can print it and exit with the code of its
-//! kind ([`Error::exit_code`], sysexits-style, listed in the README).
+//! kind ([`Error::exit_code`], sysexits-style, listed in the README's "Exit codes").
 
 use std::path::{Path, PathBuf};
 

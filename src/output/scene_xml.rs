@@ -599,7 +599,7 @@ mod tests {
     }
 
     /// A folded shape is written on its input UVs (`meshes/<id>_uv.obj`) with the folded
-    /// texture, the others as before; loaded back, its UVs are the input's (the OBJ's v
+    /// texture, the others on their atlas UVs; loaded back, its UVs are the input's (the OBJ's v
     /// convention round-trips through Mitsuba's default flip).
     #[test]
     fn a_folded_shape_is_written_on_its_input_uvs() {

@@ -7,9 +7,8 @@
 //! every repeat is a fresh look at the same texels: folding the atlas into the UV square
 //! averages the photos' noise over the repeats, and the repeats are seen at different
 //! sub-pixel phases, so the sharpest looks at each texel resolve its edges finer than any one
-//! training pixel. Mitsuba 3's own inverse rendering optimises a bitmap over those UVs and won
-//! on tiled grounds for exactly this reason (held-out albedo on the generated open scene's
-//! ground: 3.3% against the atlas's 7.8%).
+//! training pixel. Mitsuba 3's own inverse rendering optimises a bitmap over those UVs and
+//! does better than an atlas on tiled grounds for exactly this reason.
 //!
 //! **How.** Every observed atlas texel of the shape is one sample: its `K_d`, the UV of its
 //! centre (barycentric on its triangle), and a weight `(w / area / max)^`[`SHARPNESS`] (`w`
@@ -32,9 +31,8 @@
 //!
 //! **Cost.** Two streaming passes over the shape's tiles (count, splat), one tile of each
 //! store at a time; the fold holds 92 bytes a texel while it is made, its side capped to
-//! a quarter of `memory_budget_mib` (1024 x 1024 at the default). With the open scene's 593k
-//! observed ground texels folded, the output stage stayed within its run-to-run spread
-//! (2.2-2.7 s).
+//! a quarter of `memory_budget_mib` (1024 x 1024 at the default). Folding the open scene's
+//! 593k observed ground texels costs less than the output stage's run-to-run spread.
 //!
 //! Written by hand: a weighted scatter into a wrapping grid is a few lines, and no crate
 //! resamples between an atlas and a mesh's UVs.
@@ -166,24 +164,20 @@ fn write_fold(out: &Path, shape: &crate::scene::Shape, tex: &UvTexture) -> Resul
 /// gains little from folding and loses resolution.
 pub const MIN_REPEATS: f32 = 4.0;
 
-/// Smallest agreement of independent repeats ([`agreement`]) at which a fold is kept.
-/// Measured (a prototype of the same test on the runs' atlases): the open scene's checker
-/// ground 0.93, envmap's ground 0.92, a second generated open scene's brick ground 0.59
-/// (folded: held-out albedo 13.2 -> 7.1%); the same atlases folded through UVs scaled by 1.37,
-/// so that the albedo does not follow them, -0.02, -0.03 and 0.02. (A first test, how well
-/// the fold predicted each atlas texel, refused the bricks: their thin mortar lines are
-/// blurred in the far texels, sharp in the fold.)
+/// Smallest agreement of independent repeats ([`agreement`]) at which a fold is kept: 0.3.
+/// Grounds whose albedo follows their UVs score about 0.6 (bricks) to 0.93 (a checker); the
+/// same atlases folded through UVs the albedo does not follow score about 0. (The repeats are
+/// compared with each other, not the fold with each atlas texel: thin detail such as mortar
+/// lines is blurred in far texels and sharp in the fold.)
 pub const MIN_AGREEMENT: f32 = 0.3;
 
-/// Samples per UV texel the resolution is chosen for. Held-out albedo of the open scene's
-/// ground at `R` = 128 / 256 / 512 / 1024 (38 / 9.5 / 2.4 / 0.6 samples per texel): 2.7 /
-/// 2.3 / 2.9 / 13.1%; envmap's at 64 / 128 / 256 / 512 (35 / 8.7 / 2.2 / 0.5): 2.0 / 2.1 /
-/// 2.5 / 7.4%.
+/// Samples per UV texel the resolution is chosen for: 8. A coarser fold blurs the texture; a
+/// finer one leaves UV texels to a few noisy samples, and below one sample per texel the
+/// error grows several-fold.
 pub const SAMPLES_PER_TEXEL: f64 = 8.0;
 
 /// Power of the samples' relative resolution in their weight: the finest looks dominate.
-/// Held-out albedo of the open scene's ground at powers 1 / 2 / 4 / 8: 5.7 / 4.2 / 3.2 /
-/// 2.9%; envmap's at 1 / 4 / 8: 2.8 / 2.2 / 2.1%.
+/// Folded grounds come out sharper, and closer to the truth, as the power rises up to 8.
 pub const SHARPNESS: i32 = 8;
 
 /// How much finer per side than the atlas's texels of one repeat a fold must be
@@ -200,7 +194,7 @@ pub struct Sample {
     /// UV of its centre (OBJ convention, `v` up; not wrapped).
     pub uv: Vec2,
     pub kd: Vec3,
-    /// Pixels' worth of observation per unit area ([`SHARPNESS`] is applied in [`fold`]).
+    /// Pixels' worth of observation per unit area ([`SHARPNESS`] is applied in [`Splat::add`]).
     pub density: f32,
 }
 
@@ -319,10 +313,9 @@ pub fn resolution(n: u64) -> Option<u32> {
 
 /// Whether a fold of `res x res` texels is at least [`FINER`] times as fine per side as the
 /// atlas's own texels of one repeat (`samples / repeats` of them). With few repeats the fold
-/// would be coarser than the atlas and lose its detail: the `lights` example's grass ground
-/// (4 repeats, 128 x 128 against about 200 x 200 atlas texels a repeat) went from 5.1 to
-/// 21.0% held-out albedo folded, its crate (6 faces, 64 x 64 against 75 x 75) from 7.0 to
-/// 17.3%.
+/// would be coarser than the atlas and lose its detail: folded, the `lights` example's grass
+/// ground (4 repeats, 128 x 128 against about 200 x 200 atlas texels a repeat) and its crate
+/// (6 faces, 64 x 64 against 75 x 75) would have several times the atlas's albedo error.
 pub fn finer_than_the_atlas(res: u32, samples: u64, repeats: f32) -> bool {
     let per_repeat = samples as f64 / (repeats as f64).max(1.0);
     (res as f64).powi(2) >= FINER * FINER * per_repeat
@@ -659,8 +652,8 @@ mod tests {
         assert_eq!(landed(centre(-1.0, 8.0)), (15, 8));
     }
 
-    /// The measured cases: the open scene's and envmap's grounds fold, `lights`' ground and
-    /// crate (4 and 6 repeats) would be coarser than their atlas and do not.
+    /// The example scenes' cases: the open scene's and envmap's grounds fold, `lights`'
+    /// ground and crate (4 and 6 repeats) would be coarser than their atlas and do not.
     #[test]
     fn a_fold_must_be_finer_than_the_atlas() {
         assert!(finer_than_the_atlas(256, 593_463, 400.0));

@@ -4,11 +4,11 @@
 //!
 //! Written by hand: the transport needs only importance sampling of a handful of Mitsuba's
 //! lobes (no crate offers Mitsuba's parametrisation), and the physics is tested against
-//! closed forms here. Approximations (documented in the README): the radiance scaling by
-//! `eta^2` across a refraction is left out (it cancels for light that enters and leaves a
-//! closed object); microfacet lobes sample the distribution of normals `D(m) (m.n)` with
-//! the Smith shadowing of that distribution; `plastic` is Mitsuba's smooth-coat model
-//! (`roughplastic` uses the rough lobe for its coat's reflection).
+//! closed forms here. Approximations (documented in docs/guide.md, "Known materials"): the
+//! radiance scaling by `eta^2` across a refraction is left out (it cancels for light that
+//! enters and leaves a closed object); microfacet lobes sample the distribution of normals
+//! `D(m) (m.n)` with the Smith shadowing of that distribution; `plastic` is Mitsuba's
+//! smooth-coat model (`roughplastic` uses the rough lobe for its coat's reflection).
 
 use crate::base::rng::Rng;
 use crate::scene::material::{fresnel_conductor, fresnel_dielectric, KnownBsdf, Rough};

@@ -1,7 +1,7 @@
 //! Mitsuba 3's `perspective` camera, exactly: pixel <-> world ray mapping, point projection and
 //! pixel footprints. Every stage that relates photo pixels to the scene goes through here, so
 //! the conventions live in one place and are proven against Mitsuba renders in
-//! `tests/camera.rs`.
+//! `tests/it/camera.rs`.
 //!
 //! Conventions (Mitsuba 3, `perspective.cpp` and `perspective_projection`):
 //! - the camera looks along local +z; local +x is the image's LEFT, +y is UP;

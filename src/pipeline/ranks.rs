@@ -1,8 +1,9 @@
 //! How the ranks of an MPI job (`comm`) share the heavy stages' results, so every rank's state
 //! ends each stage identical to a single process's: whole tiles of a store, per-unit results
 //! (a tile's sums, a gather chunk's values, rendered rows) gathered to every rank and put back
-//! in unit order; a photon batch's deposits sent to the rank that owns their tile. Work unit `u` is computed by rank `u mod N` ([`World::owns`]):
-//! the units are fixed by the data and combined in their order, never by the rank count.
+//! in unit order; a photon batch's deposits sent to the rank that owns their tile. Work unit
+//! `u` is computed by rank `u mod N` ([`World::owns`]): the units are fixed by the data and
+//! combined in their order, never by the rank count.
 
 use crate::atlas::store::TileStore;
 use crate::base::comm::World;

@@ -10,7 +10,7 @@
 //!   `baseColor`, `metallic`, `roughness`, `KHR_materials_transmission` and the other
 //!   material extensions describe a renderer's appearance, not what the photos show, and
 //!   glTF's default material is fully metallic, so a metallic or transmissive material is
-//!   recovered as the diffuse albedo that explains the photos (documented in the README);
+//!   recovered as the diffuse albedo that explains the photos (docs/guide.md, "glTF 2.0");
 //!   `doubleSided` makes it reflect on both sides, else on its front side only (Mitsuba's
 //!   `diffuse`). The primitive's id is its node's name (`<name>_<primitive>` when the mesh
 //!   has several primitives);

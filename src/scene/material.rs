@@ -1,6 +1,6 @@
 //! Known (not reconstructed) materials: what the light transport needs of Mitsuba's
 //! non-diffuse BSDFs, with the index-of-refraction and metal presets Mitsuba names, settled
-//! at load to RGB and relative IORs. Sampling them is `scatter.rs`'s job.
+//! at load to RGB and relative IORs. Sampling them is `physics::bsdf_sampling`'s job.
 
 use super::Rgb;
 use glam::Vec3;

@@ -142,14 +142,13 @@ fn independent(n: u32) -> f32 {
 /// The filter applied to every slot's observed texels: `l_orig` filtered, judged against
 /// `l_noise`, which shrinks by the filter's factor. `l_var` (what the confidence maps report)
 /// is left as the projection made it: the error of a denoised texel is mostly what the noise
-/// model does not cover (detail one view resolves and another blurs), and shrinking it with the
-/// noise made the standard errors overconfident (held-out texels within one predicted standard
-/// error: open 42 -> 28%, envmap 36 -> 22%, lights 48 -> 42%; 68% if calibrated), while the
-/// uniform boxes, where the filter does most, stay on the safe side (cbox 85%, mirror-cbox 78%). A slot's texture whole if it
-/// fits in `scratch`'s budget, else tile by tile with a halo of `radius` texels (the same
-/// values: a texel's window lies within its tile's halo). `radius = 0` does nothing; slots
-/// `skip` marks are left as they are (`skip` may be shorter than the slots: the rest are
-/// filtered).
+/// model does not cover (detail one view resolves and another blurs), so shrinking it with the
+/// noise would make the standard errors overconfident on textured scenes, while on uniform
+/// boxes, where the filter does most, they stay on the safe side as they are. A slot's texture
+/// is filtered whole if it fits in `scratch`'s budget, else tile by tile with a halo of
+/// `radius` texels (the same values: a texel's window lies within its tile's halo).
+/// `radius = 0` does nothing; slots `skip` marks are left as they are (`skip` may be shorter
+/// than the slots: the rest are filtered).
 pub fn denoise_luminance(
     layout: &Layout,
     charts: &Charts,

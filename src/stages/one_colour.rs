@@ -10,16 +10,12 @@
 //! kept.
 //!
 //! Why the gate is per shape: in `K_d` a textured surface's detail and this error look alike
-//! locally (the same filter on every shape of cbox-tex took its coffee wall from 5.0 to 5.2%
-//! held-out at radius 4 and tolerance 0.1, to 5.6% at 8 and 0.15; a local noise estimate, the
-//! median absolute deviation around each texel, took its ceiling from 11.5 to 15.9%), while
-//! over a whole shape they do not.
-//! Median absolute deviations of the examples' shapes (relative, before this step): those of
-//! one colour 0.25-1.9% (lights' wall 0.25%, cbox-tex's back wall 0.32%, floor 0.45%, short
-//! box 1.44%, mirror-cbox's floor 1.64%, envmap's box 1.91%), the textured ones 3.6% and up
-//! (open's torus 3.57%, open-b's wooden box 3.88%, envmap's torus 5.71%, cbox-tex's brick wall
-//! 18.8%, its ceiling 94%). Missed: mirror-cbox's ceiling (4.46%: lit by interreflection
-//! only, 12% relative standard error) and envmap's cylinder (2.63%).
+//! locally (the filter on every shape, or gated by a local noise estimate such as the median
+//! absolute deviation around each texel, blurs textured walls and ceilings), while over a
+//! whole shape they do not. [`UNIFORM_MAD`] lies between the example scenes' shapes of one
+//! colour (relative median absolute deviation 0.25-1.9% before this step) and their textured
+//! ones (3.6% and up). A shape of one colour that is much noisier, such as a ceiling lit only
+//! by interreflection (12% relative standard error), is left as it is.
 //!
 //! Written here, not taken from a crate: it is `denoise::sigma_filter` (charts, tiles,
 //! budget) with a relative tolerance; the only new part is the gate.
@@ -35,7 +31,7 @@ use crate::stages::denoise::{sigma_filter, Noisy};
 use glam::Vec3;
 
 /// A shape is uniform when the median absolute deviation of its observed texels' `K_d`
-/// luminance is under this share of their median (see the module doc for the examples').
+/// luminance is under this share of their median (see the module doc for why 2.5%).
 pub const UNIFORM_MAD: f32 = 0.025;
 /// Fewer observed texels than this say too little about a shape to call it uniform.
 const MIN_TEXELS: usize = 64;

@@ -1,5 +1,5 @@
 //! Accuracy of the whole reconstruction against the true albedo of the shipped examples, at
-//! CI-sized settings (the full-size figures are in the README).
+//! CI-sized settings (the current figures at full size are in docs/accuracy.md).
 //!
 //! Textured shapes are judged against their *resolution floor*: the error left when the
 //! photos are replaced by noise-free images of the true albedo alone, rendered by Mitsuba
@@ -37,7 +37,7 @@ fn run(scene: &str, solver: Solver) -> (Config, Vec<ShapeAccuracy>) {
         cfg.method = Method::Photons;
         cfg.set_photons(photons);
         cfg.iterations = iterations;
-        // the photon counts here were sized for 64 texels per unit: a finer automatic atlas
+        // the photon counts here are sized for 64 texels per unit: a finer automatic atlas
         // spreads them over more texels (more noise per texel)
         cfg.atlas.texels_per_unit = kdmap::config::Density::PerUnit(64.0);
     }
@@ -274,16 +274,16 @@ fn check_textured(scene: &str, solver: Solver, b: TexBounds) {
 }
 
 /// The default method (the gather) at its default settings, which are also CI-sized (a few
-/// seconds). Measured: 1.78% mean error, walls' mean RGB within 0.6%.
+/// seconds): at most 2.5% mean error, walls' mean RGB within 1.2%.
 #[test]
 fn cbox_albedo_is_recovered() {
     check_cbox(Solver::Gather, 0.025, 0.012);
 }
 
 /// Shapes of one colour kept to one colour (`uniform`): every shape of cbox is of one colour,
-/// all seven are found so, the per-texel error over the scene falls by more than a third
-/// (measured: 1.18 -> 0.57%), and no shape's mean colour moves by more than 0.5% (averaging
-/// texels that agree moves no mean).
+/// all seven are found so, the per-texel error over the scene falls by more than a third,
+/// and no shape's mean colour moves by more than 0.5% (averaging texels that agree moves no
+/// mean).
 #[test]
 fn cbox_shapes_of_one_colour_are_kept_to_one_colour() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/cbox");
@@ -315,8 +315,8 @@ fn cbox_shapes_of_one_colour_are_kept_to_one_colour() {
 }
 
 /// The paper's photon tracing, CI-sized: 1e6 photons per iteration (a tenth of full size), 4
-/// iterations. Measured: 4.7% mean error, walls' mean RGB within 1.9%; photon noise
-/// dominates at this size.
+/// iterations: at most 6% mean error, walls' mean RGB within 2.5%; photon noise dominates at
+/// this size.
 #[test]
 fn cbox_albedo_by_photons_is_recovered() {
     check_cbox(Solver::Photons(1_000_000, 4), 0.06, 0.025);
@@ -324,15 +324,10 @@ fn cbox_albedo_by_photons_is_recovered() {
 
 /// The default method at its default settings: uniform shapes within 3.5% together and 6%
 /// each, textured shapes within 4 points of their resolution floor, mean colours within 3%.
-/// (4 since the default runs 16 refinement passes: the ceiling's mean relative error per
-/// texel went 27.25 -> 27.10%, but its floor, the same passes on noise-free photos, 24.75 ->
-/// 23.40%; held-out albedo 4.48 -> 4.23%. At 3.5 points it failed by 0.2.)
-/// (The dim ceiling, lit only by the walls, is the closest: relative L1 12.1% against a floor
-/// of 9.3% once the density levels let its density rise from 99 to 117 texels per unit, fewer
-/// pixels, so more photo noise, per texel; within 2 points before. With the over-relaxed
-/// refinement and the denoiser it is 11.5% against 8.5%: closer to the truth, but the floor,
-/// made by the same refinement from noise-free images, gained more. The held-out albedo judge
-/// gives 5.71%, 5.73%, and now 5.05%.)
+/// The closest is the dim ceiling, lit only by the walls, at about 3 points: the refinement
+/// passes sharpen its floor (the same passes on noise-free photos) more than they sharpen the
+/// noisy photos' result, and at its automatic density each texel holds few pixels, so much
+/// photo noise.
 #[test]
 fn cbox_tex_albedo_is_recovered() {
     let b = TexBounds {
@@ -348,16 +343,15 @@ fn cbox_tex_albedo_is_recovered() {
 /// and the uniform walls' mean RGB within 1%. About a minute on 2 cores:
 /// `cargo test --release --test it accuracy:: -- --ignored --nocapture`.
 #[test]
-#[ignore = "full size, ~1 min; run for the README figures"]
+#[ignore = "full size, ~1 min; the paper's method at its own photon count"]
 fn full_size_cbox_by_photons() {
     check_cbox(Solver::Photons(10_000_000, 6), 0.03, 0.01);
 }
 
 /// Photon tracing at full size on cbox-tex: the uniform shapes within 3% together (5% each),
-/// textured shapes within 2.5 points of their resolution floor (measured: 2.46% together,
-/// 1.3-4.2% each; textured shapes 0-2 points above the floor), mean colours within 3%.
+/// textured shapes within 2.5 points of their resolution floor, mean colours within 3%.
 #[test]
-#[ignore = "full size, ~1 min; run for the README figures"]
+#[ignore = "full size, ~1 min; the paper's method at its own photon count"]
 fn full_size_cbox_tex_by_photons() {
     let b = TexBounds {
         uniform: 0.03,
@@ -386,11 +380,9 @@ fn lights_albedo_is_recovered() {
 /// `envmap` (diffuse objects on a textured ground lit only by a lat-long sky with a sun;
 /// `tools/gen_scene.py --preset envmap` at fixture size), default method: the direct light is
 /// the environment's importance-sampled shadow rays, the same checks against its own
-/// resolution floor (`tests/fixtures/envmap/albedo/`). Measured (`kdmap accuracy`, dev build,
-/// default settings): box 3.6%, cylinder 4.6%, torus 14.3% (its mean 5.5% high: the inside of
-/// the ring, lit mostly by inter-reflection), uniform shapes 6.4% together; the textured
-/// ground 9.3% and sphere 24.0% against resolution floors of 8.0% and 23.6%. The bounds
-/// hold what was measured, not the issue-17 targets.
+/// resolution floor (`tests/fixtures/envmap/albedo/`). The uniform shapes' bounds are loose
+/// for the torus, the worst of them (about 14% per texel, its mean a few per cent high): the
+/// inside of its ring is lit mostly by inter-reflection.
 #[test]
 fn envmap_albedo_is_recovered() {
     let b = TexBounds {
@@ -405,10 +397,10 @@ fn envmap_albedo_is_recovered() {
 /// `envmap`'s ground tiles its 128 x 128 texture 144 times through its UVs. The fold into those
 /// UVs (`output::uv_fold`) must be chosen by `auto`, used by `scene.xml`, and be much closer to
 /// the true texture than the atlas is to the truth: every repeat is one more look at the same
-/// texels. Measured: the fold's texels 4.4% from the true ones (mean relative luminance error),
-/// the atlas's texels 7.1% from the truth over their footprints (`kdmap accuracy`'s figure);
-/// held-out albedo of the ground 5.0 -> 1.5% (README). A fold flipped in v, or on texels of
-/// the wrong size, is off by the texture's contrast (tens of per cent).
+/// texels. The fold's texels (mean relative luminance error against the true ones) must be
+/// within 6% and under three quarters of the atlas's error over its footprints (`kdmap
+/// accuracy`'s figure). A fold flipped in v, or on texels of the wrong size, is off by the
+/// texture's contrast (tens of per cent).
 #[test]
 fn envmap_ground_folds_into_its_uvs_closer_to_the_truth_than_the_atlas() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/envmap");

@@ -1,6 +1,6 @@
-//! Work that scales with the scene (issue 12 item 5): a photon budget given per covered texel
-//! keeps E_i's noise per texel where it is when the atlas grows; a fixed budget spreads the
-//! same photons over more texels, and the noise grows with them.
+//! Work that scales with the scene: a photon budget given per covered texel keeps E_i's noise
+//! per texel where it is when the atlas grows; a fixed budget spreads the same photons over
+//! more texels, and the noise grows with them.
 //!
 //! The noise is measured as the mean relative difference of E_i (`maps/back_indirect.exr`,
 //! the uniform back wall of the Cornell box) between two runs that differ only in their seed,

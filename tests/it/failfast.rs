@@ -1,7 +1,7 @@
-//! Bad inputs are refused before any heavy work (issue 14 item 1): a truncated photo, a photo
-//! of the wrong size and an unlit scene each get the usual one-line located error and exit
-//! code 65 before the atlas stage starts, so no geometry store is ever made; photos with
-//! non-finite or negative pixels are still accepted, their bad pixels masked and counted.
+//! Bad inputs are refused before any heavy work: a truncated photo, a photo of the wrong size
+//! and an unlit scene each get the usual one-line located error and exit code 65 before the
+//! atlas stage starts, so no geometry store is ever made; photos with non-finite or negative
+//! pixels are still accepted, their bad pixels masked and counted.
 
 use glam::Vec3;
 use kdmap::image::{read_exr, write_exr_rgb};

@@ -59,10 +59,10 @@ fn mirror_cbox_recovers_its_diffuse_walls() {
             100.0 * rgb_off(a)
         );
         assert!(rgb_off(a) < 0.03, "{}: {:.2}%", a.shape, 100.0 * rgb_off(a));
-        // the ceiling is seen only at grazing angles, each pixel smeared over many texels:
-        // 14.0% per texel with the per-pixel residual threshold, 16.1% with the windowed
-        // shrinkage (which gained 0.3-1.2 points of held-out albedo on the textured scenes);
-        // the walls the cameras face stay at 2.5-5.2%
+        // the ceiling is seen only at grazing angles, each pixel smeared over many texels,
+        // so it is held to 18% (the windowed residual shrinkage, which keeps textured scenes'
+        // detail, leaves it a little noisier than a per-pixel threshold would); the walls the
+        // cameras face to 8%
         let limit = if a.shape == "ceiling" { 0.18 } else { 0.08 };
         assert!(
             a.mean_rel_error < limit,

@@ -1,9 +1,8 @@
-//! MPI runs (issue 15; `--features mpi`, Open MPI's `mpirun` on this machine): 2 and 3 ranks
-//! end with textures, maps, renders and report figures bit-identical to one process, for the
-//! gather and for photons, whatever the threads per rank; a run whose rank is killed fails
-//! with one line naming it and an intact checkpoint; a job stopped by SIGTERM checkpoints and
-//! exits 130; both resume under another number of ranks (3, then 1) bit-identically; an input
-//! error is one line, once.
+//! MPI runs (`--features mpi`, Open MPI's `mpirun`): 2 and 3 ranks end with textures, maps,
+//! renders and report figures bit-identical to one process, for the gather and for photons,
+//! whatever the threads per rank; a run whose rank is killed fails with one line naming it and
+//! an intact checkpoint; a job stopped by SIGTERM checkpoints and exits 130; both resume under
+//! another number of ranks (3, then 1) bit-identically; an input error is one line, once.
 
 use super::resume::{assert_same_files, manifest};
 use kdmap::pipeline::RunStage;

@@ -315,7 +315,7 @@ fn rerender_of_a_consistent_state_gives_back_the_photos() {
                 px.clean && px.shape == back
             }
         };
-        // As tests/projection.rs: means over 8x8 blocks of pixels inside the back wall
+        // As tests/it/projection.rs: means over 8x8 blocks of pixels inside the back wall
         // (photo noise is ~2% per pixel).
         const B: i64 = 8;
         let (mut sum, mut n) = (0.0f64, 0usize);

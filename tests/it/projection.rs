@@ -4,7 +4,7 @@
 //! Environment hooks, for investigating a figure (`--nocapture` prints them):
 //! - `KDMAP_DENSITY=<texels per unit>` overrides the atlas density (default 128);
 //! - `KDMAP_ONLY_VIEW=cam_train_0` projects from (and evaluates) that one view only;
-//! - `KDMAP_REFINE_PASSES=<n>` overrides `project::REFINE_PASSES` (0 = the plain weighted mean).
+//! - `KDMAP_REFINE_PASSES=<n>` overrides `config::REFINE_PASSES` (0 = the plain weighted mean).
 
 use glam::{Vec2, Vec3};
 use kdmap::atlas::context::HitTable;
@@ -538,10 +538,10 @@ fn a_larger_refinement_step_gets_closer_to_the_truth_in_the_same_passes() {
             100.0 * b
         );
         // The brick wall (left), whose mortar lines are finer than the photos' pixels, stays
-        // where it is (measured 18.63 -> 18.68% with the first of four passes at step 1).
+        // where it is (within 1%).
         assert!(*b <= a * 1.01, "{id}: step 1.8 moved away from the truth");
     }
-    // and closer on the three walls together (measured: 39.5% -> 38.4% summed)
+    // and closer on the three walls together (by more than 1% of their summed error)
     let (a, b): (f64, f64) = (one.iter().sum(), larger.iter().sum());
     assert!(
         b < 0.99 * a,
@@ -551,12 +551,11 @@ fn a_larger_refinement_step_gets_closer_to_the_truth_in_the_same_passes() {
 
 /// The refinement's gate (`projection.refine_gate`, from `refine_gated_from`) must not hold
 /// back detail: on synthetic cbox-tex photos with noise (the noise probe test's), the default
-/// eight passes with the last four gated leave the textured walls as close to the true field
-/// as eight ungated passes (measured 13.16 -> 13.09%), and the uniform surfaces too (0.74 ->
-/// 0.73%: Gaussian noise alone the residual shrinkage already keeps out; its gain on real
-/// photos is `known::the_refinement_gate_keeps_the_photos_noise_off_uniform_walls`). The
-/// same on noise-free photos, where the level the shrinkage judges by is the unresolved
-/// detail's.
+/// passes, gated from `refine_gated_from` on, leave the textured walls as close to the true
+/// field (within 2%) as the same passes ungated, and the uniform surfaces too (Gaussian noise
+/// alone the residual shrinkage already keeps out; its gain on real photos is
+/// `known::the_refinement_gate_keeps_the_photos_noise_off_uniform_walls`). The same on
+/// noise-free photos, where the level the shrinkage judges by is the unresolved detail's.
 #[test]
 fn the_gate_keeps_texture_detail() {
     let root = fixture("cbox-tex");
@@ -688,8 +687,8 @@ impl Field {
 /// over each pixel with 8 x 8 rays): pixels whose footprint mixes a box and the surface behind
 /// it must not feed the texels behind. The texels of the back wall and the floor near a box's
 /// silhouette (within 3 texels of one a view sees a box in front of) must hold the field's
-/// value: measured 0.06% and 0.24% mean error there (max 2.0 and 6.5%); with every pixel
-/// counted as clean (no silhouette rule) 11.7% (max 1034%).
+/// value: within 1% on average and 25% at worst; with every pixel counted as clean (no
+/// silhouette rule) they would be about 12% off on average, some tenfold.
 #[test]
 fn silhouettes_of_an_object_in_front_of_a_textured_plane_do_not_leak_into_it() {
     let root = fixture("cbox-tex");
@@ -947,13 +946,13 @@ fn median(v: &mut [f32]) -> f32 {
     v[v.len() / 2]
 }
 
-/// The noise probe (`project::probe`) must predict the noise the photos give each texel. Two
-/// projections of synthetic cbox-tex photos with independent relative noise (2% on the
+/// The noise probe (`project::noise_probe`) must predict the noise the photos give each texel.
+/// Two projections of synthetic cbox-tex photos with independent relative noise (2% on the
 /// brightest surfaces, more on dim ones, as in a rendered photo) measure it: per shape, the
-/// robust spread of the two luminances' relative difference over sqrt 2. The predicted
-/// standard deviation (`sqrt(l_var)`, its median over the shape) must be within a factor 1.5
-/// of it on every shape. Without the probe (the noise propagated through the views' weights
-/// only) the refinement's amplification on the grazing ceiling is missed.
+/// robust spread of the two luminances' relative difference over sqrt 2. The predicted standard
+/// deviation (`sqrt(l_var)`, its median over the shape) must be within a factor 1.5 of it on
+/// every shape. Without the probe (the noise propagated through the views' weights only) the
+/// refinement's amplification on the grazing ceiling is missed.
 #[test]
 fn the_noise_probe_predicts_the_texel_noise_of_independent_photos() {
     let root = fixture("cbox-tex");

@@ -1,6 +1,6 @@
-//! The command line for scripts (issue 14 item 3): `--json` documents on stdout that parse
-//! back, JSON lines of progress on stderr, `--quiet`, `--progress always|never`, and a closed
-//! stdout (`kdmap ... | head`) ending the output quietly with exit code 0, never a panic.
+//! The command line for scripts: `--json` documents on stdout that parse back, JSON lines of
+//! progress on stderr, `--quiet`, `--progress always|never`, and a closed stdout
+//! (`kdmap ... | head`) ending the output quietly with exit code 0, never a panic.
 
 use super::resume::{fast_args, write_fast_config};
 use std::path::{Path, PathBuf};

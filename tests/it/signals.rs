@@ -1,7 +1,7 @@
-//! SIGINT and SIGTERM on the real binary (issue 14 item 2): a signal at any moment stops the
-//! run at its next safe point with exit code 130 and a line telling how to continue, and
-//! `--resume` then ends bit-identical to an uninterrupted run; a second signal ends the process
-//! at once (130) and leaves the last checkpoint intact.
+//! SIGINT and SIGTERM on the real binary: a signal at any moment stops the run at its next safe
+//! point with exit code 130 and a line telling how to continue, and `--resume` then ends
+//! bit-identical to an uninterrupted run; a second signal ends the process at once (130) and
+//! leaves the last checkpoint intact.
 
 use super::resume::{assert_same_outputs, fast_args, manifest, run, write_fast_config};
 use std::path::Path;

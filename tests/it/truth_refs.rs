@@ -1,6 +1,6 @@
-//! `kdmap accuracy` against truth files written the way real Mitsuba scenes are (issue 16
-//! item 5): BSDFs declared once with an id and used through `<ref>`, and truths that cover
-//! nothing the run reconstructed, which must be refused rather than scored as 0.00%.
+//! `kdmap accuracy` against truth files written the way real Mitsuba scenes are: BSDFs declared
+//! once with an id and used through `<ref>`, and truths that cover nothing the run
+//! reconstructed, which must be refused rather than scored as 0.00%.
 
 use kdmap::accuracy::score_run;
 use kdmap::base::progress::Mode;

@@ -13,7 +13,7 @@ use crate::base::error::{Error, Result};
 use crate::scene::Scene;
 
 /// One texel's value and its chart ([`NONE`]: none): what the window filters that stay within
-/// a chart read (`project::probe`'s noise, `direct::sampling`'s `E_d` roughness).
+/// a chart read (`project::noise_probe`'s noise, `direct::sampling`'s `E_d` roughness).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct ChartValue {

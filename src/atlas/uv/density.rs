@@ -32,23 +32,17 @@ pub const STRIDE: u32 = 4;
 /// A view counts for a shape only if at least this many sampled pixels see it.
 pub const MIN_SAMPLES: usize = 16;
 /// Texels per finest pixel footprint, along each axis: 2, so that the projection's refinement
-/// can place detail that several views see at different sub-pixel offsets (on `cbox-tex`,
-/// held-out albedo error 6.33% at 1 texel per footprint, 5.58% at about 2, 5.60% at 3).
+/// can place detail that several views see at different sub-pixel offsets (one texel per
+/// footprint cannot hold it; three resolve no more than two).
 pub const OVERSAMPLE: f32 = 2.0;
 /// The default texel budget is [`TEXELS_PER_PIXEL`] times the photos' pixel count, at most
 /// this many: beyond it a run's time and memory grow faster than its accuracy (set
 /// `max_texels` to go further).
 pub const DEFAULT_MAX_TEXELS: u64 = 1 << 20;
 /// Texels per photo pixel in the default budget: 2. The photos see the surfaces unevenly (a
-/// large ground near one camera and far from the rest, small objects close up), and, when
-/// this was measured, one density per shape spent the budget evenly over each shape's area,
-/// so a budget of one texel per pixel left shapes well below what the photos resolve where
-/// they look closest (the density levels per triangle now spend less where they look from
-/// afar). Held-out albedo / relit 8x8 (Mitsuba 3 judge) at 1, 2 and 4 texels per pixel, one
-/// density per shape: generated
-/// open scene 13.75/4.49, 11.62/3.64, 10.84/3.36%; lights 6.54/1.62, 5.21/1.53, 4.83/1.49%;
-/// cbox-tex 6.15/3.07, 5.71/2.65, 5.65/3.20%; cbox 1.50/2.51, 1.50/2.25, 1.56/2.59%. At 4 the
-/// boxes' relit error grows (fewer pixels per texel: more photo noise in each) for little.
+/// large ground near one camera and far from the rest, small objects close up), so one texel
+/// per pixel leaves shapes below what the photos resolve where they look closest; at 4 each
+/// texel holds fewer pixels, so more photo noise, for little gain in detail.
 pub const TEXELS_PER_PIXEL: u64 = 2;
 
 /// The default texel budget for photos of `pixels` pixels in all.
@@ -57,7 +51,7 @@ pub fn default_budget(pixels: u64) -> u64 {
 }
 /// Packing overhead of an atlas: its side is about `density * sqrt(PACKING * area)`.
 const PACKING: f64 = 1.6;
-/// Density of shapes no photo sees when no shape is seen at all (the former default).
+/// Density of shapes no photo sees when no shape is seen at all: a moderate fixed density.
 pub const FALLBACK: f32 = 64.0;
 /// Density levels below a shape's density (level `k`: `2^-k` times it): 3, so triangles far
 /// from every camera, or unseen, still get an eighth of the near ones' density (linear).
@@ -168,13 +162,13 @@ pub struct Needs {
     pub memory_bytes: u64,
 }
 
-/// Stored texels per surface texel (chart gutters, tile rounding), as measured on the room
-/// (0.69M stored for 0.64M covered at 64/unit) and the boxes (233k for 105k: small charts).
+/// Stored texels per surface texel (chart gutters, tile rounding): about 1.1 on a room of
+/// large charts, 2.2 on boxes of small ones.
 const STORE_OVERHEAD: f64 = 1.5;
 
 /// Gather points per (surface area / spacing^2): one per chart per cell, and a cell holds
-/// more than one chart along seams and on small parts (the room: 1.1M triangles, 157 m^2 at
-/// spacing 0.13 gave about 2.3 points per cell).
+/// more than one chart along seams and on small parts (a room of 1.1M triangles and 157 m^2
+/// has about 2.3 points per cell at spacing 0.13).
 const GATHER_POINTS_PER_CELL: f64 = 2.5;
 
 /// Bytes the gather's ray cache can take at most (`crate::stages::indirect::gather::GatherCache`): per point its
@@ -328,11 +322,9 @@ fn pixel_footprint(
 /// `0..=LEVELS`, so triangles seen as finely as the shape's median pixel or finer keep the
 /// shape's density and coarser ones step down; unseen triangles take `LEVELS`.
 ///
-/// The shape's density stays set by the median, not by its finest triangle: on the boxes
-/// that raised the walls to 130-160 texels per unit (from about 110) and the relit
-/// held-out error of cbox-tex from 2.65% to 3.11% (fewer pixels per texel), while on the
-/// open scene and lights this rule did as well (held-out albedo 10.34% and 4.91%, against
-/// 10.54% and 4.92%).
+/// The shape's density is set by the median, not by its finest triangle: the finest would
+/// give a Cornell box's walls more texels than their pixels' noise supports, and gains
+/// nothing on large open scenes.
 fn shape_levels(tris: &[f32], median: f32) -> Vec<u8> {
     let levels: Vec<u8> = tris
         .iter()
@@ -439,9 +431,9 @@ pub fn plan(scene: &Scene, fine: &Footprints, max_size: u32, budget: u64) -> Den
 /// A texel at any density level spans at most this share of its shape's bounding radius
 /// (1/16, as the gather's points on small shapes). The projection samples a texel on its
 /// tangent plane, so a texel much larger than a curved shape's triangles reads other parts
-/// of the shape: on the envmap fixture's torus, noise-free photos of a uniform albedo came out
-/// 13% too bright on average (up to 3.9x) with texels 4 and 8 times the base size, exact at 1
-/// and 2.
+/// of the shape: on the envmap fixture's torus, texels 4 and 8 times the base size make
+/// noise-free photos of a uniform albedo come out 13% too bright on average (up to 3.9x);
+/// 1 and 2 times are exact.
 const MAX_TEXEL_OF_RADIUS: f32 = 1.0 / 16.0;
 
 /// Lowers every triangle's level to its shape's cap: the largest level whose texels

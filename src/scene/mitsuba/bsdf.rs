@@ -4,12 +4,12 @@
 //! `bumpmap`/`normalmap` (their inner bsdf; the bump is ignored). Property names and defaults
 //! as in Mitsuba 3.9's `src/bsdfs/*.cpp`.
 //!
-//! Approximations, documented in the README: a parameter given as a texture takes the
-//! plugin's default (known materials are uniform here); anisotropic roughness takes the mean
-//! of `alpha_u` and `alpha_v`; conductor presets other than those of [`METAL_PRESETS`] are an
-//! ideal mirror; `principled` becomes a blend of a rough mirror tinted by `base_color`
-//! (`metallic`), a rough glass (`spec_trans`) and a rough plastic over `base_color`, with
-//! `alpha = roughness^2`; sheen, clearcoat and specular tint are dropped.
+//! Approximations, documented in docs/guide.md ("Known materials"): a parameter given as a
+//! texture takes the plugin's default (known materials are uniform here); anisotropic roughness
+//! takes the mean of `alpha_u` and `alpha_v`; conductor presets other than those of
+//! [`METAL_PRESETS`] are an ideal mirror; `principled` becomes a blend of a rough mirror tinted
+//! by `base_color` (`metallic`), a rough glass (`spec_trans`) and a rough plastic over
+//! `base_color`, with `alpha = roughness^2`; sheen, clearcoat and specular tint are dropped.
 
 use super::{Bsdf, Parser, Props};
 use crate::scene::material::{self, KnownBsdf, KnownMaterial, Rough, AIR, BK7, POLYPROPYLENE};

@@ -21,13 +21,13 @@
 //! box footprint, the map's own texels (area means, read back bilinearly) add their size, and a
 //! view seeing the surface at a grazing angle or from afar averages many texels per pixel, which
 //! the mean mixes into the sharper views' detail. Re-rendered, such a map agrees with no photo
-//! exactly: on cbox-tex (textured walls and ceiling, 128 texels per unit) the 8x8-block means
-//! differed from the photos by 2.1/1.1/1.5% in the three views, and by 1.3/0.9/0.9% even with a
-//! single view projected and re-rendered into itself (noise-free synthetic photos of the true
-//! textures give the same figures, so neither noise nor lighting is the cause). [`refine`] runs
-//! iterative back-projection (SIRT): render every view from the current map, back-project the
-//! residual `photo - render` with the same lookups and weights, add `sum w_i r_i / sum w_i`,
-//! clamp at zero. Each pass moves the map towards the least-squares solution of "render(map) =
+//! exactly: on cbox-tex (textured walls and ceiling, 128 texels per unit) its 8x8-block means
+//! differ from the photos by 1-2%, by about 1% even with a single view projected and
+//! re-rendered into itself, and as much with noise-free synthetic photos of the true textures,
+//! so neither noise nor lighting is the cause. [`refine`] runs iterative back-projection
+//! (SIRT): render every view from the current map, back-project the residual
+//! `photo - render` with the same lookups and weights, add `sum w_i r_i / sum w_i`, clamp at
+//! zero. Each pass moves the map towards the least-squares solution of "render(map) =
 //! photo in every view": detail that some view resolves is restored, averaging stays where
 //! views agree. Residuals are shrunk first where their 7 x 7-pixel neighbourhood holds no more
 //! than the photo's noise ([`shrink_residual`], James-Stein over the window), so the passes do
@@ -47,7 +47,7 @@
 //! fused luminance ([`fused_variance`]: the photo noise through the weights, or the views'
 //! scatter where larger), from which `confidence` makes the standard error of `K_d`; its
 //! photo-noise part is then measured by running the projection again on perturbed photos
-//! ([`probe`]).
+//! ([`noise_probe`]).
 
 mod noise;
 pub mod noise_probe;
@@ -340,7 +340,7 @@ pub fn observe_texel_from<T: Value>(
     let ratio = g.area / a_pix;
     let (dx, dy) = shape.texel_edges(g.tri as usize);
     // Sub-samples per side: about one per pixel the texel covers. (Per-axis counts from the
-    // projected texel edges were measured too: no change, so the area rule stays.)
+    // projected texel edges do no better than this area rule.)
     let k = ((ratio.sqrt() * SUBSAMPLES_PER_PIXEL).ceil() as u32).clamp(1, MAX_SUBSAMPLES);
     let mut sum = T::default();
     let mut accepted = 0u32;
@@ -400,9 +400,8 @@ pub fn finish_tile(state: &mut [TexelState]) {
 pub const DISAGREE_Z: f32 = 3.0;
 /// Relative spread between views that is not noise but expected (pixel footprints, filtering,
 /// registration to a fraction of a pixel, texture detail one view resolves and another
-/// blurs): added to a view's noise before judging it. Measured (held-out albedo, shipped
-/// scenes): at 0.05 and 0.15 the textured walls of cbox-tex lost 0.2-0.5 points, as detail
-/// that differs between views was taken for disagreement.
+/// blurs): added to a view's noise before judging it. 0.25: at 0.05-0.15 detail that differs
+/// between views is taken for disagreement and textured walls lose detail.
 pub const MODEL_FLOOR: f32 = 0.25;
 
 /// Per texel, one refinement pass's residuals summed over the views (a scratch tile store).
@@ -437,7 +436,7 @@ pub fn view_variance(sigma: f32, l: f32, w: f32) -> f32 {
 /// The weight of a view whose value lies `z` standard deviations from the estimate: 1 within
 /// [`DISAGREE_Z`], `(DISAGREE_Z / z)^4` beyond. It falls off much faster than Huber's `c / z`,
 /// because the estimate it is judged against still holds the outlier: with three views, one
-/// of them 4x too bright, Huber's weight left the texel 66% off after the refinement's
+/// of them 4x too bright, Huber's weight leaves the texel 66% off after the refinement's
 /// passes, this one outvotes it (see the projection tests).
 pub fn robust_weight(z: f32) -> f32 {
     if z > DISAGREE_Z {
@@ -451,7 +450,7 @@ pub fn robust_weight(z: f32) -> f32 {
 /// the photo's relative noise where the texel's pixels are (`level`, interpolated like the
 /// residual) or the view's `sigma` if that is larger. The view's level alone (its median)
 /// understates dim, noisy regions (cbox-tex's short box: 5-7% per pixel against 1-2% on the
-/// back wall), so the sigma filter averaged half as many texels there as on the tall box.
+/// back wall), and judged by it the sigma filter would average too few texels there.
 pub fn texel_noise_variance(level: f32, sigma: f32, l: f32, w: f32) -> f32 {
     view_variance(level.max(sigma), l, w)
 }

@@ -4,16 +4,15 @@
 //!
 //! A view's noise level (the median relative residual) is one number, but a rendered or shot
 //! photo's relative noise is not uniform: a dim ceiling lit only by interreflection is two or
-//! three times as noisy as a lit wall. Under the one level the shrinkage took that noise for
-//! signal and every refinement pass fitted more of it (mirror-cbox's grazing ceiling: 6.8%
-//! per-texel error after the weighted mean, 16% after four passes, 21% after eight, its mean
-//! pulled down as the spread hit `K_d <= 1`). Unresolved texture looks as rough as noise in a
-//! single residual (lights' grass: 1.4-2.7 times the view's level), so the level is raised
-//! only where the current render is smoother than the residual: there the maps hold no detail
-//! the residual could be the rest of. The roughness estimator is a median of pixel
-//! differences over a block's window, the least of four directions: differences drop what is
-//! smooth, the median the pixels of a few edges, the least direction a straight edge. It is
-//! a few medians, so it is written here.
+//! three times as noisy as a lit wall. Under the one level the shrinkage takes that noise for
+//! signal and every refinement pass fits more of it (a grazing ceiling's per-texel error
+//! triples over eight passes, its mean pulled down as the spread hits `K_d <= 1`).
+//! Unresolved texture looks as rough as noise in a single residual (lights' grass: 1.4-2.7
+//! times the view's level), so the level is raised only where the current render is smoother
+//! than the residual: there the maps hold no detail the residual could be the rest of. The
+//! roughness estimator is a median of pixel differences over a block's window, the least of
+//! four directions: differences drop what is smooth, the median the pixels of a few edges,
+//! the least direction a straight edge. It is a few medians, so it is written here.
 
 use rayon::prelude::*;
 

@@ -6,23 +6,22 @@
 //!
 //! Why: the propagation through the views' weights (`photo_variance`) sees the weighted mean
 //! only. The refinement passes amplify noise where they deconvolve (a grazing ceiling, a dim
-//! textured wall) and the sub-pixel texels share their pixels' noise, so it was wrong by a
-//! factor that depends on the surface. Measured on cbox-tex (two renders of its photos with
-//! different seeds, four passes, no sigma filter): per-texel noise over predicted 0.52 on the
-//! back wall, 0.47 on the floor, 3.25 on the grazing ceiling, 1.36 on the left wall; 8.0 on the
-//! ceiling after sixteen passes. The probe follows the passes' shrinkage, robust weights and
-//! clamps as they act on these photos, because it is the same code run on them.
+//! textured wall) and the sub-pixel texels share their pixels' noise, so propagation is off
+//! by a factor that depends on the surface (on cbox-tex the actual per-texel noise is about
+//! half the propagated one on the back wall and floor, three times it on the grazing
+//! ceiling). The probe follows the passes' shrinkage, robust weights and clamps as they act
+//! on these photos, because it is the same code run on them.
 //!
 //! The added noise is [`PROBE_SCALE`] of the photos' own (each pixel's level: the roughness of
 //! the last pass's residual there), so the probe's residuals hold nearly the noise the real
-//! ones did (6% more variance) and the shrinkage acts on it as it did; its draws are a pure
+//! ones hold (6% more variance) and the shrinkage acts on it as on theirs; its draws are a pure
 //! function of (seed, view, pixel). With the noise itself the measurement is exact (two
 //! renders of cbox-tex's photos: this finite difference with their actual difference gives
 //! 0.97-1.00 of the measured texel noise on the ceiling, the boxes, floor and back wall).
 //!
 //! The measured variance goes into `l_var` (what the confidence maps report), not into
-//! `l_noise` (what the sigma filter judges by): judged by it the filter averaged cbox-tex's
-//! noisy textured ceiling more and lost detail (held-out albedo 4.88 -> 5.02%).
+//! `l_noise` (what the sigma filter judges by): judged by it, the filter would average noisy
+//! textured surfaces (cbox-tex's ceiling) more and lose their detail.
 
 use crate::atlas::store::{map_tiles, TileStore};
 use crate::atlas::store::{Layout, TexelGeom, TexelState};

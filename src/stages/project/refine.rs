@@ -114,7 +114,7 @@ impl Passes {
 
     /// The step of pass `pass` (from 0): 1 in the first, whose robust weights are judged
     /// against the plain weighted mean (a view with a highlight is still in it), `step` after.
-    /// Over-relaxing the first pass too left the highlight test's texels 6.0% off instead of
+    /// Over-relaxing the first pass too leaves the highlight test's texels 6.0% off instead of
     /// 4.7% (three passes; 4.5% over four).
     fn step(&self, pass: u32) -> f32 {
         if pass == 0 {

@@ -8,20 +8,18 @@
 //! than noise and most of it passes, even where each pixel is within the noise; a window of
 //! noise alone holds about `sigma^2` and is zeroed or nearly so. `sigma^2` is the mean over the
 //! window of each pixel's noise variance ([`super::noise`]): the view's level, or more where
-//! the photo is locally noisier and the render smooth. The per-pixel soft threshold it
-//! replaced (`|e|` shrunk by `sigma`) dropped exactly those edge residuals, so the passes
-//! restored less detail. It is a median and a separable box sum, so it is written here.
+//! the photo is locally noisier and the render smooth. A per-pixel soft threshold (`|e|`
+//! shrunk by `sigma`) would drop exactly those edge residuals, so the passes would restore
+//! less detail. It is a median and a separable box sum, so it is written here.
 
 use super::noise::{block_roughness, per_pixel, pixel_noise};
 use super::view::PixelInfo;
 use glam::Vec3;
 
-/// Half the side of the window a residual is judged over (7 x 7 pixels). Held-out albedo with
-/// four passes at 3 x 3, 5 x 5 and 7 x 7: open 8.03 / 7.75 / 7.69%, lights 3.74 / 3.68 /
-/// 3.66%, mirror-cbox 4.08 / 4.03 / 4.00%, envmap 5.23 / 5.19 / 5.15%, cbox-tex 4.97 / 4.96 /
-/// 4.94%, cbox 1.67 / 1.67 / 1.67%; the per-pixel threshold had 8.94, 4.01, 3.91, 5.34, 5.05,
-/// 1.62%. Scaling the noise energy by 1.25 or 2 (more shrinkage) bought the uniform boxes back
-/// and cost the textures more (5 x 5, x2: open 9.25%, envmap 6.22%, mirror-cbox 3.46%).
+/// Half the side of the window a residual is judged over (7 x 7 pixels): smaller windows hold
+/// less of a blurred edge's residual and textured scenes keep less detail (most visibly at
+/// 3 x 3); uniform scenes are indifferent. Shrinking harder (the noise energy scaled up) helps
+/// uniform surfaces and costs textures more.
 pub const SHRINK_RADIUS: usize = 3;
 
 /// A photo's relative per-pixel noise from its relative residuals `e` ([`relative`]): the
@@ -286,8 +284,8 @@ mod tests {
 
     #[test]
     fn a_coherent_residual_passes_almost_whole() {
-        // a band 5 pixels wide, 3 sigma (relative) above the noise: the old per-pixel soft
-        // threshold took sigma off every pixel of it (2/3 kept); its windows hold 5.6-6.9
+        // a band 5 pixels wide, 3 sigma (relative) above the noise: a per-pixel soft
+        // threshold would take sigma off every pixel of it (2/3 kept); its windows hold 5.6-6.9
         // times the noise's energy, so nearly all of it passes
         let (mut r, photo, mut pixels) = checkerboard();
         let sigma = 0.014826;

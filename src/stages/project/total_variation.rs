@@ -6,10 +6,9 @@
 //! `lambda_x = tv_weight * sigma * l_x` per channel, `sigma` the photos' relative noise in
 //! that pass (mean over the views of [`super::shrink_residual`]'s estimate).
 //!
-//! Measured (held-out albedo / relit 8x8, Mitsuba 3, 64 spp; 4 passes): at weight 0.1 and
-//! 0.2 mirror-cbox 4.00/2.61 -> 3.64/2.48 -> 3.39/2.39% and cbox 1.67 -> 1.59 -> 1.53%, but
-//! fine textures lose contrast: envmap 5.15 -> 5.38 -> 5.66%, lights 3.66 -> 3.72 -> 3.81%,
-//! open 7.69 -> 7.72 -> 7.78%. Hence off by default: for scenes of mostly uniform surfaces.
+//! At weights of 0.1-0.2 it lowers the albedo error of scenes of uniform surfaces (cbox,
+//! mirror-cbox), but fine textures lose contrast (envmap, lights, open). Hence off by
+//! default: it is for scenes of mostly uniform surfaces.
 //!
 //! Written by hand: the TV denoisers of image crates work on one rectangular image with one
 //! weight; here the weight varies per texel and no difference is taken across a chart border

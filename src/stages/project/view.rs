@@ -74,8 +74,8 @@ fn trace_corners(accel: &Accel, camera: &Camera) -> Vec<Option<(Hit, Vec3)>> {
 /// of the shape hit at its center, no corner within one pixel of it lands on an emitter, and
 /// its value is valid. The emitter guard is there because an emitter is orders of magnitude
 /// brighter than what borders it, so even a sliver of it between the rays ruins the pixel: in
-/// both fixtures' cam_train_0 a corner of the light slipped between the corner rays of a
-/// ceiling pixel (1.3 against 0.09 around it) and streaked the ceiling's luminance map.
+/// both fixtures' cam_train_0 a corner of the light falls between the corner rays of a
+/// ceiling pixel (1.3 against 0.09 around it), which would streak the ceiling's luminance map.
 fn classify(
     scene: &Scene,
     accel: &Accel,

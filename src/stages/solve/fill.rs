@@ -37,7 +37,7 @@ mod harmonic;
 /// mean of those neighbours (one wave of a breadth-first fill). Only the neighbours of the
 /// previous round's texels can change in a round, so each round visits just those: the cost
 /// is proportional to the filled area, not to the texture's area times the fill's depth (a
-/// wide unobserved floor used to take thousands of whole-texture sweeps).
+/// wide unobserved floor would take thousands of whole-texture sweeps).
 pub fn fill_unobserved(
     kd: &mut [Vec3],
     observed: &[bool],

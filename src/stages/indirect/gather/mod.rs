@@ -10,7 +10,7 @@
 //! its throughput to the surface it sees there; an emitter seen through them returns 0 too:
 //! that light (a caustic) is in `E_d`, from the caustic photon pass (`photon::Paths::Caustic`),
 //! because a small bright light in a mirror or through glass is a rare, heavy hit for a gather
-//! ray (mirror-cbox's walls were blotched by it) and a point or directional one is never hit.
+//! ray (it would blotch mirror-cbox's walls) and a point or directional one is never hit.
 //! Observed surfaces need no `K_d`, so it converges in one or two passes where photon tracing
 //! needs many.
 //!
@@ -20,11 +20,10 @@
 //! observed texel nearest the cell's center, or its covered one where no photo saw any), and a
 //! texel interpolates bilinearly between the points of its own chart in the four cells around
 //! it. Observed first because a covered texel may be buried: the floor under a box resting on
-//! it sees only the box's inside, `E_i = 0`, and a point there pulled down the `E_i` of the
-//! observed texels around it (cbox's floor came out 4.0% too bright within a texel of its
-//! boxes, 0.6% with observed points; held-out albedo / relit 8x8: cbox-tex 4.55 / 2.53 ->
-//! 4.48 / 2.33%, cbox 1.34 / 2.16 -> 1.28 / 2.16%). The rays, and the noise, per unit of
-//! surface therefore do not depend on the atlas resolution. An atlas with density levels
+//! it sees only the box's inside, `E_i = 0`, and a point there would pull down the `E_i` of
+//! the observed texels around it (cbox's floor beside its boxes would come out 4% too
+//! bright). Cells are `spacing` across, so the rays, and the noise, per unit of surface do
+//! not depend on the atlas resolution. An atlas with density levels
 //! (`atlas::density`) has one grid of cells per level, each `spacing` across on the charts of
 //! its level, so coarser texels do not spread the points further apart.
 //!
@@ -36,10 +35,8 @@
 //! blotches a cell wide. So before the interpolation the points are filtered
 //! ([`GatherPoints::filtered`]): each becomes the value at its place of the plane fitted
 //! through it and the points of its chart around it that agree with it within their noise.
-//! Held-out albedo / relit 8x8, without -> with: cbox 1.13 / 2.13 -> 1.07 / 2.10%, cbox-tex
-//! 4.29 / 2.35 -> 4.23 / 2.31% (its short box 2.9 -> 2.7%), mirror-cbox 2.49 -> 2.47%,
-//! lights 3.42 -> 3.41%; envmap, open and open-b unchanged. Four times the rays gave cbox-tex
-//! 4.17% at four times the gather's time and 2.7x its peak memory.
+//! It helps most on faces lit only by interreflection, and costs no rays: quadrupling the
+//! rays instead would cost four times the gather's time and 2.7 times its peak memory.
 //!
 //! The rays are cast once ([`trace_points`]): what they see of observed surfaces is final,
 //! and only the hits on unobserved texels are kept and re-read with each iteration's estimates
@@ -71,8 +68,8 @@ use std::path::Path;
 use std::time::Instant;
 
 /// Agreement threshold of the gather points' filter ([`GatherPoints::filtered`]), in
-/// standard errors of two points' difference. Held-out albedo of cbox-tex with the filter
-/// off / at 2 / 4 / 8: 4.29 / 4.23 / 4.24 / 4.28% (the points of 5 x 5 cells at 2: 4.25%).
+/// standard errors of two points' difference: 2. Larger thresholds let points across a real
+/// slope or step count as agreeing, and the filter gains less over none.
 pub const POINT_FILTER_Z: f32 = 2.0;
 
 /// Mixed into the seed so gather rays never share a stream with photons or shadow rays.
@@ -639,7 +636,8 @@ pub struct GatherCache {
     /// `k`, the strata per side.
     strata: u32,
     /// Per point, its cached hits: one exact-size slice each, kept as traced (concatenating
-    /// them held every hit twice at the peak, and a `Vec` grown by pushes up to twice over).
+    /// them would hold every hit twice at the peak, and a `Vec` grown by pushes up to twice
+    /// over).
     hits: Vec<Box<[CachedHit]>>,
     /// `pi / N`.
     scale: f32,
@@ -745,7 +743,7 @@ pub fn shape_spacing(cfg: &Config, scene: &Scene) -> Vec<f32> {
 /// neighbouring strata `(i, 2j)` and `(i, 2j + 1)`, summed (the collapsed-strata estimator:
 /// each pair's squared difference estimates its two strata's variances; an odd `k` leaves a
 /// stratum per row unpaired, counted at the pairs' mean). Stratified rays vary far less than
-/// independent ones: the sample variance over the rays overstated it 2.7x at 64 rays and more
+/// independent ones: the sample variance over the rays overstates it 2.7x at 64 rays and more
 /// with more rays, as stratification gains with their number.
 pub fn pair_variance(pairs: f32, k: u32) -> f32 {
     let paired = k * (k / 2);
@@ -835,7 +833,7 @@ enum Seen {
     Nothing,
 }
 
-/// Follows a gather ray from `o` along `d` through known materials (sampled by `scatter`)
+/// Follows a gather ray from `o` along `d` through known materials (sampled by `bsdf_sampling`)
 /// to the reconstructed surface it sees. Emitters (seen directly: `E_d`; through mirrors and
 /// glass: the caustic pass's, also in `E_d`), misses and the back of one-sided surfaces bring
 /// nothing.

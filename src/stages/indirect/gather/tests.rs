@@ -201,11 +201,10 @@ fn furnace_gathers_pi_l_everywhere() {
 /// A furnace (a closed sphere of observed radiance `L`) with a floor inside, and a cube resting
 /// on the floor (sunk 0.01 into it), every surface observed at `L` but the floor under the
 /// cube, which no camera can see. Every exposed floor point sees `L` in every direction, so
-/// every observed floor texel must interpolate `E_i = pi L`. A gather point on a buried
-/// texel (under the cube, seeing only the cube's back faces: `E_i = 0`) pulled the observed
-/// texels around the cube down, by up to 77% of `pi L` on this grid (so `K_d = L / E` came out
-/// too high beside every object standing on a floor; cbox's floor beside its boxes was 4.0%
-/// too bright within a texel of them, 0.6% since points prefer observed texels).
+/// every observed floor texel must interpolate `E_i = pi L`. Regression: a gather point on a
+/// buried texel (under the cube, seeing only the cube's back faces: `E_i = 0`) pulls the
+/// observed texels around the cube down, by up to 77% of `pi L` on this grid, so `K_d = L / E`
+/// comes out too high beside every object standing on a floor.
 #[test]
 fn observed_texels_beside_an_object_on_the_floor_gather_from_exposed_points() {
     let mut sky = mesh::sphere();
@@ -354,7 +353,7 @@ fn mirror_wall() -> Shape {
 
 /// A light seen in a mirror brings a gather nothing: that light is a caustic, in `E_d` from
 /// the caustic photon pass (`photon::Paths::Caustic`). The floor of the test below under an
-/// emitting square and the mirror gathers exactly 0 (it gathered the image before).
+/// emitting square and the mirror gathers exactly 0, not the light's image.
 #[test]
 fn a_light_in_a_mirror_is_not_gathered() {
     let (floor, lamp) = floor_and_square();
@@ -813,9 +812,9 @@ fn interpolated_variance_is_the_spread_of_interpolated_values() {
 
 /// The predicted variance of `E_i` is none in a furnace (every ray sees the same radiance),
 /// and elsewhere an upper bound of the spread over seeds, but a close one: a square of light
-/// above a floor, 64 rays per point, 24 seeds (measured: 2.0x the spread with the collapsed
-/// strata of `pair_variance`; 2.7x with the sample variance over the rays, which ignored the
-/// stratification).
+/// above a floor, 64 rays per point, 24 seeds (the collapsed strata of `pair_variance` give
+/// 2.0x the spread; the sample variance over the rays, which ignores the stratification,
+/// 2.7x).
 #[test]
 fn gather_variance_is_zero_in_a_furnace_and_bounds_the_spread_over_seeds() {
     let mut m = mesh::sphere();

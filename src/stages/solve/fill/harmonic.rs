@@ -8,18 +8,18 @@
 //! are what relit views show: the ceiling above an area light, which no camera can see but
 //! which a view relit without that light does. The harmonic fill is the smoothest interpolant
 //! of the whole border (least Dirichlet energy), stays within the border's range (maximum
-//! principle), and reproduces a linear gradient exactly. Filling the ceilings' holes this way
-//! took the held-out relit 8x8 error of cbox-tex from 2.93% to 2.50% and of cbox from 2.37% to
-//! 2.15% (Mitsuba 3 renders of the recovered scenes at 64 spp).
+//! principle), and reproduces a linear gradient exactly, so a relit view shows such a hole
+//! as a smooth continuation of its border.
 //!
 //! **How.** Conjugate gradients over the unobserved texels of the texture at once (the system is
 //! symmetric positive definite on every hole that touches an observed texel; a connected set
 //! that touches none, such as a chart nobody saw, which holds the shape's mean, is left out),
-//! started from the wave's values, per RGB channel. The product runs in parallel per texel and the dot products in f64
-//! in the texels' row-major order, so the result is bit-identical for any thread count and for
-//! a texture held whole or in tiles (the system is assembled the same way from either). Written
-//! by hand because the system is a masked stencil over chart-aware atlas texels: assembling it
-//! for a sparse-solver crate would take the same code as the solver itself.
+//! started from the wave's values, per RGB channel. The product runs in parallel per texel
+//! and the dot products in f64 in the texels' row-major order, so the result is bit-identical
+//! for any thread count and for a texture held whole or in tiles (the system is assembled the
+//! same way from either). Written by hand because the system is a masked stencil over
+//! chart-aware atlas texels: assembling it for a sparse-solver crate would take the same code
+//! as the solver itself.
 //!
 //! **Cost.** At most [`BYTES_PER_UNKNOWN`] bytes per texel the wave filled while the solve runs
 //! (the texture itself stays in its tiles); a texture whose system would not fit in the run's
@@ -405,8 +405,8 @@ mod tests {
     }
 
     /// A chart nobody saw holds the shape's mean, and must keep it bit for bit while a hole of
-    /// another chart is relaxed beside it (before such sets were left out of the system, CG
-    /// drifted along their free constant: a grey face turned magenta).
+    /// another chart is relaxed beside it (regression: inside the system, CG drifts along such
+    /// a set's free constant and a grey face turns magenta).
     #[test]
     fn a_chart_nobody_saw_keeps_the_shapes_mean() {
         let (w, h) = (24u32, 12u32);
