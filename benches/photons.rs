@@ -13,12 +13,14 @@ use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Through
 use glam::Vec3;
 use kdmap::atlas::context::HitTable;
 use kdmap::atlas::store::TexelState;
+use kdmap::atlas::store::TileStore;
 use kdmap::atlas::texture::Scratch;
 use kdmap::atlas::uv::Charts;
-use kdmap::atlas::{build_geometry, prepare};
+use kdmap::atlas::{build_geometry, prepare, RunContext};
 use kdmap::base::progress::Mode;
 use kdmap::base::rng::Rng;
 use kdmap::config::Config;
+use kdmap::physics::accel::Accel;
 use kdmap::physics::light::EmitterSampler;
 use kdmap::stages::indirect::photon::{
     begin_pass, finish_pass, photon_pass, AlbedoTextures, PassContext,
@@ -69,18 +71,7 @@ fn bench(c: &mut Criterion) {
         stats.dropped as f64 / stats.photons as f64,
     );
 
-    // Random closest-hit rays: origins uniform in the bounds, directions uniform.
-    let (lo, hi) = p.scene.bounds();
-    let rays: Vec<(Vec3, Vec3)> = (0..RAYS as u64)
-        .map(|i| {
-            let mut r = Rng::new(5, 0, 0, i);
-            let o = lo + (hi - lo) * Vec3::new(r.f32(), r.f32(), r.f32());
-            let z = 2.0 * r.f32() - 1.0;
-            let phi = std::f32::consts::TAU * r.f32();
-            let s = (1.0 - z * z).max(0.0).sqrt();
-            (o, Vec3::new(s * phi.cos(), s * phi.sin(), z))
-        })
-        .collect();
+    let rays = random_rays(&p);
 
     let mut g = c.benchmark_group("photons/cbox");
     g.sample_size(10).warm_up_time(Duration::from_secs(1));
@@ -105,11 +96,7 @@ fn bench(c: &mut Criterion) {
             b.iter(|| {
                 pool.install(|| {
                     rs.par_chunks(1024)
-                        .map(|c| {
-                            c.iter()
-                                .filter(|(o, d)| p.accel.intersect(*o, *d, f32::INFINITY).is_some())
-                                .count()
-                        })
+                        .map(|c| closest_hits(&p.accel, c))
                         .sum::<usize>()
                 })
             })
@@ -117,7 +104,45 @@ fn bench(c: &mut Criterion) {
     }
     g.finish();
 
-    // The ratio, interleaved on one thread.
+    let ratios = interleaved_ratios(&ctx, &mut state, window, &p.accel, &rays);
+    eprintln!(
+        "cbox, 1 thread: time per ray in a photon pass / per raw closest-hit ray = {:.2} \
+         (median of 7; range {:.2}..{:.2})",
+        ratios[3], ratios[0], ratios[6]
+    );
+}
+
+/// Random closest-hit rays: origins uniform in the scene's bounds, directions uniform.
+fn random_rays(p: &RunContext) -> Vec<(Vec3, Vec3)> {
+    let (lo, hi) = p.scene.bounds();
+    (0..RAYS as u64)
+        .map(|i| {
+            let mut r = Rng::new(5, 0, 0, i);
+            let o = lo + (hi - lo) * Vec3::new(r.f32(), r.f32(), r.f32());
+            let z = 2.0 * r.f32() - 1.0;
+            let phi = std::f32::consts::TAU * r.f32();
+            let s = (1.0 - z * z).max(0.0).sqrt();
+            (o, Vec3::new(s * phi.cos(), s * phi.sin(), z))
+        })
+        .collect()
+}
+
+/// How many of `rays` hit something.
+fn closest_hits(accel: &Accel, rays: &[(Vec3, Vec3)]) -> usize {
+    rays.iter()
+        .filter(|(o, d)| accel.intersect(*o, *d, f32::INFINITY).is_some())
+        .count()
+}
+
+/// The time per ray cast in a photon pass over the time per raw closest-hit ray, from seven
+/// single-thread runs of the two interleaved (so the machine's drift hits both alike), sorted.
+fn interleaved_ratios(
+    ctx: &PassContext,
+    state: &mut TileStore<TexelState>,
+    window: usize,
+    accel: &Accel,
+    rays: &[(Vec3, Vec3)],
+) -> Vec<f64> {
     let one = rayon::ThreadPoolBuilder::new()
         .num_threads(1)
         .build()
@@ -126,13 +151,11 @@ fn bench(c: &mut Criterion) {
         .map(|_| {
             one.install(|| {
                 let t = Instant::now();
-                begin_pass(&mut state, window).expect("begin");
-                let s = photon_pass(&ctx, &mut state, 0, |_| Ok(())).expect("pass");
+                begin_pass(state, window).expect("begin");
+                let s = photon_pass(ctx, state, 0, |_| Ok(())).expect("pass");
                 let per_pass_ray = t.elapsed().as_secs_f64() / s.rays as f64;
                 let t = Instant::now();
-                let hits = (rays.iter())
-                    .filter(|(o, d)| p.accel.intersect(*o, *d, f32::INFINITY).is_some())
-                    .count();
+                let hits = closest_hits(accel, rays);
                 let per_raw_ray = t.elapsed().as_secs_f64() / rays.len() as f64;
                 std::hint::black_box(hits);
                 per_pass_ray / per_raw_ray
@@ -140,11 +163,7 @@ fn bench(c: &mut Criterion) {
         })
         .collect();
     ratios.sort_by(f64::total_cmp);
-    eprintln!(
-        "cbox, 1 thread: time per ray in a photon pass / per raw closest-hit ray = {:.2} \
-         (median of 7; range {:.2}..{:.2})",
-        ratios[3], ratios[0], ratios[6]
-    );
+    ratios
 }
 
 criterion_group!(benches, bench);

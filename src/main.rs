@@ -713,74 +713,12 @@ fn summary(scene: &Scene) -> String {
         scene.triangle_count()
     );
     for sh in &scene.shapes {
-        let sides = match sh.sides {
-            Sides::Front => "front",
-            Sides::Both => "both",
-        };
-        let _ = write!(
-            s,
-            "  {:<16} {:<9} {:>8} triangles  area {:>10.4}  sides {:<5}",
-            sh.id,
-            sh.kind,
-            sh.mesh.triangles.len(),
-            sh.mesh.area(),
-            sides
-        );
-        if let Some(l) = sh.emission {
-            let _ = write!(s, "  emits radiance {}", v3(l));
-        }
-        if let Some(k) = sh.known() {
-            let _ = write!(s, "  known material ({}): not reconstructed", k.plugin);
-        }
-        s.push('\n');
+        s.push_str(&shape_line(sh));
     }
     let _ = writeln!(s, "emitters: {}", scene.emitters.len());
     for e in &scene.emitters {
         let p = kdmap::physics::light::emitter_power(scene, e);
-        let what = match e {
-            Emitter::Point {
-                position,
-                intensity,
-            } => format!("point at {} intensity {}", v3(*position), v3(*intensity)),
-            Emitter::Spot {
-                position,
-                axis,
-                intensity,
-                cutoff,
-                beam_width,
-                ..
-            } => format!(
-                "spot at {} axis {} intensity {} cutoff {:.3} deg beam_width {:.3} deg",
-                v3(*position),
-                v3p(*axis),
-                v3(*intensity),
-                cutoff.to_degrees(),
-                beam_width.to_degrees()
-            ),
-            Emitter::Directional {
-                direction,
-                irradiance,
-            } => format!(
-                "directional direction {} irradiance {}",
-                v3p(*direction),
-                v3(*irradiance)
-            ),
-            Emitter::Area { shape, radiance } => {
-                let id = scene.shapes.get(*shape).map_or("?", |s| s.id.as_str());
-                format!("area on '{id}' radiance {}", v3(*radiance))
-            }
-            Emitter::Environment(env) => match &env.file {
-                Some(f) => format!(
-                    "envmap {} ({}x{}, scale {}) mean radiance {}",
-                    f.display(),
-                    env.width,
-                    env.height,
-                    env.scale,
-                    v3(env.mean_radiance())
-                ),
-                None => format!("constant radiance {}", v3(env.radiance)),
-            },
-        };
+        let what = emitter_text(scene, e);
         let _ = writeln!(
             s,
             "  {what}  power {} (luminance {:.4})",
@@ -810,4 +748,76 @@ fn summary(scene: &Scene) -> String {
         );
     }
     s
+}
+
+/// One shape's line of the summary.
+fn shape_line(sh: &kdmap::scene::Shape) -> String {
+    let sides = match sh.sides {
+        Sides::Front => "front",
+        Sides::Both => "both",
+    };
+    let mut s = format!(
+        "  {:<16} {:<9} {:>8} triangles  area {:>10.4}  sides {:<5}",
+        sh.id,
+        sh.kind,
+        sh.mesh.triangles.len(),
+        sh.mesh.area(),
+        sides
+    );
+    if let Some(l) = sh.emission {
+        let _ = write!(s, "  emits radiance {}", v3(l));
+    }
+    if let Some(k) = sh.known() {
+        let _ = write!(s, "  known material ({}): not reconstructed", k.plugin);
+    }
+    s.push('\n');
+    s
+}
+
+/// What an emitter is, where, and how strong, in one phrase.
+fn emitter_text(scene: &Scene, e: &Emitter) -> String {
+    match e {
+        Emitter::Point {
+            position,
+            intensity,
+        } => format!("point at {} intensity {}", v3(*position), v3(*intensity)),
+        Emitter::Spot {
+            position,
+            axis,
+            intensity,
+            cutoff,
+            beam_width,
+            ..
+        } => format!(
+            "spot at {} axis {} intensity {} cutoff {:.3} deg beam_width {:.3} deg",
+            v3(*position),
+            v3p(*axis),
+            v3(*intensity),
+            cutoff.to_degrees(),
+            beam_width.to_degrees()
+        ),
+        Emitter::Directional {
+            direction,
+            irradiance,
+        } => format!(
+            "directional direction {} irradiance {}",
+            v3p(*direction),
+            v3(*irradiance)
+        ),
+        Emitter::Area { shape, radiance } => {
+            let id = scene.shapes.get(*shape).map_or("?", |s| s.id.as_str());
+            format!("area on '{id}' radiance {}", v3(*radiance))
+        }
+        Emitter::Environment(env) => match &env.file {
+            Some(f) => format!(
+                "envmap {} ({}x{}, scale {}) mean radiance {}",
+                f.display(),
+                env.width,
+                env.height,
+                env.scale,
+                v3(env.mean_radiance())
+            ),
+            None => format!("constant radiance {}", v3(env.radiance)),
+        },
+    }
 }

@@ -53,6 +53,7 @@ use crate::stages::indirect::gather::{
 use crate::stages::indirect::photon::{
     begin_pass, finish_pass, photon_pass_shared, smooth_accum, AlbedoTextures, PassContext, Paths,
 };
+use crate::stages::one_colour::{smooth_uniform, UniformStats};
 use crate::stages::project::{ProjectionStats, Shard};
 use crate::stages::solve::{init_indirect_tile, kd_step, update_step, Filled};
 use crate::stages::{direct, project};
@@ -1091,13 +1092,29 @@ impl<'a> Run<'a> {
         if !self.world.is_root() {
             return Ok(r.report);
         }
-        let p = &self.p;
         let (_, filled) = self.kd_step(&mut r, "final K_d")?;
-        let t = Instant::now();
+        let uniform = self.one_colour(&mut r)?;
+        r.state.flush()?;
+        debug_check(&self.geom, &r.state)?;
+        r.report.counts = self.counts(&r, &filled, &uniform);
+        r.report.timings.total = r.elapsed();
+        let res = &mut r.report.resources;
+        res.memory_budget_mib = self.cfg.memory_budget_mib;
+        res.store_bytes = self.geom.data_bytes() + r.state.data_bytes();
+        res.checkpoint_bytes = r.writer.bytes_written;
+        self.write_outputs(&mut r)?;
+        r.checkpoint(&self.state_path, RunStage::Finished)?;
+        self.closing_notes(&r);
+        Ok(r.report)
+    }
+
+    /// Shapes of one colour kept to one colour (`stages::one_colour`), timed.
+    fn one_colour(&self, r: &mut Running) -> Result<UniformStats> {
+        let (p, t) = (&self.p, Instant::now());
         let known: Vec<bool> = (p.layout.slots.iter())
             .map(|st| !p.scene.shapes[st.shape].is_reconstructed())
             .collect();
-        let uniform = crate::stages::one_colour::smooth_uniform(
+        let uniform = smooth_uniform(
             (&p.layout, &known),
             &self.charts,
             &self.geom,
@@ -1106,10 +1123,13 @@ impl<'a> Run<'a> {
             &self.scratch,
         )?;
         r.report.timings.uniform = t.elapsed().as_secs_f64();
-        r.state.flush()?;
-        debug_check(&self.geom, &r.state)?;
-        let proj = r.proj;
-        r.report.counts = Counts {
+        Ok(uniform)
+    }
+
+    /// The report's counts at the end of a run.
+    fn counts(&self, r: &Running, filled: &Filled, uniform: &UniformStats) -> Counts {
+        let (p, proj, before) = (&self.p, &r.proj, &r.report.counts);
+        Counts {
             shapes: p.scene.shapes.len(),
             reconstructed_shapes: p
                 .scene
@@ -1130,20 +1150,16 @@ impl<'a> Run<'a> {
             uniform_texels: uniform.texels,
             filled_texels: filled.texels,
             fill_unrelaxed_texels: filled.unrelaxed,
-            dense_direct_texels: r.report.counts.dense_direct_texels,
-            caustic_photons: r.report.counts.caustic_photons,
-            direct_first_pass_texels: r.report.counts.direct_first_pass_texels,
-            dense_direct_texels_per_emitter: r
-                .report
-                .counts
-                .dense_direct_texels_per_emitter
-                .clone(),
-        };
-        r.report.timings.total = r.elapsed();
-        let res = &mut r.report.resources;
-        res.memory_budget_mib = self.cfg.memory_budget_mib;
-        res.store_bytes = self.geom.data_bytes() + r.state.data_bytes();
-        res.checkpoint_bytes = r.writer.bytes_written;
+            dense_direct_texels: before.dense_direct_texels,
+            caustic_photons: before.caustic_photons,
+            direct_first_pass_texels: before.direct_first_pass_texels,
+            dense_direct_texels_per_emitter: before.dense_direct_texels_per_emitter.clone(),
+        }
+    }
+
+    /// Every output file, with its progress stage and the fold's notes.
+    fn write_outputs(&self, r: &mut Running) -> Result<()> {
+        let p = &self.p;
         let stage = Stage::after(
             self.mode,
             "outputs",
@@ -1164,7 +1180,11 @@ impl<'a> Run<'a> {
         for f in &r.report.uv_fold {
             note(self.mode, &f.summary());
         }
-        r.checkpoint(&self.state_path, RunStage::Finished)?;
+        Ok(())
+    }
+
+    /// What the run wrote and held: checkpoints, memory, and under MPI the ranks' traffic.
+    fn closing_notes(&self, r: &Running) {
         note(
             self.mode,
             &format!(
@@ -1190,7 +1210,6 @@ impl<'a> Run<'a> {
                 ),
             );
         }
-        Ok(r.report)
     }
 }
 

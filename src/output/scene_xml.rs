@@ -485,64 +485,71 @@ mod tests {
         }
         assert_eq!(a.emitters.len(), b.emitters.len());
         for (e, f) in a.emitters.iter().zip(&b.emitters) {
-            match (e, f) {
-                (
-                    Emitter::Point {
-                        position: p,
-                        intensity: i,
-                    },
-                    Emitter::Point {
-                        position: q,
-                        intensity: j,
-                    },
-                ) => assert!(close3(*p, *q) && close3(*i, *j)),
-                (
-                    Emitter::Spot {
-                        position: p,
-                        axis: a1,
-                        to_world: m1,
-                        intensity: i,
-                        cutoff: c1,
-                        beam_width: b1,
-                    },
-                    Emitter::Spot {
-                        position: q,
-                        axis: a2,
-                        to_world: m2,
-                        intensity: j,
-                        cutoff: c2,
-                        beam_width: b2,
-                    },
-                ) => {
-                    assert!(close3(*p, *q) && close3(*a1, *a2) && close3(*i, *j));
-                    assert!(m1.abs_diff_eq(*m2, 1e-5));
-                    assert!(
-                        (c1 - c2).abs() <= 1e-6 && (b1 - b2).abs() <= 1e-6,
-                        "{c1} {c2} {b1} {b2}"
-                    );
-                }
-                (
-                    Emitter::Directional {
-                        direction: d,
-                        irradiance: i,
-                    },
-                    Emitter::Directional {
-                        direction: g,
-                        irradiance: j,
-                    },
-                ) => assert!(close3(*d, *g) && close3(*i, *j)),
-                (
-                    Emitter::Area {
-                        shape: s,
-                        radiance: r,
-                    },
-                    Emitter::Area {
-                        shape: t,
-                        radiance: q,
-                    },
-                ) => assert!(s == t && close3(*r, *q)),
-                _ => panic!("emitters differ: {e:?} vs {f:?}"),
+            assert_same_emitter(e, f);
+        }
+    }
+
+    /// `f` is `e` read back, within float rounding.
+    fn assert_same_emitter(e: &Emitter, f: &Emitter) {
+        let close3 =
+            |x: Vec3, y: Vec3| (x - y).abs().max_element() <= 1e-5 * (1.0 + x.abs().max_element());
+        match (e, f) {
+            (
+                Emitter::Point {
+                    position: p,
+                    intensity: i,
+                },
+                Emitter::Point {
+                    position: q,
+                    intensity: j,
+                },
+            ) => assert!(close3(*p, *q) && close3(*i, *j)),
+            (
+                Emitter::Spot {
+                    position: p,
+                    axis: a1,
+                    to_world: m1,
+                    intensity: i,
+                    cutoff: c1,
+                    beam_width: b1,
+                },
+                Emitter::Spot {
+                    position: q,
+                    axis: a2,
+                    to_world: m2,
+                    intensity: j,
+                    cutoff: c2,
+                    beam_width: b2,
+                },
+            ) => {
+                assert!(close3(*p, *q) && close3(*a1, *a2) && close3(*i, *j));
+                assert!(m1.abs_diff_eq(*m2, 1e-5));
+                assert!(
+                    (c1 - c2).abs() <= 1e-6 && (b1 - b2).abs() <= 1e-6,
+                    "{c1} {c2} {b1} {b2}"
+                );
             }
+            (
+                Emitter::Directional {
+                    direction: d,
+                    irradiance: i,
+                },
+                Emitter::Directional {
+                    direction: g,
+                    irradiance: j,
+                },
+            ) => assert!(close3(*d, *g) && close3(*i, *j)),
+            (
+                Emitter::Area {
+                    shape: s,
+                    radiance: r,
+                },
+                Emitter::Area {
+                    shape: t,
+                    radiance: q,
+                },
+            ) => assert!(s == t && close3(*r, *q)),
+            _ => panic!("emitters differ: {e:?} vs {f:?}"),
         }
     }
 

@@ -506,7 +506,36 @@ pub fn parse_ply(bytes: &[u8], path: &Path) -> Result<Mesh> {
     let ply = parser
         .read_ply(&mut &bytes[..])
         .map_err(|e| Error::input(path, format!("cannot read PLY: {}", ply_message(&e))))?;
+    let (has_n, uv_slot) = ply_vertex_layout(&ply, path)?;
+    let verts = ply.payload.get("vertex").map(Vec::as_slice).unwrap_or(&[]);
+    let mut mesh = ply_vertices(verts, has_n, uv_slot, path)?;
+    if mesh.positions.len() > u32::MAX as usize {
+        return Err(Error::input(path, "too many vertices for 32-bit indices"));
+    }
+    if let Some(fdef) = ply.header.elements.get("face") {
+        if !fdef.properties.contains_key("vertex_index")
+            && !fdef.properties.contains_key("vertex_indices")
+        {
+            return Err(Error::input(
+                path,
+                "the 'face' element has no 'vertex_index'/'vertex_indices' list",
+            ));
+        }
+    }
+    let faces = ply.payload.get("face").map(Vec::as_slice).unwrap_or(&[]);
+    mesh.triangles = ply_triangles(faces, mesh.positions.len() as i64, path)?;
+    if mesh.triangles.is_empty() {
+        return Err(Error::input(path, "the PLY file has no faces"));
+    }
+    Ok(mesh)
+}
 
+/// Whether the PLY's vertices have normals, and which of the texture-coordinate name pairs
+/// they use; an error without `x`, `y`, `z`.
+fn ply_vertex_layout(
+    ply: &ply_rs::ply::Ply<PlyRecord>,
+    path: &Path,
+) -> Result<(bool, Option<usize>)> {
     let vdef = ply
         .header
         .elements
@@ -525,100 +554,76 @@ pub fn parse_ply(bytes: &[u8], path: &Path) -> Result<Mesh> {
     let uv_slot = [("u", "v"), ("texture_u", "texture_v"), ("s", "t")]
         .iter()
         .position(|(a, b)| has(a) && has(b));
+    Ok((has_n, uv_slot))
+}
 
-    let verts = ply.payload.get("vertex").map(Vec::as_slice).unwrap_or(&[]);
+/// The vertices' positions, normals (if `has_n`) and texture coordinates (pair `uv_slot`, v
+/// flipped to kdmap's v-up); non-finite values refused by vertex.
+fn ply_vertices(
+    verts: &[PlyRecord],
+    has_n: bool,
+    uv_slot: Option<usize>,
+    path: &Path,
+) -> Result<Mesh> {
     let mut mesh = Mesh::default();
     let mut normals = Vec::new();
     let mut uvs = Vec::new();
     for (i, r) in verts.iter().enumerate() {
         let get = |v: Option<f64>| v.unwrap_or(0.0) as f32;
+        let bad = |msg: &str| at_line_free(path, format!("vertex {i}"), msg);
         let p = Vec3::new(get(r.xyz[0]), get(r.xyz[1]), get(r.xyz[2]));
         if !p.is_finite() {
-            return Err(at_line_free(
-                path,
-                format!("vertex {i}"),
-                "non-finite position",
-            ));
+            return Err(bad("non-finite position"));
         }
         mesh.positions.push(p);
         if has_n {
             let n = Vec3::new(get(r.n[0]), get(r.n[1]), get(r.n[2]));
             if !n.is_finite() || n.length_squared() == 0.0 || !n.normalize().is_finite() {
-                return Err(at_line_free(
-                    path,
-                    format!("vertex {i}"),
-                    "non-finite or zero-length normal",
-                ));
+                return Err(bad("non-finite or zero-length normal"));
             }
             normals.push(n.normalize());
         }
         if let Some(k) = uv_slot {
             let uv = Vec2::new(get(r.uv[k][0]), 1.0 - get(r.uv[k][1]));
             if !uv.is_finite() {
-                return Err(at_line_free(
-                    path,
-                    format!("vertex {i}"),
-                    "non-finite texture coordinate",
-                ));
+                return Err(bad("non-finite texture coordinate"));
             }
             uvs.push(uv);
         }
     }
-    if mesh.positions.len() > u32::MAX as usize {
-        return Err(Error::input(path, "too many vertices for 32-bit indices"));
-    }
-    let nv = mesh.positions.len() as i64;
-    let faces = ply.payload.get("face").map(Vec::as_slice).unwrap_or(&[]);
-    if let Some(fdef) = ply.header.elements.get("face") {
-        if !fdef.properties.contains_key("vertex_index")
-            && !fdef.properties.contains_key("vertex_indices")
-        {
-            return Err(Error::input(
-                path,
-                "the 'face' element has no 'vertex_index'/'vertex_indices' list",
-            ));
-        }
-    }
-    for (f, r) in faces.iter().enumerate() {
-        if r.non_integer_index {
-            return Err(at_line_free(
-                path,
-                format!("face {f}"),
-                "vertex indices are not integers",
-            ));
-        }
-        let Some(idx) = r.index[0].as_ref().or(r.index[1].as_ref()) else {
-            return Err(at_line_free(
-                path,
-                format!("face {f}"),
-                "no vertex index list",
-            ));
-        };
-        if idx.len() < 3 {
-            return Err(at_line_free(
-                path,
-                format!("face {f}"),
-                format!("a face needs at least 3 vertices, found {}", idx.len()),
-            ));
-        }
-        if let Some(bad) = idx.iter().find(|&&i| i < 0 || i >= nv) {
-            return Err(at_line_free(
-                path,
-                format!("face {f}"),
-                format!("vertex index {bad} out of range (the file has {nv} vertices)"),
-            ));
-        }
-        for k in 2..idx.len() {
-            mesh.triangles
-                .push([idx[0] as u32, idx[k - 1] as u32, idx[k] as u32]);
-        }
-    }
-    if mesh.triangles.is_empty() {
-        return Err(Error::input(path, "the PLY file has no faces"));
-    }
     mesh.normals = has_n.then_some(normals);
     mesh.uvs = uv_slot.map(|_| uvs);
     Ok(mesh)
+}
+
+/// The faces as triangles (polygons fanned from their first vertex), each index checked
+/// against the `nv` vertices.
+fn ply_triangles(faces: &[PlyRecord], nv: i64, path: &Path) -> Result<Vec<[u32; 3]>> {
+    let mut out = Vec::new();
+    for (f, r) in faces.iter().enumerate() {
+        let bad = |msg: String| at_line_free(path, format!("face {f}"), msg);
+        if r.non_integer_index {
+            return Err(bad("vertex indices are not integers".into()));
+        }
+        let Some(idx) = r.index[0].as_ref().or(r.index[1].as_ref()) else {
+            return Err(bad("no vertex index list".into()));
+        };
+        if idx.len() < 3 {
+            return Err(bad(format!(
+                "a face needs at least 3 vertices, found {}",
+                idx.len()
+            )));
+        }
+        if let Some(b) = idx.iter().find(|&&i| i < 0 || i >= nv) {
+            return Err(bad(format!(
+                "vertex index {b} out of range (the file has {nv} vertices)"
+            )));
+        }
+        for k in 2..idx.len() {
+            out.push([idx[0] as u32, idx[k - 1] as u32, idx[k] as u32]);
+        }
+    }
+    Ok(out)
 }
 
 /// An error located by record (e.g. `vertex 12`) rather than by line.

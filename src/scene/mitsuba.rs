@@ -278,6 +278,14 @@ struct Parser<'a, 'i> {
     meshes: bool,
 }
 
+/// What a shape's bsdf and emitter make of it.
+struct ShapeMaterial {
+    sides: Sides,
+    reflectance: Option<ReflectanceSpec>,
+    emission: Option<Rgb>,
+    material: Material,
+}
+
 /// What kdmap reads of a bsdf: which sides reflect, and the reflectance it states.
 #[derive(Debug, Clone)]
 struct Bsdf {
@@ -809,18 +817,7 @@ impl<'a, 'i> Parser<'a, 'i> {
         emitters: &mut Vec<Emitter>,
     ) -> Result<Shape> {
         self.check_attrs(node, &["type", "id", "name"])?;
-        let kind = self.req_attr(node, "type")?;
-        if !matches!(
-            kind.as_str(),
-            "obj" | "ply" | "rectangle" | "cube" | "sphere"
-        ) {
-            let msg = if OTHER_SHAPES.contains(&kind.as_str()) {
-                format!("shape '{kind}' is not supported yet (obj, ply, rectangle, cube, sphere)")
-            } else {
-                format!("unknown shape plugin '{kind}'")
-            };
-            return Err(self.err(node, msg));
-        }
+        let kind = self.shape_kind(node)?;
         let id = self
             .attr(node, "id")?
             .unwrap_or_else(|| format!("shape_{index}"));
@@ -881,6 +878,44 @@ impl<'a, 'i> Parser<'a, 'i> {
         mesh::check_finite(&local, file.as_deref().unwrap_or(self.path))
             .map_err(|e| self.err(node, format!("after to_world: {e}")))?;
 
+        let mat = self.shape_material(objects, index, emitters)?;
+        Ok(Shape {
+            id,
+            kind,
+            file,
+            mesh: local,
+            sides: mat.sides,
+            emission: mat.emission,
+            reflectance: mat.reflectance,
+            material: mat.material,
+        })
+    }
+
+    /// A shape's plugin name, refused unless kdmap reads it.
+    fn shape_kind(&self, node: Node<'a, 'i>) -> Result<String> {
+        let kind = self.req_attr(node, "type")?;
+        if !matches!(
+            kind.as_str(),
+            "obj" | "ply" | "rectangle" | "cube" | "sphere"
+        ) {
+            let msg = if OTHER_SHAPES.contains(&kind.as_str()) {
+                format!("shape '{kind}' is not supported yet (obj, ply, rectangle, cube, sphere)")
+            } else {
+                format!("unknown shape plugin '{kind}'")
+            };
+            return Err(self.err(node, msg));
+        }
+        Ok(kind)
+    }
+
+    /// A shape's bsdf (Mitsuba's one-sided diffuse by default), its emission (an area
+    /// emitter, added to `emitters`) and whether its material is known.
+    fn shape_material(
+        &mut self,
+        objects: Vec<Node<'a, 'i>>,
+        index: usize,
+        emitters: &mut Vec<Emitter>,
+    ) -> Result<ShapeMaterial> {
         let (bsdf, emission) = self.shape_objects(objects)?;
         if let Some((b, at)) = &bsdf {
             if let Some(kind) = &b.unsupported {
@@ -908,14 +943,10 @@ impl<'a, 'i> Parser<'a, 'i> {
             Some(k) if emission.is_none() => Material::Known(Box::new(k)),
             _ => Material::Unknown,
         };
-        Ok(Shape {
-            id,
-            kind,
-            file,
-            mesh: local,
+        Ok(ShapeMaterial {
             sides: bsdf.sides,
-            emission,
             reflectance: bsdf.reflectance,
+            emission,
             material,
         })
     }

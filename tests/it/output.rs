@@ -225,45 +225,15 @@ fn maps_hold_the_state_and_eq_10() {
             assert_eq!(direct[i], Vec3::from_array(s.e_d));
             assert_eq!(indirect[i], Vec3::from_array(s.e_i));
             assert_eq!(coverage[i], Vec3::splat(s.weight));
-            // eq. (10) by hand, in double precision
-            let l_render: Vec<f64> = (0..3)
-                .map(|c| s.k_d[c] as f64 / std::f64::consts::PI * (s.e_d[c] + s.e_i[c]) as f64)
-                .collect();
-            let sum: f64 = s.k_d.iter().map(|&k| k as f64).sum();
-            for c in 0..3 {
-                let want = l_render[c] / (s.k_d[c] as f64 / sum);
-                let got = colorless[i][c] as f64;
-                assert!(
-                    (got - want).abs() <= 1e-5 * want.abs().max(1e-6),
-                    "{id} texel {i} channel {c}: {got} vs {want}"
-                );
-            }
+            assert_colorless_is_eq_10(s, colorless[i], &format!("{id} texel {i}"));
             if s.flags & flags::OBSERVED != 0 {
                 assert_eq!(error[i], Vec3::splat(s.error));
                 assert_eq!(lum[i], Vec3::from_array(s.l_orig));
                 assert!(s.weight > 0.0);
                 assert_eq!(disagree[i], Vec3::splat(s.disagree));
-                // relative variances of L and E add (luminance), in double precision
-                let y = |v: [f32; 3]| {
-                    0.2126 * v[0] as f64 + 0.7152 * v[1] as f64 + 0.0722 * v[2] as f64
-                };
-                let e = [
-                    s.e_d[0] + s.e_i[0],
-                    s.e_d[1] + s.e_i[1],
-                    s.e_d[2] + s.e_i[2],
-                ];
-                let (yl, ye) = (y(s.l_orig), y(e));
-                // no light or no luminance: no estimate, 0
-                let rel = match yl > 0.0 && ye > 0.0 {
-                    true => (s.l_var as f64 / (yl * yl) + s.e_var as f64 / (ye * ye)).sqrt(),
-                    false => 0.0,
-                };
-                estimated += (rel > 0.0) as usize;
-                for (c, got) in stderr[i].to_array().into_iter().enumerate() {
-                    let (want, got) = (s.k_d[c] as f64 * rel, got as f64);
-                    let ok = (got - want).abs() <= 1e-4 * want + 1e-7;
-                    assert!(ok, "{id} texel {i}: {got} vs {want}");
-                }
+                estimated +=
+                    assert_stderr_adds_relative_variances(s, stderr[i], &format!("{id} texel {i}"))
+                        as usize;
             } else {
                 assert_eq!(error[i], Vec3::ZERO, "unobserved texels have no error");
                 assert_eq!(coverage[i], Vec3::ZERO);
@@ -271,30 +241,73 @@ fn maps_hold_the_state_and_eq_10() {
         }
         assert!(n > 0, "{id} has covered texels");
         assert!(estimated > 0, "{id}: no texel has a standard error");
-        // Gutter next to the charts is dilated: every texel with a covered 8-neighbour holds
-        // an albedo, never the black background.
-        let (w, h) = (st.width as i64, st.height as i64);
-        for y in 0..h {
-            for x in 0..w {
-                let i = (y * w + x) as usize;
-                let near = (-1..=1).any(|dy: i64| {
-                    (-1..=1).any(|dx: i64| {
-                        let (nx, ny) = (x + dx, y + dy);
-                        nx >= 0 && ny >= 0 && nx < w && ny < h && cov[(ny * w + nx) as usize]
-                    })
-                });
-                if near {
-                    assert!(
-                        albedo[i].min_element() > 0.0,
-                        "{id} gutter texel ({x}, {y})"
-                    );
-                }
-            }
-        }
+        assert_gutter_dilated(&albedo, &cov, (st.width, st.height), id);
         // The error preview is larger than the map: the legend bar sits under it.
         let png = std::fs::read(r.out.join(format!("maps/{id}_error.png"))).unwrap();
         let pm = tiny_skia::Pixmap::decode_png(&png).unwrap();
         assert!(pm.height() > st.height && pm.width() >= st.width);
+    }
+}
+
+/// Eq. (10) by hand, in double precision: the colorless luminance is the re-rendered radiance
+/// over each channel's share of `K_d`.
+fn assert_colorless_is_eq_10(s: &TexelState, colorless: Vec3, what: &str) {
+    let l_render: Vec<f64> = (0..3)
+        .map(|c| s.k_d[c] as f64 / std::f64::consts::PI * (s.e_d[c] + s.e_i[c]) as f64)
+        .collect();
+    let sum: f64 = s.k_d.iter().map(|&k| k as f64).sum();
+    for c in 0..3 {
+        let want = l_render[c] / (s.k_d[c] as f64 / sum);
+        let got = colorless[c] as f64;
+        assert!(
+            (got - want).abs() <= 1e-5 * want.abs().max(1e-6),
+            "{what} channel {c}: {got} vs {want}"
+        );
+    }
+}
+
+/// The standard error of `K_d` adds the relative variances of L and E (luminance), in double
+/// precision; returns whether the texel has an estimate (no light or no luminance: none, 0).
+fn assert_stderr_adds_relative_variances(s: &TexelState, stderr: Vec3, what: &str) -> bool {
+    let y = |v: [f32; 3]| 0.2126 * v[0] as f64 + 0.7152 * v[1] as f64 + 0.0722 * v[2] as f64;
+    let e = [
+        s.e_d[0] + s.e_i[0],
+        s.e_d[1] + s.e_i[1],
+        s.e_d[2] + s.e_i[2],
+    ];
+    let (yl, ye) = (y(s.l_orig), y(e));
+    let rel = match yl > 0.0 && ye > 0.0 {
+        true => (s.l_var as f64 / (yl * yl) + s.e_var as f64 / (ye * ye)).sqrt(),
+        false => 0.0,
+    };
+    for (c, got) in stderr.to_array().into_iter().enumerate() {
+        let (want, got) = (s.k_d[c] as f64 * rel, got as f64);
+        let ok = (got - want).abs() <= 1e-4 * want + 1e-7;
+        assert!(ok, "{what}: {got} vs {want}");
+    }
+    rel > 0.0
+}
+
+/// Gutter next to the charts is dilated: every texel with a covered 8-neighbour holds an
+/// albedo, never the black background.
+fn assert_gutter_dilated(albedo: &[Vec3], cov: &[bool], (w, h): (u32, u32), id: &str) {
+    let (w, h) = (w as i64, h as i64);
+    for y in 0..h {
+        for x in 0..w {
+            let i = (y * w + x) as usize;
+            let near = (-1..=1).any(|dy: i64| {
+                (-1..=1).any(|dx: i64| {
+                    let (nx, ny) = (x + dx, y + dy);
+                    nx >= 0 && ny >= 0 && nx < w && ny < h && cov[(ny * w + nx) as usize]
+                })
+            });
+            if near {
+                assert!(
+                    albedo[i].min_element() > 0.0,
+                    "{id} gutter texel ({x}, {y})"
+                );
+            }
+        }
     }
 }
 

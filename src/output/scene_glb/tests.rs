@@ -170,73 +170,76 @@ fn glb_round_trips_through_the_gltf_crate_and_kdmap() {
     assert!((fx - 40.0).abs() < 1e-3, "{fx}");
     assert_eq!(back.emitters.len(), 4);
     for (a, b) in back.emitters.iter().zip(&scene.emitters) {
-        match (a, b) {
-            (
-                Emitter::Point {
-                    position: p,
-                    intensity: i,
-                },
-                Emitter::Point {
-                    position: q,
-                    intensity: j,
-                },
-            ) => {
-                assert!(p.abs_diff_eq(*q, 1e-5) && i.abs_diff_eq(*j, 1e-5));
-            }
-            (
-                Emitter::Spot {
-                    position: p,
-                    axis: x,
-                    intensity: i,
-                    cutoff: c,
-                    beam_width: w,
-                    ..
-                },
-                Emitter::Spot {
-                    position: q,
-                    axis: y,
-                    intensity: j,
-                    cutoff: d,
-                    beam_width: v,
-                    ..
-                },
-            ) => {
-                assert!(
-                    p.abs_diff_eq(*q, 1e-5) && x.abs_diff_eq(*y, 1e-5) && i.abs_diff_eq(*j, 1e-5)
-                );
-                assert!(
-                    (c - d).abs() < 1e-4 && (w - v).abs() < 1e-6,
-                    "{a:?} vs {b:?}"
-                );
-            }
-            (
-                Emitter::Directional {
-                    direction: x,
-                    irradiance: i,
-                },
-                Emitter::Directional {
-                    direction: y,
-                    irradiance: j,
-                },
-            ) => assert!(
-                x.abs_diff_eq(*y, 1e-5) && i.abs_diff_eq(*j, 1e-5),
-                "{a:?} vs {b:?}"
-            ),
-            (
-                Emitter::Area {
-                    shape: s,
-                    radiance: r,
-                },
-                Emitter::Area {
-                    shape: t,
-                    radiance: q,
-                },
-            ) => {
-                assert_eq!(s, t);
-                assert!(r.abs_diff_eq(*q, 1e-4));
-            }
-            _ => panic!("{a:?} vs {b:?}"),
+        assert_same_emitter(a, b);
+    }
+}
+
+/// `a` is `b` read back: the same kind, position, direction and strength.
+fn assert_same_emitter(a: &Emitter, b: &Emitter) {
+    match (a, b) {
+        (
+            Emitter::Point {
+                position: p,
+                intensity: i,
+            },
+            Emitter::Point {
+                position: q,
+                intensity: j,
+            },
+        ) => {
+            assert!(p.abs_diff_eq(*q, 1e-5) && i.abs_diff_eq(*j, 1e-5));
         }
+        (
+            Emitter::Spot {
+                position: p,
+                axis: x,
+                intensity: i,
+                cutoff: c,
+                beam_width: w,
+                ..
+            },
+            Emitter::Spot {
+                position: q,
+                axis: y,
+                intensity: j,
+                cutoff: d,
+                beam_width: v,
+                ..
+            },
+        ) => {
+            assert!(p.abs_diff_eq(*q, 1e-5) && x.abs_diff_eq(*y, 1e-5) && i.abs_diff_eq(*j, 1e-5));
+            assert!(
+                (c - d).abs() < 1e-4 && (w - v).abs() < 1e-6,
+                "{a:?} vs {b:?}"
+            );
+        }
+        (
+            Emitter::Directional {
+                direction: x,
+                irradiance: i,
+            },
+            Emitter::Directional {
+                direction: y,
+                irradiance: j,
+            },
+        ) => assert!(
+            x.abs_diff_eq(*y, 1e-5) && i.abs_diff_eq(*j, 1e-5),
+            "{a:?} vs {b:?}"
+        ),
+        (
+            Emitter::Area {
+                shape: s,
+                radiance: r,
+            },
+            Emitter::Area {
+                shape: t,
+                radiance: q,
+            },
+        ) => {
+            assert_eq!(s, t);
+            assert!(r.abs_diff_eq(*q, 1e-4));
+        }
+        _ => panic!("{a:?} vs {b:?}"),
     }
 }
 
