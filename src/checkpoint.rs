@@ -46,7 +46,7 @@ static CHECKPOINT_WRITES: AtomicU64 = AtomicU64::new(0);
 /// what the state's fields mean and their size (92 bytes a texel), and the fields of the
 /// config and report it carries (bincode is not self-describing, so a checkpoint with other
 /// fields would not decode).
-pub const VERSION: u32 = 12;
+pub const VERSION: u32 = 13;
 const MAGIC: &str = "KDMCKPT";
 /// The current manifest.
 pub const MANIFEST: &str = "progress.kdm";
@@ -458,7 +458,8 @@ mod tests {
         let cfg = serde_json::to_value(crate::config::Config::for_scene("s.xml".into())).unwrap();
         keys(&cfg, "", &mut got);
         got.sort();
-        let mut want: Vec<&str> = "scene views atlas atlas.texels_per_unit atlas.max_texels \
+        let mut want: Vec<&str> = "scene views exposure pinned_gains refine_pose response colmap \
+            colmap_to_world atlas atlas.texels_per_unit atlas.max_texels \
             atlas.padding atlas.use_mesh_uvs atlas.tile_size atlas.max_texture_size \
             refine_passes refine_step refine_gate refine_gated_from denoise_radius denoise_z \
             tv_weight noise_probe area_samples env_samples method gather_rays gather_spacing \
@@ -471,7 +472,7 @@ mod tests {
         want.sort();
         assert_eq!(
             (VERSION, got),
-            (12, want.iter().map(|s| s.to_string()).collect::<Vec<_>>()),
+            (13, want.iter().map(|s| s.to_string()).collect::<Vec<_>>()),
             "the config's fields changed: bump VERSION and update this list"
         );
     }

@@ -3,7 +3,7 @@
 //! reference page `docs/config.md`, so neither can drift from the code (tests parse the TOML
 //! back to the defaults and check that the table covers every key serde accepts).
 
-use super::{Config, Density, Method, UpdateRule};
+use super::{Config, Density, Exposure, Method, Response, UpdateRule};
 use std::fmt::Write as _;
 
 /// One key of a run config.
@@ -47,8 +47,8 @@ const fn key(
     }
 }
 
-/// Every key a run config accepts (besides `[views]` and `[shapes.<id>]`, which are tables
-/// of the user's own names), in the order of the default file.
+/// Every key a run config accepts (besides the sensor ids of `[views]` and `[shapes.<id>]`,
+/// the user's own names), in the order of the default file.
 pub const KEYS: &[Key] = &[
     key(
         "",
@@ -66,6 +66,60 @@ pub const KEYS: &[Key] = &[
         (a quick look) or \"paper\" (the published method).",
         |_| quoted("default"),
     ),
+    key(
+        "views",
+        "exposure",
+        "\"estimate\" or \"known\"",
+        "Each photo's gain (exposure and white balance, per channel): estimated against the \
+         other photos and the known lights, or known (the photos are in scene radiance units). \
+         A view's table may pin its gain: [views.<id>] exposure = 1.0 (or [r, g, b]).",
+        |c| match c.exposure {
+            Exposure::Known => quoted("known"),
+            Exposure::Estimate => quoted("estimate"),
+        },
+    ),
+    key(
+        "views",
+        "refine_pose",
+        "bool",
+        "Refine each camera's pose against the photos before the final projection (at most 2 \
+         degrees and 2% of its distance).",
+        |c| c.refine_pose.to_string(),
+    ),
+    key(
+        "views",
+        "response",
+        "\"srgb\", \"linear\", a gamma, or 256 values",
+        "How 8-bit photos (PNG, JPEG) become linear: the sRGB curve, linear codes, \
+         (code/255)^gamma, or the linear value of each code.",
+        |c| match &c.response {
+            Response::Srgb => quoted("srgb"),
+            Response::Linear => quoted("linear"),
+            Response::Gamma(g) => float(g),
+            Response::Table(t) => format!("{t:?}"),
+        },
+    ),
+    Key {
+        commented: true,
+        ..key(
+            "views",
+            "colmap",
+            "path",
+            "A COLMAP sparse model (cameras.txt + images.txt, or the .bin pair) standing for \
+             the scene's sensors, photos by the names it gives.",
+            |_| quoted("sparse/0"),
+        )
+    },
+    Key {
+        commented: true,
+        ..key(
+            "views",
+            "to_world",
+            "4x4 rows",
+            "The similarity from the COLMAP model's frame to the scene's (identity if absent).",
+            |_| "[[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]".into(),
+        )
+    },
     key(
         "atlas",
         "texels_per_unit",
@@ -449,8 +503,10 @@ pub fn default_toml() -> String {
         }
     }
     out.push_str(
-        "\n# [views]: sensor id -> photo path; default <scene dir>/images/<sensor id>.exr\n\
+        "\n# [views] also maps a sensor id to its photo (default <scene dir>/images/<id>.exr,\n\
+         # .png or .jpg), or to a table with its photo and a pinned gain:\n\
          # cam_0 = \"photos/cam_0.exr\"\n\
+         # cam_1 = { photo = \"photos/cam_1.jpg\", exposure = 1.0 }\n\
          \n# [shapes.<id>]: a shape whose diffuse reflectance is known: kept, not reconstructed\n\
          # reconstruct = false\n# reflectance = [0.725, 0.71, 0.68]   # or one number, in [0, 1]\n",
     );
@@ -488,12 +544,14 @@ pub fn markdown() -> String {
         }
     }
     out.push_str(
-        "\n## `[views]` and `[shapes.<id>]`\n\n\
-         `[views]` maps a sensor id to its photo (a path relative to the config); without it \
-         every sensor\nwith a file `<scene dir>/images/<sensor id>.exr` is used. \
-         `[shapes.<id>]` with `reconstruct = false`\nand `reflectance` (one number or \
-         `[r, g, b]`, linear, in [0, 1]) marks a shape whose albedo is\nknown: it keeps \
-         that value and takes part in the light transport.\n",
+        "\n## Sensor ids in `[views]`, and `[shapes.<id>]`\n\n\
+         Besides the settings above, `[views]` maps a sensor id to its photo (a path relative \
+         to the config:\n`cam_0 = \"photos/cam_0.exr\"`), or to a table with its photo and a \
+         pinned gain (`cam_1 = { photo =\n\"photos/cam_1.jpg\", exposure = 1.0 }`). \
+         Without photo entries every sensor with a file\n`<scene dir>/images/<sensor \
+         id>.exr` (or `.png`, `.jpg`) is used. `[shapes.<id>]` with `reconstruct =\nfalse` \
+         and `reflectance` (one number or `[r, g, b]`, linear, in [0, 1]) marks a shape whose \
+         albedo\nis known: it keeps that value and takes part in the light transport.\n",
     );
     out
 }

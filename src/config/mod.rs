@@ -8,8 +8,10 @@ mod raw;
 #[cfg(test)]
 mod tests;
 mod validate;
+mod views;
 
 pub use raw::RawConfig;
+pub use views::{Exposure, Response};
 
 use crate::base::error::{Error, Result};
 use serde::{Deserialize, Serialize};
@@ -206,6 +208,19 @@ pub struct Config {
     pub scene: PathBuf,
     /// Sensor id -> image path. Empty means "the scene's `images/<id>.exr`".
     pub views: BTreeMap<String, PathBuf>,
+    /// How each photo's gain (exposure times white balance) is found.
+    pub exposure: Exposure,
+    /// Views whose gain is given (`[views.<id>] exposure`): photo = gain x radiance, per
+    /// channel.
+    pub pinned_gains: BTreeMap<String, [f32; 3]>,
+    /// Whether each camera's pose is refined against the photos before the final projection.
+    pub refine_pose: bool,
+    /// How 8-bit photos' code values become linear values.
+    pub response: Response,
+    /// A COLMAP sparse model standing for the scene's sensors, if given.
+    pub colmap: Option<PathBuf>,
+    /// The similarity from the COLMAP model's frame to the scene's (rows); identity if `None`.
+    pub colmap_to_world: Option<[[f64; 4]; 4]>,
     pub atlas: AtlasConfig,
     /// Iterative back-projection passes after the weighted-mean projection (0 = off).
     pub refine_passes: u32,
@@ -320,6 +335,12 @@ impl Config {
         Config {
             scene,
             views: BTreeMap::new(),
+            exposure: Exposure::Known,
+            pinned_gains: BTreeMap::new(),
+            refine_pose: false,
+            response: Response::Srgb,
+            colmap: None,
+            colmap_to_world: None,
             atlas: AtlasConfig {
                 texels_per_unit: Density::Auto,
                 max_texels: 0,

@@ -1,6 +1,7 @@
 //! The run config as written in TOML: every key optional but `scene`, unknown keys refused
 //! (serde's `deny_unknown_fields`), and each section applied over the preset's values.
 
+use super::views::RawViews;
 use super::{Config, Density, Preset, UpdateRule};
 use crate::base::error::{Error, Location, Result};
 use serde::Deserialize;
@@ -15,9 +16,9 @@ pub struct RawConfig {
     pub scene: Option<PathBuf>,
     /// The named preset the other keys start from (see [`Preset`]); default `"default"`.
     pub preset: Option<String>,
-    /// Sensor id -> EXR path (relative to the config file). Default: `<scene dir>/images/<id>.exr`.
+    /// Sensor id -> photo (relative to the config file), and the capture settings.
     #[serde(default)]
-    pub views: BTreeMap<String, PathBuf>,
+    pub views: RawViews,
     #[serde(default)]
     pub atlas: RawAtlas,
     #[serde(default)]
@@ -217,11 +218,7 @@ impl Config {
             })?,
         };
         let mut c = Config::for_scene(base.join(scene)).with_preset(preset.unwrap_or(file_preset));
-        c.views = raw
-            .views
-            .into_iter()
-            .map(|(k, v)| (k, base.join(v)))
-            .collect();
+        raw.views.apply(base, &mut c);
         c.source = Some(path.to_path_buf());
         c.known_shapes = known_shapes(path, raw.shapes)?;
         raw.atlas.apply(path, &mut c)?;

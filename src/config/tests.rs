@@ -329,6 +329,11 @@ fn accepted_keys(section: &str) -> Vec<String> {
 #[test]
 fn the_key_table_covers_every_key_serde_accepts() {
     let tables = ["views", "shapes"];
+    let views: Vec<&str> = (keys::KEYS.iter())
+        .filter(|k| k.section == "views")
+        .map(|k| k.name)
+        .collect();
+    assert_eq!(views, views::SETTINGS);
     let mut sections = accepted_keys("");
     sections.retain(|k| !tables.contains(&k.as_str()));
     let top: Vec<String> = keys::KEYS
@@ -379,4 +384,64 @@ fn docs_config_md_is_the_generated_reference() {
         "docs/config.md differs from the code: run `cargo run --release -- config --markdown > \
          docs/config.md`"
     );
+}
+
+#[test]
+fn views_hold_photos_pinned_gains_and_the_capture_settings() {
+    let text = r#"
+        scene = "a.xml"
+        [views]
+        exposure = "estimate"
+        refine_pose = true
+        response = 2.2
+        colmap = "sparse/0"
+        to_world = [[2, 0, 0, 1], [0, 2, 0, 0], [0, 0, 2, 0], [0, 0, 0, 1]]
+        cam0 = "photos/c0.jpg"
+        cam1 = { photo = "photos/c1.png", exposure = [1.0, 0.5, 2] }
+        [views.cam2]
+        exposure = 0.25
+    "#;
+    let c = Config::from_toml(Path::new("/x/run.toml"), text).unwrap();
+    assert_eq!(c.exposure, Exposure::Estimate);
+    assert!(c.refine_pose);
+    assert_eq!(c.response, Response::Gamma(2.2));
+    assert_eq!(c.colmap, Some(PathBuf::from("/x/sparse/0")));
+    assert_eq!(c.colmap_to_world.unwrap()[0], [2.0, 0.0, 0.0, 1.0]);
+    assert_eq!(c.views.len(), 2);
+    assert_eq!(c.views["cam1"], PathBuf::from("/x/photos/c1.png"));
+    assert_eq!(c.pinned_gains["cam1"], [1.0, 0.5, 2.0]);
+    assert_eq!(c.pinned_gains["cam2"], [0.25; 3]);
+    // the defaults: gains known, poses as given, sRGB
+    let d = Config::for_scene("a.xml".into());
+    assert_eq!(
+        (d.exposure, d.refine_pose, d.response),
+        (Exposure::Known, false, Response::Srgb)
+    );
+}
+
+#[test]
+fn bad_views_entries_are_refused_naming_the_key() {
+    let bad = [
+        ("exposure = \"auto\"", "views.exposure"),
+        ("refine_pose = 1", "views.refine_pose"),
+        ("response = \"log\"", "views.response"),
+        ("cam0 = 3", "views.cam0"),
+        (
+            "cam0 = { photo = \"a.exr\", gain = 2 }",
+            "unknown key 'gain'",
+        ),
+        ("cam0 = { exposure = \"x\" }", "views.cam0.exposure"),
+        ("to_world = [[1, 0], [0, 1]]", "views.to_world"),
+    ];
+    for (line, want) in bad {
+        let text = format!("scene = \"a.xml\"\n[views]\n{line}\n");
+        let e = Config::from_toml(Path::new("run.toml"), &text).unwrap_err();
+        assert!(e.to_string().contains(want), "{line}: {e}");
+    }
+    for line in ["cam0 = { exposure = -1.0 }", "response = 0.0"] {
+        let text = format!("scene = \"a.xml\"\n[views]\n{line}\n");
+        let c = Config::from_toml(Path::new("run.toml"), &text).unwrap();
+        let e = c.validate().unwrap_err();
+        assert!(e.contains("views."), "{line}: {e}");
+    }
 }

@@ -13,6 +13,7 @@ impl Config {
         self.validate_light()?;
         self.validate_solver()?;
         self.validate_run()?;
+        super::views::validate(self)?;
         Ok(())
     }
 
