@@ -507,6 +507,7 @@ impl<'a> Run<'a> {
             .iter()
             .map(|(si, _)| p.scene.sensors[*si].id.clone());
         report.refinement = Refinement::new(ids.collect(), ps.refine_residual.clone());
+        report.poses = ps.pose.clone();
         if let Some(line) = report.refinement.summary() {
             note(mode, &line);
         }

@@ -164,6 +164,74 @@ pub struct Report {
     /// found (`output::uv_fold`); empty when off or when no shape tiles.
     #[serde(default)]
     pub uv_fold: Vec<UvFold>,
+    /// Per view, its camera pose as refined against the other views (`[views] refine_pose`;
+    /// empty when off). The outputs (re-renders, `scene.xml` sensors) use these poses.
+    #[serde(default)]
+    pub poses: Vec<PoseCorrection>,
+}
+
+/// One view's pose refinement (`project::pose`): what was found, and the camera-to-world the
+/// run used.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct PoseCorrection {
+    /// The sensor's id.
+    pub view: String,
+    /// The camera-to-world the run used (rows): the refined pose when `applied`, else the
+    /// scene's.
+    pub to_world: [[f32; 4]; 4],
+    /// Whether the refined pose was used.
+    pub applied: bool,
+    /// `"aligned"`; `"beyond the bound"` (the correction grew past 2 degrees or 2% of the
+    /// viewing distance); `"no improvement"` (the photo agreed no better with the others at
+    /// the refined pose); `"too few pixels"` or `"no other views"` (nothing to align with).
+    pub status: String,
+    /// Whether the last level's iterations settled (steps under a hundredth of a pixel).
+    pub converged: bool,
+    /// The correction found (also when refused): rotation, degrees; translation of the
+    /// camera's centre, scene units and share of the viewing distance.
+    pub rotation_deg: f64,
+    pub translation: f64,
+    pub translation_rel: f64,
+    /// The mean distance, pixels, between where the view's clean pixels' surface points
+    /// project at the scene's pose and at the refined one.
+    pub shift_px: f64,
+    /// The photo's mean relative difference from the other views' re-rendered luminance
+    /// (finest level, luminance) at the scene's pose and at the refined one.
+    pub residual_before: f64,
+    pub residual_after: f64,
+    /// The photo's brightness relative to the other views' (a nuisance of the alignment).
+    pub gain: f64,
+    /// Gauss-Newton iterations over every round and level.
+    pub iterations: u32,
+    /// Seconds this view's alignment took (the shared projections and renders included).
+    pub seconds: f64,
+}
+
+impl PoseCorrection {
+    /// [`PoseCorrection::to_world`] as a matrix.
+    pub fn matrix(&self) -> glam::Mat4 {
+        glam::Mat4::from_cols_array_2d(&self.to_world).transpose()
+    }
+
+    /// One line for the console.
+    pub fn summary(&self) -> String {
+        let what = match self.applied {
+            true => "moved".to_string(),
+            false => format!("not aligned ({}), kept", self.status),
+        };
+        format!(
+            "pose of '{}': {what} by {:.3} deg and {:.2}% of the distance, {:.2} px on average; \
+             residual {:.2}% -> {:.2}%{}",
+            self.view,
+            self.rotation_deg,
+            100.0 * self.translation_rel,
+            self.shift_px,
+            100.0 * self.residual_before,
+            100.0 * self.residual_after,
+            if self.converged { "" } else { " (not converged)" }
+        )
+    }
 }
 
 impl UvFold {
@@ -337,6 +405,7 @@ impl Report {
             confidence: Default::default(),
             refinement: Default::default(),
             uv_fold: Vec::new(),
+            poses: Vec::new(),
         }
     }
 }

@@ -49,7 +49,8 @@ use crate::base::fsio;
 use crate::base::progress::Tick;
 use crate::image::write_pixmap_png;
 use crate::physics::render::Texture;
-use crate::report::Report;
+use crate::report::{PoseCorrection, Report};
+use crate::scene::{Scene, Sensor};
 use glam::Vec3;
 use std::path::Path;
 use std::time::Instant;
@@ -67,6 +68,20 @@ pub fn output_units(p: &RunContext) -> u64 {
             .iter()
             .map(|(si, _)| view_pixels(p, *si))
             .sum::<u64>()
+}
+
+/// The scene's sensors at the poses the run used: where `poses` (`report.json`) holds an
+/// applied refinement of a sensor's pose, that pose.
+pub fn posed_sensors(scene: &Scene, poses: &[PoseCorrection]) -> Vec<Sensor> {
+    (scene.sensors.iter())
+        .map(|s| match poses.iter().find(|c| c.view == s.id && c.applied) {
+            Some(c) => Sensor {
+                to_world: c.matrix(),
+                ..s.clone()
+            },
+            None => s.clone(),
+        })
+        .collect()
 }
 
 /// Pixels of sensor `si`'s photo.
@@ -134,8 +149,10 @@ pub fn write_outputs(
         }
         false => Vec::new(),
     };
-    scene_xml::write_scene_xml(out, &p.scene, &folded)?;
-    scene_glb::write_scene_glb(out, &p.scene, &p.atlases, report.settings.photometric_scale)?;
+    let sensors = posed_sensors(&p.scene, &report.poses);
+    scene_xml::write_scene_xml(out, &p.scene, &sensors, &folded)?;
+    let photometric = report.settings.photometric_scale;
+    scene_glb::write_scene_glb(out, &p.scene, &sensors, &p.atlases, photometric)?;
 
     let textures: Vec<Option<Texture>> = radiance
         .iter()
@@ -155,7 +172,7 @@ pub fn write_outputs(
             p,
             hits,
             &textures,
-            (*si, path),
+            (&sensors[*si], path),
             &renders,
             &scale,
         )?);

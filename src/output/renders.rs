@@ -30,7 +30,7 @@ use crate::image::{
 use crate::physics::camera::Camera;
 use crate::physics::render::{apply_pixel_filter, render_view_with, Film, Plan, Texture};
 use crate::report::ViewShapeRow;
-use crate::scene::{luminance, Scene};
+use crate::scene::{luminance, Scene, Sensor};
 use crate::stages::project::{PixelInfo, View};
 use crate::{Error, Result};
 use glam::Vec3;
@@ -182,18 +182,17 @@ fn write_masks_json(dir: &Path, scene: &Scene) -> Result<()> {
     fsio::write_atomic(&path, text.as_bytes())
 }
 
-/// Re-render view `(sensor index, photo path)`, write its EXR, PNG and comparison PNG into
-/// `dir`, and return its table rows.
+/// Re-render view `(sensor, photo path)` (the sensor at the pose the run used), write its
+/// EXR, PNG and comparison PNG into `dir`, and return its table rows.
 pub fn write_view(
     p: &RunContext,
     hits: &HitTable,
     textures: &[Option<Texture>],
-    (si, photo_path): (usize, &Path),
+    (sensor, photo_path): (&Sensor, &Path),
     dir: &Path,
     scale: &ErrorScale,
 ) -> Result<Vec<ViewShapeRow>> {
     fsio::create_dir(dir)?;
-    let sensor = &p.scene.sensors[si];
     let photo = read_sensor_image(photo_path, sensor)?;
     let camera = Camera::from_sensor(sensor);
     let view = View::new(&p.scene, &p.accel, camera.clone(), &photo);

@@ -314,9 +314,11 @@ fn add_light(d: &mut Doc, e: &Emitter, scale: f32) {
 }
 
 /// The GLB bytes of `scene` with `atlases` and, per shape, the albedo PNG `pngs` (both
-/// `None` for shapes not reconstructed); light values divided by `scale`.
+/// `None` for shapes not reconstructed); light values divided by `scale`; the cameras are
+/// `sensors` (the scene's at the poses the run used).
 pub fn scene_glb(
     scene: &Scene,
+    sensors: &[Sensor],
     atlases: &[Option<ShapeAtlas>],
     pngs: &[Option<Vec<u8>>],
     scale: f32,
@@ -327,7 +329,7 @@ pub fn scene_glb(
         let png = pngs.get(i).and_then(|p| p.as_deref());
         add_shape(&mut d, shape, atlas, png, scale);
     }
-    for s in &scene.sensors {
+    for s in sensors {
         add_camera(&mut d, s);
     }
     for e in &scene.emitters {
@@ -385,10 +387,11 @@ fn glb_bytes(root: &Value, bin: Vec<u8>) -> Result<Vec<u8>> {
 }
 
 /// Write `<out>/scene.glb`, embedding the albedo previews `textures/<id>_albedo.png` that
-/// the run wrote before.
+/// the run wrote before; `sensors` as in [`scene_glb`].
 pub fn write_scene_glb(
     out: &Path,
     scene: &Scene,
+    sensors: &[Sensor],
     atlases: &[Option<ShapeAtlas>],
     scale: f32,
 ) -> Result<()> {
@@ -404,7 +407,7 @@ pub fn write_scene_glb(
             None => Ok(None),
         })
         .collect::<Result<Vec<_>>>()?;
-    let bytes = scene_glb(scene, atlases, &pngs, scale)?;
+    let bytes = scene_glb(scene, sensors, atlases, &pngs, scale)?;
     write_atomic(&out.join("scene.glb"), &bytes)
 }
 

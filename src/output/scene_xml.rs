@@ -77,8 +77,9 @@ fn degrees(rad: f32) -> f64 {
 /// The `scene.xml` text for `scene`: meshes at `meshes/<id>.obj`, albedo textures at
 /// `textures/<id>_albedo.exr`, both relative to the file; the shapes whose `folded[index]` is
 /// set on their input UVs and folded albedo instead (`meshes/<id>_uv.obj`,
-/// `textures/<id>_albedo_uv.exr`: see `uv_fold`).
-pub fn scene_xml(scene: &Scene, folded: &[bool]) -> String {
+/// `textures/<id>_albedo_uv.exr`: see `uv_fold`); `sensors` in place of the scene's (the
+/// same sensors at the poses the run used).
+pub fn scene_xml(scene: &Scene, sensors: &[Sensor], folded: &[bool]) -> String {
     let mut s = String::new();
     let w = &mut s;
     let _ = writeln!(w, "<?xml version=\"1.0\" encoding=\"utf-8\"?>");
@@ -96,7 +97,7 @@ pub fn scene_xml(scene: &Scene, folded: &[bool]) -> String {
         "  <integrator type=\"path\"><integer name=\"max_depth\" value=\"-1\"/></integrator>"
     );
 
-    for sensor in &scene.sensors {
+    for sensor in sensors {
         write_sensor(w, sensor);
     }
     for (k, e) in scene.emitters.iter().enumerate() {
@@ -325,9 +326,14 @@ fn write_shape(w: &mut String, shape: &Shape, folded: bool) {
     let _ = writeln!(w, "  </shape>");
 }
 
-/// Write `<out>/scene.xml` for `scene`, `folded` as in [`scene_xml`] (the meshes and
-/// textures it names are written by the other parts of `output`).
-pub fn write_scene_xml(out: &Path, scene: &Scene, folded: &[bool]) -> Result<()> {
+/// Write `<out>/scene.xml` for `scene`, `sensors` and `folded` as in [`scene_xml`] (the
+/// meshes and textures it names are written by the other parts of `output`).
+pub fn write_scene_xml(
+    out: &Path,
+    scene: &Scene,
+    sensors: &[Sensor],
+    folded: &[bool],
+) -> Result<()> {
     for (k, e) in scene.emitters.iter().enumerate() {
         if let Emitter::Environment(env) = e {
             if let (Some(src), Some(name)) = (&env.file, env_map_name(k, env)) {
@@ -340,7 +346,8 @@ pub fn write_scene_xml(out: &Path, scene: &Scene, folded: &[bool]) -> Result<()>
             }
         }
     }
-    write_atomic(&out.join("scene.xml"), scene_xml(scene, folded).as_bytes())
+    let text = scene_xml(scene, sensors, folded);
+    write_atomic(&out.join("scene.xml"), text.as_bytes())
 }
 
 #[cfg(test)]
@@ -384,7 +391,7 @@ mod tests {
         for s in &a.shapes {
             write_shape_mesh(&out.join("meshes"), s, None).unwrap();
         }
-        write_scene_xml(&out, &a, &[]).unwrap();
+        write_scene_xml(&out, &a, &a.sensors, &[]).unwrap();
         let b = mitsuba::load(&out.join("scene.xml")).unwrap();
         assert_same_scene(&a, &b);
     }
@@ -426,7 +433,7 @@ mod tests {
         for s in &a.shapes {
             write_shape_mesh(&out.join("meshes"), s, None).unwrap();
         }
-        write_scene_xml(&out, &a, &[]).unwrap();
+        write_scene_xml(&out, &a, &a.sensors, &[]).unwrap();
         let b = mitsuba::load(&out.join("scene.xml")).unwrap();
         for (s, t) in a.shapes.iter().zip(&b.shapes) {
             let (x, y) = (s.known().unwrap(), t.known().unwrap());
@@ -575,7 +582,7 @@ mod tests {
         let a = mitsuba::load(&input).unwrap();
         let out = dir.path().join("out");
         std::fs::create_dir_all(&out).unwrap();
-        write_scene_xml(&out, &a, &[]).unwrap();
+        write_scene_xml(&out, &a, &a.sensors, &[]).unwrap();
         assert!(out.join("textures/env_0.exr").is_file());
         let b = mitsuba::load(&out.join("scene.xml")).unwrap();
         assert_eq!(b.emitters.len(), 2);
@@ -630,7 +637,7 @@ mod tests {
             write_shape_mesh(&out.join("meshes"), s, None).unwrap();
         }
         crate::output::obj::write_shape_uv_mesh(&out.join("meshes"), &a.shapes[0]).unwrap();
-        write_scene_xml(&out, &a, &[true, false]).unwrap();
+        write_scene_xml(&out, &a, &a.sensors, &[true, false]).unwrap();
         let text = std::fs::read_to_string(out.join("scene.xml")).unwrap();
         assert!(
             text.contains("meshes/floor_uv.obj") && text.contains("textures/floor_albedo_uv.exr")

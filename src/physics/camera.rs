@@ -103,6 +103,16 @@ impl Camera {
         }
     }
 
+    /// The same camera (intrinsics, film, filter) at another pose: camera-to-world `m`.
+    pub fn with_to_world(&self, m: Mat4) -> Camera {
+        Camera {
+            to_world: m,
+            to_camera: m.inverse(),
+            origin: m.transform_point3(Vec3::ZERO),
+            ..self.clone()
+        }
+    }
+
     /// The film's reconstruction filter.
     pub fn filter(&self) -> PixelFilter {
         self.filter

@@ -24,6 +24,8 @@ use kdmap::scene::luminance;
 use kdmap::stages::project::{ProjectionStats, View};
 use std::path::{Path, PathBuf};
 
+mod pose;
+
 fn fixture(scene_dir: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("tests/fixtures")

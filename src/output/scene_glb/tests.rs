@@ -111,7 +111,7 @@ fn scene() -> (Scene, Vec<Option<ShapeAtlas>>) {
 fn glb_round_trips_through_the_gltf_crate_and_kdmap() {
     let (scene, atlases) = scene();
     let png = b"\x89PNG fake bytes".to_vec();
-    let bytes = scene_glb(&scene, &atlases, &[Some(png.clone()), None], 0.5).unwrap();
+    let bytes = scene_glb(&scene, &scene.sensors, &atlases, &[Some(png.clone()), None], 0.5).unwrap();
     // the gltf crate validates the document
     let g = ::gltf::Gltf::from_slice(&bytes).unwrap();
     let blob = g.blob.clone().unwrap();
@@ -251,7 +251,7 @@ fn a_known_diffuse_material_keeps_its_color() {
         bsdf: KnownBsdf::Diffuse(Vec3::new(0.1, 0.2, 0.3)),
     }));
     atlases[0] = None;
-    let bytes = scene_glb(&scene, &atlases, &[None, None], 1.0).unwrap();
+    let bytes = scene_glb(&scene, &scene.sensors, &atlases, &[None, None], 1.0).unwrap();
     let g = ::gltf::Gltf::from_slice(&bytes).unwrap();
     let m = g.materials().next().unwrap();
     assert_eq!(

@@ -48,9 +48,17 @@
 //! scatter where larger), from which `confidence` makes the standard error of `K_d`; its
 //! photo-noise part is then measured by running the projection again on perturbed photos
 //! ([`noise_probe`]).
+//!
+//! **Where the poses are refined.** With `[views] refine_pose`, the views are first built
+//! with the scene's cameras, each camera's pose is refined against the other views' projection
+//! ([`pose`]: photometric alignment, coarse to fine, at most 2 degrees and 2% of the viewing
+//! distance), and the views are built again from the refined cameras (their pixels classified
+//! by rays from there) before the weighted mean and the refinement passes, which then see only
+//! the refined poses; so do the noise probe and, through `report.json`, the outputs.
 
 mod noise;
 pub mod noise_probe;
+pub mod pose;
 mod refine;
 mod shrinkage;
 pub mod total_variation;
@@ -68,10 +76,11 @@ use crate::atlas::uv::Charts;
 use crate::atlas::{read_photos as read_photos_checked, RunContext, ShapeRef};
 use crate::base::error::Result;
 use crate::base::interrupt;
-use crate::base::progress::{Mode, Stage};
+use crate::base::progress::{note, Mode, Stage};
 use crate::config::Config;
 use crate::image::Image;
 use crate::physics::camera::Camera;
+use crate::report::PoseCorrection;
 use crate::scene::{luminance, Sides};
 use glam::Vec3;
 use std::time::Instant;
@@ -98,6 +107,11 @@ pub struct ProjectionStats {
     /// over its clean pixels before the pass's update (pass 0: the weighted mean's; see
     /// [`refine::mean_relative_residual`]).
     pub refine_residual: Vec<Vec<f64>>,
+    /// Per view, its pose as refined against the others ([`pose`]; empty when
+    /// `refine_pose` is off).
+    pub pose: Vec<PoseCorrection>,
+    /// The pose refinement's part of `seconds` (0 when off).
+    pub pose_seconds: f64,
 }
 
 /// How the stage is shared with the other processes of a run (decided by `pipeline`): this
@@ -200,6 +214,23 @@ pub fn run_shard(
         shard,
         label: "refinement",
     };
+    let posed;
+    let ctx = match cfg.refine_pose {
+        true => {
+            let t = Instant::now();
+            let (refined, poses) = pose::refine(&ctx, mode)?;
+            for c in &poses {
+                note(mode, &c.summary());
+            }
+            (stats.pose, stats.pose_seconds) = (poses, t.elapsed().as_secs_f64());
+            posed = refined;
+            refine::Refine {
+                views: &posed,
+                ..ctx
+            }
+        }
+        false => ctx,
+    };
     let passes = refine::Passes::of(cfg);
     let (noise, residual) = project_and_refine(&ctx, state, passes, mode)?;
     stats.refine_residual = residual;
@@ -208,7 +239,7 @@ pub fn run_shard(
         let perturbed: Vec<Image> = (photos.iter().zip(&noise).enumerate())
             .map(|(i, (ph, n))| noise_probe::perturbed(ph, n, cfg.seed, i as u64))
             .collect();
-        let probe_views: Vec<View> = (views.iter().zip(&perturbed))
+        let probe_views: Vec<View> = (ctx.views.iter().zip(&perturbed))
             .map(|(v, im)| v.with_image(im))
             .collect();
         let path = scratch.dir.join("probe-state.tiles");

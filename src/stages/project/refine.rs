@@ -32,7 +32,7 @@ const REFINE_DILATE: u32 = 4;
 /// Every reconstructed shape's current luminance map (unobserved and gutter texels filled by
 /// dilation, as written maps are), indexed by shape; together within `scratch`'s budget
 /// (each its share), the rest in tiles.
-fn current_maps(
+pub(super) fn current_maps(
     p: &RunContext,
     geom: &TileStore<TexelGeom>,
     state: &TileStore<TexelState>,
@@ -246,7 +246,7 @@ impl Refine<'_> {
     }
 
     /// The maps as textures by shape.
-    fn textures<'m>(&'m self, maps: &'m [Option<SlotTexture<Vec3>>]) -> Vec<Option<Texture<'m>>> {
+    pub(super) fn textures<'m>(&'m self, maps: &'m [Option<SlotTexture<Vec3>>]) -> Vec<Option<Texture<'m>>> {
         let p = self.p;
         maps.iter()
             .enumerate()
