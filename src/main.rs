@@ -74,7 +74,7 @@ enum Command {
     },
     /// Recover the albedo textures: the whole method, steps 1-9, and every output.
     Reconstruct {
-        /// A Mitsuba 3 or glTF 2.0 scene (photos in `<scene dir>/images/<sensor id>.exr`) or a run config (TOML).
+        /// A Mitsuba 3 or glTF 2.0 scene (photos in `<scene dir>/images/<sensor id>.exr|png|jpg`) or a run config (TOML).
         input: PathBuf,
         /// Output directory.
         #[arg(long)]
@@ -136,7 +136,7 @@ enum Command {
     /// Steps 1-2 of the method on their own: unwrap the atlas, project every photo onto it and
     /// write the luminance and coverage maps to `<out>/maps/` (with PNG previews).
     Project {
-        /// A Mitsuba 3 or glTF 2.0 scene (photos in `<scene dir>/images/<sensor id>.exr`) or a run config (TOML).
+        /// A Mitsuba 3 or glTF 2.0 scene (photos in `<scene dir>/images/<sensor id>.exr|png|jpg`) or a run config (TOML).
         input: PathBuf,
         /// Output directory.
         #[arg(long)]
@@ -555,7 +555,7 @@ fn summary_json(scene: &Scene) -> serde_json::Value {
         .sensors
         .iter()
         .map(|c| {
-            let image = images.join(format!("{}.exr", c.id));
+            let image = photo_of(&images, &c.id);
             json!({
                 "id": c.id,
                 "width": c.width,
@@ -575,6 +575,12 @@ fn summary_json(scene: &Scene) -> serde_json::Value {
         "emitters": emitters,
         "sensors": sensors,
     })
+}
+
+/// The photo of sensor `id` in the scene's `images/` (`<id>.exr` if it has none, or several).
+fn photo_of(images: &Path, id: &str) -> PathBuf {
+    let found = kdmap::scene::photos::find(images, id).ok().flatten();
+    found.unwrap_or_else(|| images.join(format!("{id}.exr")))
 }
 
 /// The human-readable summary printed by `inspect`.
@@ -729,7 +735,7 @@ fn summary(scene: &Scene) -> String {
     let _ = writeln!(s, "sensors: {}", scene.sensors.len());
     let images = scene.dir().join("images");
     for c in &scene.sensors {
-        let image = images.join(format!("{}.exr", c.id));
+        let image = photo_of(&images, &c.id);
         let state = if image.is_file() {
             "present"
         } else {

@@ -25,7 +25,7 @@ use crate::atlas::context::HitTable;
 use crate::atlas::RunContext;
 use crate::base::fsio;
 use crate::image::{
-    auto_exposure, read_sensor_image, write_exr_rgb, write_pixmap_png, write_png_srgb, Image,
+    auto_exposure, read_photo, write_exr_rgb, write_pixmap_png, write_png_srgb, Image,
 };
 use crate::physics::camera::Camera;
 use crate::physics::render::{apply_pixel_filter, render_view_with, Film, Plan, Texture};
@@ -194,7 +194,7 @@ pub fn write_view(
 ) -> Result<Vec<ViewShapeRow>> {
     fsio::create_dir(dir)?;
     let sensor = &p.scene.sensors[si];
-    let photo = read_sensor_image(photo_path, sensor)?;
+    let photo = read_photo(photo_path, sensor, &p.response)?;
     let camera = Camera::from_sensor(sensor);
     let view = View::new(&p.scene, &p.accel, camera.clone(), &photo);
     let render = render_recovered(p, hits, &view, textures, SUPERSAMPLE);

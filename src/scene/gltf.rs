@@ -20,7 +20,7 @@
 //! - perspective cameras become Mitsuba sensors (glTF looks down -Z with +X right; Mitsuba
 //!   looks along +z with +x left: the same frame turned half a turn about y), `yfov` is the
 //!   vertical field of view; the film size is the photo's (`[views]` or
-//!   `images/<node name>.exr`), which must match `aspectRatio` when one is given. A camera
+//!   `images/<node name>.exr|png|jpg|jpeg`), which must match `aspectRatio` when one is given. A camera
 //!   without a photo gets a nominal film [`NOMINAL_HEIGHT`] pixels high. Box pixel filter;
 //! - `KHR_lights_punctual` point, spot and directional lights (see [`lights`] for the units
 //!   and the spot cone).

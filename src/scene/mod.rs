@@ -11,6 +11,7 @@ pub mod gltf;
 pub mod material;
 pub mod mesh;
 pub mod mitsuba;
+pub mod photos;
 pub mod truth;
 
 pub use envmap::EnvMap;

@@ -49,7 +49,7 @@ const FOLDERS: &[(&str, &[Layer])] = &[
     (
         "scene",
         &[
-            (&["material", "filter", "mesh", "envmap"], Listed),
+            (&["material", "filter", "mesh", "envmap", "photos"], Listed),
             (&["mitsuba", "gltf"], Independent),
             (&["truth"], Listed),
         ],

@@ -12,6 +12,7 @@ mod gltf;
 mod import;
 mod known;
 mod layers;
+mod ldr;
 #[cfg(feature = "mpi")]
 mod mpi;
 mod output;

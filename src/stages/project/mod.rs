@@ -278,7 +278,7 @@ fn read_photos(p: &RunContext, mode: Mode) -> Result<Vec<Image>> {
         Some(photos) => Ok(photos),
         None => {
             p.release_photos();
-            read_photos_checked(&p.scene, &p.views, mode)
+            read_photos_checked(&p.scene, &p.views, &p.response, mode)
         }
     }
 }
