@@ -11,7 +11,7 @@ mod validate;
 mod views;
 
 pub use raw::RawConfig;
-pub use views::{Exposure, Response};
+pub use views::{Exposure, Response, Similarity};
 
 use crate::base::error::{Error, Result};
 use serde::{Deserialize, Serialize};

@@ -49,8 +49,8 @@ const FOLDERS: &[(&str, &[Layer])] = &[
     (
         "scene",
         &[
-            (&["material", "filter", "mesh", "envmap"], Listed),
-            (&["mitsuba", "gltf"], Independent),
+            (&["material", "filter", "mesh", "envmap", "lens"], Listed),
+            (&["mitsuba", "gltf", "colmap"], Independent),
             (&["truth"], Listed),
         ],
     ),
@@ -59,6 +59,7 @@ const FOLDERS: &[(&str, &[Layer])] = &[
         &[(&["primitive", "sensor", "lights"], Listed)],
     ),
     ("scene::mitsuba", &[(&["bsdf", "sensor"], Independent)]),
+    ("scene::colmap", &[(&["text", "binary"], Independent)]),
     (
         "physics",
         &[(

@@ -5,6 +5,7 @@ mod accuracy;
 mod budget;
 mod camera;
 mod cli;
+mod colmap;
 mod diskfull;
 mod failfast;
 mod fuzz_regressions;

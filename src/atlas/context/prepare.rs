@@ -227,14 +227,15 @@ pub fn read_photos(scene: &Scene, views: &[(usize, PathBuf)], mode: Mode) -> Res
     Ok(photos)
 }
 
-/// The (sensor, photo) pairs of a run: the config's `views`, or every sensor with an
-/// `images/<id>.exr` beside the scene (sensors without one are skipped with a note).
+/// The (sensor, photo) pairs of a run: the config's `views`, or every sensor with its photo
+/// beside the scene, the one the scene names (a COLMAP image's) or `images/<id>.exr`
+/// (sensors without one are skipped with a note).
 pub fn match_views(scene: &Scene, cfg: &Config, mode: Mode) -> Result<Vec<(usize, PathBuf)>> {
     let mut views = Vec::new();
     if cfg.views.is_empty() {
         let dir = scene.dir().join("images");
         for (i, s) in scene.sensors.iter().enumerate() {
-            let p = dir.join(format!("{}.exr", s.id));
+            let p = (s.photo.clone()).unwrap_or_else(|| dir.join(format!("{}.exr", s.id)));
             if p.is_file() {
                 views.push((i, p));
             } else {
