@@ -507,6 +507,10 @@ impl<'a> Run<'a> {
             .iter()
             .map(|(si, _)| p.scene.sensors[*si].id.clone());
         report.refinement = Refinement::new(ids.collect(), ps.refine_residual.clone());
+        report.capture = ps.gains.clone();
+        for line in crate::stages::project::exposure::notes(&report.capture) {
+            note(mode, &line);
+        }
         if let Some(line) = report.refinement.summary() {
             note(mode, &line);
         }

@@ -164,6 +164,10 @@ pub struct Report {
     /// found (`output::uv_fold`); empty when off or when no shape tiles.
     #[serde(default)]
     pub uv_fold: Vec<UvFold>,
+    /// Per view, its photo's gain (exposure times white balance) and what fixed it
+    /// (`stages::project::exposure`); 1 and "known" unless estimated or pinned.
+    #[serde(default)]
+    pub capture: Vec<ViewGain>,
 }
 
 impl UvFold {
@@ -337,6 +341,7 @@ impl Report {
             confidence: Default::default(),
             refinement: Default::default(),
             uv_fold: Vec::new(),
+            capture: Vec::new(),
         }
     }
 }
@@ -429,5 +434,56 @@ mod tests {
         v.as_object_mut().unwrap().remove("refinement");
         let back: Report = serde_json::from_value(v).unwrap();
         assert_eq!(back.refinement, Refinement::default());
+    }
+}
+
+/// What fixed a view's gain.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum GainSource {
+    /// `exposure = "known"`: the photo is in scene units.
+    Known,
+    /// The run config gives it.
+    Pinned,
+    /// Relative to the other views, the absolute scale from emitters the photos show.
+    Emitters,
+    /// Relative to the other views, their geometric mean taken as 1 (no absolute anchor).
+    Relative,
+    /// Shares too little with the other views and shows no emitter: left at 1.
+    Alone,
+}
+
+/// A view's gain (exposure times white balance) and what it rests on.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ViewGain {
+    /// The view's sensor id.
+    pub view: String,
+    /// `photo = gain x radiance`, per channel.
+    pub gain: [f32; 3],
+    pub source: GainSource,
+    /// Sampled texels this view shares with at least one other view.
+    pub shared_texels: u64,
+    /// Interior emitter pixels it shows (the absolute anchor), and their photo / radiance
+    /// ratio per channel (median), if enough.
+    pub anchor_pixels: u64,
+    pub anchor_ratio: Option<[f32; 3]>,
+}
+
+impl ViewGain {
+    /// A gain given, not estimated.
+    pub fn given(gain: [f32; 3], source: GainSource) -> Self {
+        ViewGain {
+            view: String::new(),
+            gain,
+            source,
+            shared_texels: 0,
+            anchor_pixels: 0,
+            anchor_ratio: None,
+        }
+    }
+
+    /// The gain's luminance-weighted mean: the exposure part, white balance aside.
+    pub fn exposure(&self) -> f32 {
+        0.2126 * self.gain[0] + 0.7152 * self.gain[1] + 0.0722 * self.gain[2]
     }
 }

@@ -150,12 +150,13 @@ pub fn write_outputs(
         .collect();
     let mut table = Vec::new();
     let renders = out.join("renders");
-    for (si, path) in &p.views {
+    for (i, (si, path)) in p.views.iter().enumerate() {
+        let gain = report.capture.get(i).map_or([1.0; 3], |c| c.gain);
         table.extend(renders::write_view(
             p,
             hits,
             &textures,
-            (*si, path),
+            (*si, path, gain),
             &renders,
             &scale,
         )?);

@@ -31,7 +31,7 @@ use crate::physics::camera::Camera;
 use crate::physics::render::{apply_pixel_filter, render_view_with, Film, Plan, Texture};
 use crate::report::ViewShapeRow;
 use crate::scene::{luminance, Scene};
-use crate::stages::project::{PixelInfo, View};
+use crate::stages::project::{exposure, PixelInfo, View};
 use crate::{Error, Result};
 use glam::Vec3;
 use std::path::Path;
@@ -182,19 +182,20 @@ fn write_masks_json(dir: &Path, scene: &Scene) -> Result<()> {
     fsio::write_atomic(&path, text.as_bytes())
 }
 
-/// Re-render view `(sensor index, photo path)`, write its EXR, PNG and comparison PNG into
-/// `dir`, and return its table rows.
+/// Re-render view `(sensor index, photo path, gain)`, write its EXR, PNG and comparison PNG
+/// into `dir`, and return its table rows; the photo is divided by its gain (exposure and
+/// white balance) as the projection divided it.
 pub fn write_view(
     p: &RunContext,
     hits: &HitTable,
     textures: &[Option<Texture>],
-    (si, photo_path): (usize, &Path),
+    (si, photo_path, gain): (usize, &Path, [f32; 3]),
     dir: &Path,
     scale: &ErrorScale,
 ) -> Result<Vec<ViewShapeRow>> {
     fsio::create_dir(dir)?;
     let sensor = &p.scene.sensors[si];
-    let photo = read_sensor_image(photo_path, sensor)?;
+    let photo = exposure::apply(&read_sensor_image(photo_path, sensor)?, gain);
     let camera = Camera::from_sensor(sensor);
     let view = View::new(&p.scene, &p.accel, camera.clone(), &photo);
     let render = render_recovered(p, hits, &view, textures, SUPERSAMPLE);

@@ -108,6 +108,7 @@ const FOLDERS: &[(&str, &[Layer])] = &[
         &[(
             &[
                 "view",
+                "exposure",
                 "noise",
                 "shrinkage",
                 "total_variation",

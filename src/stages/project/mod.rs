@@ -49,6 +49,7 @@
 //! photo-noise part is then measured by running the projection again on perturbed photos
 //! ([`noise_probe`]).
 
+pub mod exposure;
 mod noise;
 pub mod noise_probe;
 mod refine;
@@ -98,6 +99,8 @@ pub struct ProjectionStats {
     /// over its clean pixels before the pass's update (pass 0: the weighted mean's; see
     /// [`refine::mean_relative_residual`]).
     pub refine_residual: Vec<Vec<f64>>,
+    /// Per view, its photo's gain and what fixed it.
+    pub gains: Vec<crate::report::ViewGain>,
 }
 
 /// How the stage is shared with the other processes of a run (decided by `pipeline`): this
@@ -173,21 +176,33 @@ pub fn run_shard(
     let window = p.window::<TexelState>(cfg);
     let stage = Stage::new(mode, "projection", p.views.len() as u64, "views");
     let t0 = Instant::now();
-    let photos = read_photos(p, mode)?;
-    stats.masked_pixels = photos.iter().map(|ph| ph.masked).sum();
+    let raw = read_photos(p, mode)?;
+    stats.masked_pixels = raw.iter().map(|ph| ph.masked).sum();
     let bounds = tile_bounds(geom)?;
-    let mut views = Vec::with_capacity(photos.len());
-    for ((si, _), photo) in p.views.iter().zip(&photos) {
+    let mut nominal = Vec::with_capacity(raw.len());
+    for ((si, _), photo) in p.views.iter().zip(&raw) {
         let view = View::new(
             &p.scene,
             &p.accel,
             Camera::from_sensor(&p.scene.sensors[*si]),
             photo,
         );
-        views.push(view);
+        nominal.push(view);
         stage.inc(1);
         interrupt::check(interrupt::NOTHING_SAVED)?;
     }
+    let ids: Vec<String> = (p.views.iter())
+        .map(|(si, _)| p.scene.sensors[*si].id.clone())
+        .collect();
+    stats.gains = exposure::estimate(p, cfg, &nominal, &ids, geom)?;
+    let photos: Vec<Image> = (raw.iter().zip(&stats.gains))
+        .map(|(ph, g)| exposure::apply(ph, g.gain))
+        .collect();
+    let views: Vec<View> = (nominal.iter().zip(&photos))
+        .map(|(v, ph)| v.with_image(ph))
+        .collect();
+    drop(nominal);
+    drop(raw);
     let ctx = refine::Refine {
         p,
         hits,
