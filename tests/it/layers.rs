@@ -126,10 +126,11 @@ const FOLDERS: &[(&str, &[Layer])] = &[
     (
         "output",
         &[
-            (&["font", "bsdf_xml", "obj"], Independent),
+            (&["typeface", "bsdf_xml", "obj"], Independent),
             (
                 &[
                     "plot",
+                    "convergence",
                     "maps",
                     "renders",
                     "scene_glb",
