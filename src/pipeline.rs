@@ -502,6 +502,7 @@ impl<'a> Run<'a> {
         )?;
         report.timings.projection = t.elapsed().as_secs_f64();
         report.timings.noise_probe = ps.probe_seconds;
+        report.timings.calibration = ps.calibration_seconds;
         let ids = p
             .views
             .iter()
@@ -509,6 +510,12 @@ impl<'a> Run<'a> {
         report.refinement = Refinement::new(ids.collect(), ps.refine_residual.clone());
         report.capture = ps.gains.clone();
         for line in crate::stages::project::exposure::notes(&report.capture) {
+            note(mode, &line);
+        }
+        let (ids, checks): (Vec<String>, Vec<_>) = (report.capture.iter())
+            .filter_map(|c| Some((c.view.clone(), c.check.clone()?)))
+            .unzip();
+        for line in project::capture_notes(&ids, &checks) {
             note(mode, &line);
         }
         if let Some(line) = report.refinement.summary() {

@@ -57,6 +57,9 @@ pub struct Timings {
     /// The projection's noise probe (part of `projection`; see `project::noise_probe`).
     #[serde(default)]
     pub noise_probe: f64,
+    /// The photos' calibration (gains and poses; part of `projection`).
+    #[serde(default)]
+    pub calibration: f64,
     pub direct: f64,
     pub photons: f64,
     #[serde(default)]
@@ -167,7 +170,7 @@ pub struct Report {
     /// Per view, its photo's gain (exposure times white balance) and what fixed it
     /// (`stages::project::exposure`); 1 and "known" unless estimated or pinned.
     #[serde(default)]
-    pub capture: Vec<ViewGain>,
+    pub capture: Vec<ViewCapture>,
 }
 
 impl UvFold {
@@ -453,9 +456,10 @@ pub enum GainSource {
     Alone,
 }
 
-/// A view's gain (exposure times white balance) and what it rests on.
+/// How a view's photo was calibrated: its gain (exposure times white balance) and what it
+/// rests on, and how it agrees with the others afterwards.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct ViewGain {
+pub struct ViewCapture {
     /// The view's sensor id.
     pub view: String,
     /// `photo = gain x radiance`, per channel.
@@ -467,18 +471,38 @@ pub struct ViewGain {
     /// ratio per channel (median), if enough.
     pub anchor_pixels: u64,
     pub anchor_ratio: Option<[f32; 3]>,
+    /// How the view agrees with the others after calibration (the last refinement pass);
+    /// `None` without refinement passes.
+    #[serde(default)]
+    pub check: Option<ViewCheck>,
 }
 
-impl ViewGain {
+/// A view against its re-render from the others after calibration (`project::diagnose`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ViewCheck {
+    /// Clean pixels compared.
+    pub pixels: u64,
+    /// Median photo / re-render per channel (1 when the exposure is right).
+    pub ratio: [f32; 3],
+    /// Share of the texels it sees where it departs from the fused estimate beyond its noise
+    /// and the spread views are expected to have (`project::DISAGREE_Z`).
+    pub disagreeing: f32,
+    /// The residual misalignment the pose refinement measured, in pixels (x right, y down),
+    /// where it ran.
+    pub shift: Option<[f32; 2]>,
+}
+
+impl ViewCapture {
     /// A gain given, not estimated.
     pub fn given(gain: [f32; 3], source: GainSource) -> Self {
-        ViewGain {
+        ViewCapture {
             view: String::new(),
             gain,
             source,
             shared_texels: 0,
             anchor_pixels: 0,
             anchor_ratio: None,
+            check: None,
         }
     }
 

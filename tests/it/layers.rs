@@ -113,6 +113,7 @@ const FOLDERS: &[(&str, &[Layer])] = &[
                 "shrinkage",
                 "total_variation",
                 "noise_probe",
+                "diagnose",
                 "refine",
             ],
             Listed,

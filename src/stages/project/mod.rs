@@ -49,6 +49,7 @@
 //! photo-noise part is then measured by running the projection again on perturbed photos
 //! ([`noise_probe`]).
 
+mod diagnose;
 pub mod exposure;
 mod noise;
 pub mod noise_probe;
@@ -57,6 +58,7 @@ mod shrinkage;
 pub mod total_variation;
 mod view;
 
+pub use diagnose::notes as capture_notes;
 pub use refine::{Refine, REFINE_SUPERSAMPLE};
 pub use shrinkage::{shrink_residual, shrink_residual_levels, NoiseLevels};
 pub use view::{classify_pixels, Pair, PixelInfo, Value, View};
@@ -95,12 +97,14 @@ pub struct ProjectionStats {
     pub seconds: f64,
     /// The noise probe's part of it (0 when off).
     pub probe_seconds: f64,
+    /// The photos' calibration's part of it (gains, poses).
+    pub calibration_seconds: f64,
     /// Per refinement pass, each view's mean relative residual `|photo - render| / photo`
     /// over its clean pixels before the pass's update (pass 0: the weighted mean's; see
     /// [`refine::mean_relative_residual`]).
     pub refine_residual: Vec<Vec<f64>>,
     /// Per view, its photo's gain and what fixed it.
-    pub gains: Vec<crate::report::ViewGain>,
+    pub gains: Vec<crate::report::ViewCapture>,
 }
 
 /// How the stage is shared with the other processes of a run (decided by `pipeline`): this
@@ -194,7 +198,9 @@ pub fn run_shard(
     let ids: Vec<String> = (p.views.iter())
         .map(|(si, _)| p.scene.sensors[*si].id.clone())
         .collect();
+    let t = Instant::now();
     stats.gains = exposure::estimate(p, cfg, &nominal, &ids, geom)?;
+    stats.calibration_seconds = t.elapsed().as_secs_f64();
     let photos: Vec<Image> = (raw.iter().zip(&stats.gains))
         .map(|(ph, g)| exposure::apply(ph, g.gain))
         .collect();
@@ -218,6 +224,9 @@ pub fn run_shard(
     let passes = refine::Passes::of(cfg);
     let (noise, residual) = project_and_refine(&ctx, state, passes, mode)?;
     stats.refine_residual = residual;
+    for (g, n) in stats.gains.iter_mut().zip(&noise) {
+        g.check = n.check.clone();
+    }
     if cfg.noise_probe && !noise.is_empty() {
         let t = Instant::now();
         let perturbed: Vec<Image> = (photos.iter().zip(&noise).enumerate())
@@ -491,7 +500,8 @@ pub fn backproject_tile(
     geom: &[TexelGeom],
     state: &[TexelState],
     acc: &mut [Residual],
-) {
+) -> Agreement {
+    let mut seen = Agreement::default();
     for ((g, s), a) in geom.iter().zip(state).zip(acc.iter_mut()) {
         if !g.covered() {
             continue;
@@ -517,7 +527,18 @@ pub fn backproject_tile(
         a.w2var += w * w * var;
         a.views += 1.0;
         a.out += (z > DISAGREE_Z) as u32 as f32;
+        seen.texels += 1;
+        seen.disagreeing += (z > DISAGREE_Z) as u64;
     }
+    seen
+}
+
+/// How many texels a view saw in a pass, and at how many it disagreed with the estimate by
+/// more than [`DISAGREE_Z`] of its noise and the expected spread.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Agreement {
+    pub texels: u64,
+    pub disagreeing: u64,
 }
 
 /// The variance of a fused luminance from one pass's [`Residual`] and the total weight:
