@@ -30,7 +30,13 @@ const FOLDERS: &[(&str, &[Layer])] = &[
             (&["pipeline"], Listed),
         ],
     ),
-    ("config", &[(&["raw", "validate", "keys"], Independent)]),
+    (
+        "config",
+        &[
+            (&["views"], Listed),
+            (&["raw", "validate", "keys"], Independent),
+        ],
+    ),
     (
         "base",
         &[(
