@@ -289,10 +289,12 @@ fn with_shard<R>(world: &World, f: impl FnOnce(&Shard) -> R) -> R {
     let owns = |u: usize| world.owns(u as u64);
     let sync = |s: &mut TileStore<TexelState>| ranks::share_tiles(world, s);
     let pixels = |img: &mut [Option<glam::Vec3>], unit| ranks::share_pixels(world, img, unit);
+    let sum = |v: u64| world.sum(v);
     f(&Shard {
         owns: &owns,
         sync: &sync,
         sync_pixels: &pixels,
+        sum: &sum,
     })
 }
 

@@ -35,6 +35,9 @@ const SAMPLES: u64 = 65_536;
 const ROUNDS: usize = 40;
 /// Fewest emitter pixels a view needs to anchor the absolute scale.
 const MIN_ANCHOR_PIXELS: usize = 9;
+/// An anchor ratio (photo / emitted radiance) below this is taken for emitters the photo does
+/// not show (hidden in a render): a real exposure 1000 times too dark would be black anyway.
+const DARK_ANCHOR: f32 = 1e-3;
 /// Fewest texels a view must share with the others for a relative gain.
 const MIN_SHARED: usize = 16;
 /// Largest spread of an environment map's radiance across one pixel (max / min luminance at
@@ -110,6 +113,15 @@ pub fn notes(gains: &[ViewCapture]) -> Vec<String> {
              with [views.<id>] exposure = ..., or show the light in a photo)"
                 .into(),
         );
+    }
+    for g in gains.iter() {
+        if g.anchor_pixels >= MIN_ANCHOR_PIXELS as u64 && g.anchor_ratio.is_none() {
+            out.push(format!(
+                "view {} shows {} emitter pixels, but they are black or clipped in its photo: \
+                 not used for the absolute scale",
+                g.view, g.anchor_pixels
+            ));
+        }
     }
     for g in gains.iter().filter(|g| g.source == GainSource::Alone) {
         out.push(format!(
@@ -304,8 +316,8 @@ fn normalise(gain: &mut [f64], den: &[f64]) {
     }
 }
 
-/// A view's interior emitter pixels, and the median photo / radiance ratio over them per
-/// channel if there are enough (see [`MIN_ANCHOR_PIXELS`]).
+/// A view's interior emitter pixels (masked ones too), and the median photo / radiance ratio
+/// over the valid ones per channel if there are enough (see [`MIN_ANCHOR_PIXELS`]).
 fn anchor(p: &RunContext, view: &View) -> (usize, Option<[f32; 3]>) {
     let (w, h) = (view.camera.width(), view.camera.height());
     let radiance: Vec<Option<Rgb>> = (0..h)
@@ -314,14 +326,17 @@ fn anchor(p: &RunContext, view: &View) -> (usize, Option<[f32; 3]>) {
         .collect();
     let r = 1 + view.camera.filter().reach() as i64;
     let mut ratios: [Vec<f32>; 3] = Default::default();
+    let mut n = 0;
     for y in 0..h as i64 {
         for x in 0..w as i64 {
             let Some(l) = radiance[(y * w as i64 + x) as usize] else {
                 continue;
             };
-            if !interior(&radiance, (w as i64, h as i64), (x, y), r, l)
-                || !view.image.is_valid(x as u32, y as u32)
-            {
+            if !interior(&radiance, (w as i64, h as i64), (x, y), r, l) {
+                continue;
+            }
+            n += 1;
+            if !view.image.is_valid(x as u32, y as u32) {
                 continue;
             }
             let ph = view.image.get(x as u32, y as u32);
@@ -332,7 +347,6 @@ fn anchor(p: &RunContext, view: &View) -> (usize, Option<[f32; 3]>) {
             }
         }
     }
-    let n = ratios[1].len();
     if ratios.iter().any(|r| r.len() < MIN_ANCHOR_PIXELS) {
         return (n, None);
     }
@@ -341,7 +355,11 @@ fn anchor(p: &RunContext, view: &View) -> (usize, Option<[f32; 3]>) {
         *v.select_nth_unstable_by(k, f32::total_cmp).1
     };
     let [mut a, mut b, mut c] = ratios;
-    (n, Some([med(&mut a), med(&mut b), med(&mut c)]))
+    let ratio = [med(&mut a), med(&mut b), med(&mut c)];
+    // emitters black in the photo (hidden in a render, or not the photo of this scene) say
+    // nothing about its exposure
+    let lum = 0.2126 * ratio[0] + 0.7152 * ratio[1] + 0.0722 * ratio[2];
+    (n, (lum > DARK_ANCHOR).then_some(ratio))
 }
 
 /// Whether every pixel within `r` of `(x, y)` shows the same emitted radiance `l` (to 1%).

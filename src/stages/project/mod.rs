@@ -110,12 +110,14 @@ pub struct ProjectionStats {
 /// How the stage is shared with the other processes of a run (decided by `pipeline`): this
 /// process computes the work units `owns` accepts (tiles, and bands of [`ROW_BAND`] rows of a
 /// re-rendered view), `sync` makes every tile of the state current after a step that changed
-/// it, `sync_pixels` makes an image computed in units of `n` consecutive pixels whole; so every
-/// process goes on from the same state. [`Shard::whole`]: one process.
+/// it, `sync_pixels` makes an image computed in units of `n` consecutive pixels whole, `sum`
+/// adds a count over the processes; so every process goes on from the same state.
+/// [`Shard::whole`]: one process.
 pub struct Shard<'a> {
     pub owns: &'a (dyn Fn(usize) -> bool + Sync),
     pub sync: &'a dyn Fn(&mut TileStore<TexelState>) -> Result<()>,
     pub sync_pixels: &'a SyncPixels<'a>,
+    pub sum: &'a dyn Fn(u64) -> u64,
 }
 
 /// See [`Shard::sync_pixels`].
@@ -136,10 +138,14 @@ impl Shard<'static> {
         fn pixels(_: &mut [Option<Vec3>], _: usize) -> Result<()> {
             Ok(())
         }
+        fn alone(v: u64) -> u64 {
+            v
+        }
         Shard {
             owns: &every,
             sync: &tiles,
             sync_pixels: &pixels,
+            sum: &alone,
         }
     }
 }

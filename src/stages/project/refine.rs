@@ -347,7 +347,8 @@ impl Refine<'_> {
                     sigma,
                     level: rough,
                     check: last.then(|| {
-                        let seen = (texels.into_inner(), disagreeing.into_inner());
+                        let sum = self.shard.sum;
+                        let seen = (sum(texels.into_inner()), sum(disagreeing.into_inner()));
                         diagnose::check(photo, &render, &view.pixels, seen)
                     }),
                 },
