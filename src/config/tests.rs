@@ -411,12 +411,13 @@ fn views_hold_photos_pinned_gains_and_the_capture_settings() {
     assert_eq!(c.views["cam1"], PathBuf::from("/x/photos/c1.png"));
     assert_eq!(c.pinned_gains["cam1"], [1.0, 0.5, 2.0]);
     assert_eq!(c.pinned_gains["cam2"], [0.25; 3]);
-    // the defaults: gains known, poses as given, sRGB
+    // the defaults: gains estimated (known in the paper's method), poses as given, sRGB
     let d = Config::for_scene("a.xml".into());
     assert_eq!(
         (d.exposure, d.refine_pose, d.response),
-        (Exposure::Known, false, Response::Srgb)
+        (Exposure::Estimate, false, Response::Srgb)
     );
+    assert_eq!(Config::paper("a.xml".into()).exposure, Exposure::Known);
 }
 
 #[test]

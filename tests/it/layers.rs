@@ -115,10 +115,12 @@ const FOLDERS: &[(&str, &[Layer])] = &[
         &[(
             &[
                 "view",
+                "exposure",
                 "noise",
                 "shrinkage",
                 "total_variation",
                 "noise_probe",
+                "diagnose",
                 "refine",
             ],
             Listed,
@@ -132,10 +134,11 @@ const FOLDERS: &[(&str, &[Layer])] = &[
     (
         "output",
         &[
-            (&["font", "bsdf_xml", "obj"], Independent),
+            (&["typeface", "bsdf_xml", "obj"], Independent),
             (
                 &[
                     "plot",
+                    "convergence",
                     "maps",
                     "renders",
                     "scene_glb",

@@ -4,6 +4,7 @@
 mod accuracy;
 mod budget;
 mod camera;
+mod capture;
 mod cli;
 mod colmap;
 mod diskfull;
