@@ -289,10 +289,12 @@ fn with_shard<R>(world: &World, f: impl FnOnce(&Shard) -> R) -> R {
     let owns = |u: usize| world.owns(u as u64);
     let sync = |s: &mut TileStore<TexelState>| ranks::share_tiles(world, s);
     let pixels = |img: &mut [Option<glam::Vec3>], unit| ranks::share_pixels(world, img, unit);
+    let sum = |v: u64| world.sum(v);
     f(&Shard {
         owns: &owns,
         sync: &sync,
         sync_pixels: &pixels,
+        sum: &sum,
     })
 }
 
@@ -502,11 +504,22 @@ impl<'a> Run<'a> {
         )?;
         report.timings.projection = t.elapsed().as_secs_f64();
         report.timings.noise_probe = ps.probe_seconds;
+        report.timings.calibration = ps.calibration_seconds;
         let ids = p
             .views
             .iter()
             .map(|(si, _)| p.scene.sensors[*si].id.clone());
         report.refinement = Refinement::new(ids.collect(), ps.refine_residual.clone());
+        report.capture = ps.gains.clone();
+        for line in crate::stages::project::exposure::notes(&report.capture) {
+            note(mode, &line);
+        }
+        let (ids, checks): (Vec<String>, Vec<_>) = (report.capture.iter())
+            .filter_map(|c| Some((c.view.clone(), c.check.clone()?)))
+            .unzip();
+        for line in project::capture_notes(&ids, &checks) {
+            note(mode, &line);
+        }
         if let Some(line) = report.refinement.summary() {
             note(mode, &line);
         }

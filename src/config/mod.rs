@@ -11,7 +11,7 @@ mod validate;
 mod views;
 
 pub use raw::RawConfig;
-pub use views::{Exposure, Response};
+pub use views::{Exposure, Response, Similarity};
 
 use crate::base::error::{Error, Result};
 use serde::{Deserialize, Serialize};
@@ -335,7 +335,7 @@ impl Config {
         Config {
             scene,
             views: BTreeMap::new(),
-            exposure: Exposure::Known,
+            exposure: Exposure::Estimate,
             pinned_gains: BTreeMap::new(),
             refine_pose: false,
             response: Response::Srgb,
@@ -425,6 +425,7 @@ impl Config {
                 self.area_samples = 9;
             }
             Preset::Paper => {
+                self.exposure = Exposure::Known;
                 self.method = Method::Photons;
                 self.iterations = Method::Photons.default_iterations();
                 self.update = UpdateRule::Paper;

@@ -18,7 +18,7 @@
 //! <out>/scene.xml                        the recovered scene for Mitsuba 3 (folded shapes on
 //!                                        their input UVs)
 //! <out>/scene.glb                        the recovered scene as binary glTF 2.0 (albedo PNGs inside)
-//! <out>/report_convergence.png           RMS and max relative error per iteration
+//! <out>/report_convergence.svg|png       RMS, mean and max relative error per iteration
 //! <out>/report.json                      the run's report, with the paper's table; written last
 //! ```
 //!
@@ -28,13 +28,14 @@
 //! directory is complete.
 
 pub mod bsdf_xml;
-pub mod font;
+pub mod convergence;
 pub mod maps;
 pub mod obj;
 pub mod plot;
 pub mod renders;
 pub mod scene_glb;
 pub mod scene_xml;
+pub mod typeface;
 pub mod uv_fold;
 
 pub use maps::write_map;
@@ -47,7 +48,6 @@ use crate::atlas::RunContext;
 use crate::base::error::{Error, Result};
 use crate::base::fsio;
 use crate::base::progress::Tick;
-use crate::image::write_pixmap_png;
 use crate::physics::render::Texture;
 use crate::report::Report;
 use glam::Vec3;
@@ -150,12 +150,13 @@ pub fn write_outputs(
         .collect();
     let mut table = Vec::new();
     let renders = out.join("renders");
-    for (si, path) in &p.views {
+    for (i, (si, path)) in p.views.iter().enumerate() {
+        let gain = report.capture.get(i).map_or([1.0; 3], |c| c.gain);
         table.extend(renders::write_view(
             p,
             hits,
             &textures,
-            (*si, path),
+            (*si, path, gain),
             &renders,
             &scale,
         )?);
@@ -166,8 +167,7 @@ pub fn write_outputs(
         r.check()?;
     }
 
-    let plot = plot::convergence_plot(&report.iterations);
-    write_pixmap_png(&out.join("report_convergence.png"), &plot)?;
+    convergence::write_convergence(out, &report.iterations)?;
 
     report.timings.output = t0.elapsed().as_secs_f64();
     report.resources.after("output");

@@ -30,7 +30,13 @@ const FOLDERS: &[(&str, &[Layer])] = &[
             (&["pipeline"], Listed),
         ],
     ),
-    ("config", &[(&["raw", "validate", "keys"], Independent)]),
+    (
+        "config",
+        &[
+            (&["views"], Listed),
+            (&["raw", "validate", "keys"], Independent),
+        ],
+    ),
     (
         "base",
         &[(
@@ -49,8 +55,8 @@ const FOLDERS: &[(&str, &[Layer])] = &[
     (
         "scene",
         &[
-            (&["material", "filter", "mesh", "envmap", "photos"], Listed),
-            (&["mitsuba", "gltf"], Independent),
+            (&["material", "filter", "mesh", "envmap", "lens", "photos"], Listed),
+            (&["mitsuba", "gltf", "colmap"], Independent),
             (&["truth"], Listed),
         ],
     ),
@@ -59,6 +65,7 @@ const FOLDERS: &[(&str, &[Layer])] = &[
         &[(&["primitive", "sensor", "lights"], Listed)],
     ),
     ("scene::mitsuba", &[(&["bsdf", "sensor"], Independent)]),
+    ("scene::colmap", &[(&["text", "binary"], Independent)]),
     (
         "physics",
         &[(
@@ -108,10 +115,12 @@ const FOLDERS: &[(&str, &[Layer])] = &[
         &[(
             &[
                 "view",
+                "exposure",
                 "noise",
                 "shrinkage",
                 "total_variation",
                 "noise_probe",
+                "diagnose",
                 "refine",
             ],
             Listed,
@@ -125,10 +134,11 @@ const FOLDERS: &[(&str, &[Layer])] = &[
     (
         "output",
         &[
-            (&["font", "bsdf_xml", "obj"], Independent),
+            (&["typeface", "bsdf_xml", "obj"], Independent),
             (
                 &[
                     "plot",
+                    "convergence",
                     "maps",
                     "renders",
                     "scene_glb",

@@ -4,7 +4,9 @@
 mod accuracy;
 mod budget;
 mod camera;
+mod capture;
 mod cli;
+mod colmap;
 mod diskfull;
 mod failfast;
 mod fuzz_regressions;

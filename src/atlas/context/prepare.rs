@@ -268,18 +268,23 @@ fn note_unscaled(cfg: &Config, scene: &Scene, views: &[(usize, PathBuf)], mode: 
     }
 }
 
-/// The (sensor, photo) pairs of a run: the config's `views`, or every sensor with one photo
-/// `images/<id>.exr|png|jpg|jpeg` beside the scene (sensors without one are skipped with a
-/// note; a sensor with two is refused).
+/// The (sensor, photo) pairs of a run: the config's `views`, or every sensor with its photo
+/// beside the scene, the one the scene names (a COLMAP image's) or the one
+/// `images/<id>.exr|png|jpg|jpeg` (sensors without one are skipped with a note; a sensor
+/// with two is refused).
 pub fn match_views(scene: &Scene, cfg: &Config, mode: Mode) -> Result<Vec<(usize, PathBuf)>> {
     let mut views = Vec::new();
     if cfg.views.is_empty() {
         let dir = scene.dir().join("images");
         for (i, s) in scene.sensors.iter().enumerate() {
-            match crate::scene::photos::find(&dir, &s.id)? {
+            let found = match &s.photo {
+                Some(p) => p.is_file().then(|| p.clone()),
+                None => crate::scene::photos::find(&dir, &s.id)?,
+            };
+            match found {
                 Some(p) => views.push((i, p)),
                 None => {
-                    let p = dir.join(format!("{}.exr", s.id));
+                    let p = (s.photo.clone()).unwrap_or_else(|| dir.join(format!("{}.exr", s.id)));
                     let msg = format!(
                         "sensor '{}' has no photo {} (or .png, .jpg, .jpeg): skipped",
                         s.id,

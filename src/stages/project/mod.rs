@@ -49,6 +49,8 @@
 //! photo-noise part is then measured by running the projection again on perturbed photos
 //! ([`noise_probe`]).
 
+mod diagnose;
+pub mod exposure;
 mod noise;
 pub mod noise_probe;
 mod refine;
@@ -56,6 +58,7 @@ mod shrinkage;
 pub mod total_variation;
 mod view;
 
+pub use diagnose::notes as capture_notes;
 pub use refine::{Refine, REFINE_SUPERSAMPLE};
 pub use shrinkage::{shrink_residual, shrink_residual_levels, NoiseLevels};
 pub use view::{classify_pixels, Pair, PixelInfo, Value, View};
@@ -94,21 +97,27 @@ pub struct ProjectionStats {
     pub seconds: f64,
     /// The noise probe's part of it (0 when off).
     pub probe_seconds: f64,
+    /// The photos' calibration's part of it (gains, poses).
+    pub calibration_seconds: f64,
     /// Per refinement pass, each view's mean relative residual `|photo - render| / photo`
     /// over its clean pixels before the pass's update (pass 0: the weighted mean's; see
     /// [`refine::mean_relative_residual`]).
     pub refine_residual: Vec<Vec<f64>>,
+    /// Per view, its photo's gain and what fixed it.
+    pub gains: Vec<crate::report::ViewCapture>,
 }
 
 /// How the stage is shared with the other processes of a run (decided by `pipeline`): this
 /// process computes the work units `owns` accepts (tiles, and bands of [`ROW_BAND`] rows of a
 /// re-rendered view), `sync` makes every tile of the state current after a step that changed
-/// it, `sync_pixels` makes an image computed in units of `n` consecutive pixels whole; so every
-/// process goes on from the same state. [`Shard::whole`]: one process.
+/// it, `sync_pixels` makes an image computed in units of `n` consecutive pixels whole, `sum`
+/// adds a count over the processes; so every process goes on from the same state.
+/// [`Shard::whole`]: one process.
 pub struct Shard<'a> {
     pub owns: &'a (dyn Fn(usize) -> bool + Sync),
     pub sync: &'a dyn Fn(&mut TileStore<TexelState>) -> Result<()>,
     pub sync_pixels: &'a SyncPixels<'a>,
+    pub sum: &'a dyn Fn(u64) -> u64,
 }
 
 /// See [`Shard::sync_pixels`].
@@ -129,10 +138,14 @@ impl Shard<'static> {
         fn pixels(_: &mut [Option<Vec3>], _: usize) -> Result<()> {
             Ok(())
         }
+        fn alone(v: u64) -> u64 {
+            v
+        }
         Shard {
             owns: &every,
             sync: &tiles,
             sync_pixels: &pixels,
+            sum: &alone,
         }
     }
 }
@@ -173,21 +186,35 @@ pub fn run_shard(
     let window = p.window::<TexelState>(cfg);
     let stage = Stage::new(mode, "projection", p.views.len() as u64, "views");
     let t0 = Instant::now();
-    let photos = read_photos(p, mode)?;
-    stats.masked_pixels = photos.iter().map(|ph| ph.masked).sum();
+    let raw = read_photos(p, mode)?;
+    stats.masked_pixels = raw.iter().map(|ph| ph.masked).sum();
     let bounds = tile_bounds(geom)?;
-    let mut views = Vec::with_capacity(photos.len());
-    for ((si, _), photo) in p.views.iter().zip(&photos) {
+    let mut nominal = Vec::with_capacity(raw.len());
+    for ((si, _), photo) in p.views.iter().zip(&raw) {
         let view = View::new(
             &p.scene,
             &p.accel,
             Camera::from_sensor(&p.scene.sensors[*si]),
             photo,
         );
-        views.push(view);
+        nominal.push(view);
         stage.inc(1);
         interrupt::check(interrupt::NOTHING_SAVED)?;
     }
+    let ids: Vec<String> = (p.views.iter())
+        .map(|(si, _)| p.scene.sensors[*si].id.clone())
+        .collect();
+    let t = Instant::now();
+    stats.gains = exposure::estimate(p, cfg, &nominal, &ids, geom)?;
+    stats.calibration_seconds = t.elapsed().as_secs_f64();
+    let photos: Vec<Image> = (raw.iter().zip(&stats.gains))
+        .map(|(ph, g)| exposure::apply(ph, g.gain))
+        .collect();
+    let views: Vec<View> = (nominal.iter().zip(&photos))
+        .map(|(v, ph)| v.with_image(ph))
+        .collect();
+    drop(nominal);
+    drop(raw);
     let ctx = refine::Refine {
         p,
         hits,
@@ -203,6 +230,9 @@ pub fn run_shard(
     let passes = refine::Passes::of(cfg);
     let (noise, residual) = project_and_refine(&ctx, state, passes, mode)?;
     stats.refine_residual = residual;
+    for (g, n) in stats.gains.iter_mut().zip(&noise) {
+        g.check = n.check.clone();
+    }
     if cfg.noise_probe && !noise.is_empty() {
         let t = Instant::now();
         let perturbed: Vec<Image> = (photos.iter().zip(&noise).enumerate())
@@ -476,7 +506,8 @@ pub fn backproject_tile(
     geom: &[TexelGeom],
     state: &[TexelState],
     acc: &mut [Residual],
-) {
+) -> Agreement {
+    let mut seen = Agreement::default();
     for ((g, s), a) in geom.iter().zip(state).zip(acc.iter_mut()) {
         if !g.covered() {
             continue;
@@ -502,7 +533,18 @@ pub fn backproject_tile(
         a.w2var += w * w * var;
         a.views += 1.0;
         a.out += (z > DISAGREE_Z) as u32 as f32;
+        seen.texels += 1;
+        seen.disagreeing += (z > DISAGREE_Z) as u64;
     }
+    seen
+}
+
+/// How many texels a view saw in a pass, and at how many it disagreed with the estimate by
+/// more than [`DISAGREE_Z`] of its noise and the expected spread.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Agreement {
+    pub texels: u64,
+    pub disagreeing: u64,
 }
 
 /// The variance of a fused luminance from one pass's [`Residual`] and the total weight:
