@@ -124,8 +124,8 @@ fn a_pinned_gain_sets_the_scale_and_the_others_follow() {
     assert_eq!(stats.gains[1].gain, pin);
     for i in [0, 2] {
         assert_eq!(stats.gains[i].source, GainSource::Pinned);
-        for c in 0..3 {
-            let err = (stats.gains[i].gain[c] / (2.0 * GAINS[i][c]) - 1.0).abs();
+        for (c, want) in GAINS[i].iter().enumerate() {
+            let err = (stats.gains[i].gain[c] / (2.0 * want) - 1.0).abs();
             assert!(err < 0.005, "{:?}", stats.gains[i]);
         }
     }

@@ -55,7 +55,10 @@ const FOLDERS: &[(&str, &[Layer])] = &[
     (
         "scene",
         &[
-            (&["material", "filter", "mesh", "envmap", "lens", "photos"], Listed),
+            (
+                &["material", "filter", "mesh", "envmap", "lens", "photos"],
+                Listed,
+            ),
             (&["mitsuba", "gltf", "colmap"], Independent),
             (&["truth"], Listed),
         ],

@@ -141,7 +141,7 @@ mod tests {
             assert!((got - want).abs() < 1e-5, "{got} vs {want}");
         }
         assert_eq!(c.disagreeing, 0.08);
-        let notes = notes(&["cam".into()], &[c.clone()]);
+        let notes = notes(&["cam".into()], std::slice::from_ref(&c));
         assert_eq!(notes.len(), 1);
         assert!(
             notes[0].contains("+5.7%") && notes[0].contains("8.0% of the texels"),
