@@ -48,23 +48,33 @@ def ensure(variant, fixtures, cache=DEFAULT_CACHE, log_path=None):
 
 
 def run_config(scene_dir):
-    """Write `<scene_dir>/run.toml`: the scene, and for 8-bit photos the first view's gain
+    """Write `<scene_dir>/run.toml`: the scene, its COLMAP model (with the similarity into the
+    scene's frame) where the capture has one, and for 8-bit photos the first view's gain
     pinned to the capture's recorded factor. Returns its path and the pinned view (or None)."""
+    scene_dir = os.path.abspath(scene_dir)
     with open(os.path.join(scene_dir, "capture.json")) as f:
         cap = json.load(f)
     lines = [f"scene = {json.dumps(os.path.join(scene_dir, 'input.xml'))}"]
+    views = []
+    if cap.get("colmap"):
+        rows = ", ".join("[" + ", ".join(f"{x:.17g}" for x in r) + "]"
+                         for r in cap["colmap"]["to_world"])
+        views += [f"colmap = {json.dumps(os.path.join(scene_dir, cap['colmap']['dir']))}",
+                  f"to_world = [{rows}]"]
     pinned = None
     if cap.get("ldr"):
-        views = sorted(cap["views"].items(), key=lambda kv: kv[1]["index"])
-        lines += ["[views]", 'exposure = "estimate"']
-        for i, (vid, v) in enumerate(views):
+        views.append('exposure = "estimate"')
+        for i, (vid, v) in enumerate(sorted(cap["views"].items(),
+                                            key=lambda kv: kv[1]["index"])):
             photo = json.dumps(os.path.join(scene_dir, v["image"]))
             if i == 0:
                 g = ", ".join(f"{x:.9g}" for x in v["factor"])
-                lines.append(f"{vid} = {{ photo = {photo}, exposure = [{g}] }}")
+                views.append(f"{vid} = {{ photo = {photo}, exposure = [{g}] }}")
                 pinned = vid
             else:
-                lines.append(f"{vid} = {photo}")
+                views.append(f"{vid} = {photo}")
+    if views:
+        lines += ["[views]"] + views
     path = os.path.join(scene_dir, "run.toml")
     with open(path, "w") as f:
         f.write("\n".join(lines) + "\n")

@@ -17,11 +17,18 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import captures  # noqa: E402
 
 
-def write_capture(d, ldr):
+TO_WORLD = [[0.0, -2.0, 0.0, 1.5], [2.0, 0.0, 0.0, -0.25], [0.0, 0.0, 2.0, 3.0],
+            [0.0, 0.0, 0.0, 1.0]]
+
+
+def write_capture(d, ldr, colmap=False):
     views = {f"cam_train_{i}": {"index": i, "image": f"images/cam_train_{i}.jpg",
                                 "factor": [2.0 + i, 2.5, 3.0]} for i in (2, 0, 1)}
+    cap = {"ldr": {"format": "jpg"} if ldr else None, "views": views}
+    if colmap:
+        cap["colmap"] = {"dir": "sparse", "to_world": TO_WORLD}
     with open(os.path.join(d, "capture.json"), "w") as f:
-        json.dump({"ldr": {"format": "jpg"} if ldr else None, "views": views}, f)
+        json.dump(cap, f)
 
 
 class Captures(unittest.TestCase):
@@ -47,6 +54,16 @@ class Captures(unittest.TestCase):
             self.assertEqual(v["cam_train_0"]["exposure"], [2.0, 2.5, 3.0])
             self.assertEqual(v["cam_train_0"]["photo"], os.path.join(d, "images/cam_train_0.jpg"))
             self.assertEqual(v["cam_train_2"], os.path.join(d, "images/cam_train_2.jpg"))
+
+    def test_a_colmap_capture_names_its_model_and_similarity(self):
+        with tempfile.TemporaryDirectory() as d:
+            write_capture(d, ldr=True, colmap=True)
+            path, pinned = captures.run_config(d)
+            with open(path, "rb") as f:
+                v = tomllib.load(f)["views"]
+            self.assertEqual(v["colmap"], os.path.join(d, "sparse"))
+            self.assertEqual(v["to_world"], TO_WORLD)
+            self.assertEqual(pinned, "cam_train_0")
 
     def test_hdr_capture_is_the_scene_alone(self):
         with tempfile.TemporaryDirectory() as d:
