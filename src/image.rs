@@ -189,6 +189,13 @@ fn check_exr_size(reader: &mut (impl Read + Seek), file_bytes: u64, path: &Path)
     Ok(())
 }
 
+/// Whether the run has one worker thread (`--threads 1`, or one core): exr then encodes and
+/// decodes on the calling thread instead of starting threads of its own, so a one-thread run
+/// is one thread (and its instruction counts, `tools/icount.py`, do not depend on the others').
+fn one_thread() -> bool {
+    rayon::current_num_threads() == 1
+}
+
 /// [`read_exr`] from any seekable reader of the file's bytes.
 fn read_exr_from(mut reader: impl Read + Seek, path: &Path) -> Result<Image> {
     let file_bytes = reader
@@ -202,9 +209,14 @@ fn read_exr_from(mut reader: impl Read + Seek, path: &Path) -> Result<Image> {
         .all_channels()
         .all_layers()
         .all_attributes()
-        .pedantic()
-        .from_buffered(reader)
-        .map_err(|e| exr_error(path, e))?;
+        .pedantic();
+    // one worker thread (`--threads 1`): no decoding threads of exr's own either
+    let img = match one_thread() {
+        true => img.non_parallel(),
+        false => img,
+    }
+    .from_buffered(reader)
+    .map_err(|e| exr_error(path, e))?;
 
     let mut names: Vec<String> = Vec::new();
     for layer in &img.layer_data {
@@ -359,17 +371,21 @@ pub fn write_exr_rgb_fn(
                 let c = at(p);
                 (to_h(c.x), to_h(c.y), to_h(c.z))
             });
-            x::Image::from_layer(x::Layer::new(size, attrs, Encoding::SMALL_LOSSLESS, ch))
-                .write()
-                .to_file(tmp)
+            let w = x::Image::from_layer(x::Layer::new(size, attrs, Encoding::SMALL_LOSSLESS, ch));
+            match one_thread() {
+                true => w.write().non_parallel().to_file(tmp),
+                false => w.write().to_file(tmp),
+            }
         } else {
             let ch = SpecificChannels::rgb(|p| {
                 let c = at(p);
                 (c.x, c.y, c.z)
             });
-            x::Image::from_layer(x::Layer::new(size, attrs, Encoding::SMALL_LOSSLESS, ch))
-                .write()
-                .to_file(tmp)
+            let w = x::Image::from_layer(x::Layer::new(size, attrs, Encoding::SMALL_LOSSLESS, ch));
+            match one_thread() {
+                true => w.write().non_parallel().to_file(tmp),
+                false => w.write().to_file(tmp),
+            }
         }
         .map_err(|e| exr_write_error(path, e))
     })

@@ -166,6 +166,7 @@ pub fn reconstruct(cfg: &Config, out: &Path, mode: Mode) -> Result<Report> {
 /// continuing from the newest good checkpoint there. A resumed run's outputs are
 /// bit-identical to an uninterrupted run's; a checkpoint of other inputs or settings is
 /// refused.
+#[inline(never)] // a stage entry tools/icount.py measures
 pub fn reconstruct_resumable(
     cfg: &Config,
     out: &Path,
@@ -253,6 +254,7 @@ pub fn run_projection(
 /// reconstruction whose output folds tiled textures, `[output] uv_fold`), the shapes the fold
 /// may take are left unfiltered: the fold averages their noise over the repeats, and the
 /// filter would only blur their detail (see `uv_fold::foldable_slots`).
+#[inline(never)] // a stage entry tools/icount.py measures
 fn denoise(
     p: &RunContext,
     cfg: &Config,
@@ -567,6 +569,7 @@ impl<'a> Run<'a> {
     }
 
     /// The direct light, each rank its tiles, their E_d and sums shared in tile order.
+    #[inline(never)] // a stage entry tools/icount.py measures
     fn direct(&self, state: &mut TileStore<TexelState>) -> Result<direct::DirectStats> {
         let (p, cfg, world) = (&self.p, &self.cfg, self.world);
         let owns = |t: usize| world.owns(t as u64);
@@ -586,6 +589,7 @@ impl<'a> Run<'a> {
     /// stream), its irradiance
     /// smoothed like a photon `E_i`. It depends on no `K_d`, so it is traced once, here; a
     /// scene without such materials skips it. Nothing is saved if it is interrupted.
+    #[inline(never)] // a stage entry tools/icount.py measures
     fn caustics(
         &self,
         state: &mut TileStore<TexelState>,
@@ -815,6 +819,7 @@ impl<'a> Run<'a> {
     }
 
     /// E_i by photon tracing into `accum` (the rest of `pass` from where it stands), smoothed.
+    #[inline(never)] // a stage entry tools/icount.py measures
     fn photon_estimate(
         &self,
         r: &mut Running,
@@ -855,6 +860,7 @@ impl<'a> Run<'a> {
 
     /// E_i gathered from the observed radiance into `accum`: the rays are cast in the first
     /// gather of a run (or of a resumed attempt), later iterations re-read their hits.
+    #[inline(never)] // a stage entry tools/icount.py measures
     fn gather_estimate(&self, r: &mut Running) -> Result<Estimate> {
         let p = &self.p;
         let t = Instant::now();
@@ -943,6 +949,7 @@ impl<'a> Run<'a> {
 
     /// Steps 3-5 (`solve::kd_step`) with a progress stage `name` over the tiles: `(clamped
     /// texels, what the fill filled)`.
+    #[inline(never)] // a stage entry tools/icount.py measures
     fn kd_step(&self, r: &mut Running, name: &str) -> Result<(u64, Filled)> {
         // the K_d pass, then the fill's read and write of every tile
         let stage = self.tile_stage(name, 3);
@@ -1122,6 +1129,7 @@ impl<'a> Run<'a> {
     }
 
     /// Shapes of one colour kept to one colour (`stages::one_colour`), timed.
+    #[inline(never)] // a stage entry tools/icount.py measures
     fn one_colour(&self, r: &mut Running) -> Result<UniformStats> {
         let (p, t) = (&self.p, Instant::now());
         let known: Vec<bool> = (p.layout.slots.iter())

@@ -81,6 +81,7 @@ fn view_pixels(p: &RunContext, si: usize) -> u64 {
 /// The caller sets the other report fields (including `timings.total`) before calling.
 /// `tick` gets each shape's texels once its textures and maps are written, and each view's
 /// pixels once it is re-rendered ([`output_units`] in all).
+#[inline(never)] // a stage entry tools/icount.py measures
 pub fn write_outputs(
     p: &RunContext,
     hits: &HitTable,

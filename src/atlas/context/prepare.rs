@@ -88,6 +88,7 @@ pub fn state_dir(out: &Path) -> PathBuf {
 /// then choose the texel densities, unwrap every reconstructed shape and lay out the tiles.
 /// What the scene file alone tells (photos against films, no emitter at all) is checked
 /// before the meshes are read.
+#[inline(never)] // a stage entry tools/icount.py measures
 pub fn prepare(cfg: &Config, mode: Mode) -> Result<RunContext> {
     let outline = crate::scene::load_outline(cfg)?;
     let views = match_views(&outline, cfg, mode)?;
@@ -414,6 +415,7 @@ impl RunContext {
 
     /// Per reconstructed shape: its density (and how it was chosen), texture size and covered
     /// texels, counted in `geom` (for report.json).
+    #[inline(never)] // a stage entry tools/icount.py measures
     pub fn texel_report(
         &self,
         geom: &TileStore<TexelGeom>,

@@ -54,6 +54,7 @@ struct Obs {
 }
 
 /// The gains of `views` (sensor ids `ids`) under `cfg`, from the texels of `geom`.
+#[inline(never)] // a stage entry tools/icount.py measures
 pub fn estimate(
     p: &RunContext,
     cfg: &Config,

@@ -169,6 +169,7 @@ pub fn run(
 /// [`run`] shared by several processes: only the tiles `shard` owns are projected and refined
 /// here, and the store is synced after the weighted mean and after each refinement pass.
 #[allow(clippy::too_many_arguments)]
+#[inline(never)] // a stage entry tools/icount.py measures
 pub fn run_shard(
     p: &RunContext,
     cfg: &Config,
@@ -235,31 +236,7 @@ pub fn run_shard(
     }
     if cfg.noise_probe && !noise.is_empty() {
         let t = Instant::now();
-        let perturbed: Vec<Image> = (photos.iter().zip(&noise).enumerate())
-            .map(|(i, (ph, n))| noise_probe::perturbed(ph, n, cfg.seed, i as u64))
-            .collect();
-        let probe_views: Vec<View> = (views.iter().zip(&perturbed))
-            .map(|(v, im)| v.with_image(im))
-            .collect();
-        let path = scratch.dir.join("probe-state.tiles");
-        let mut probe_state = p.create_store(&path, TexelState::default())?;
-        let pctx = refine::Refine {
-            views: &probe_views,
-            label: "noise probe",
-            ..ctx
-        };
-        project_and_refine(&pctx, &mut probe_state, passes, mode)?;
-        noise_probe::apply(
-            &p.layout,
-            charts,
-            geom,
-            state,
-            &mut probe_state,
-            window,
-            scratch,
-        )?;
-        drop(probe_state);
-        std::fs::remove_file(&path).map_err(|e| crate::base::error::Error::io(&path, e))?;
+        probe_noise(&ctx, cfg, state, (&photos, &noise), passes, mode)?;
         stats.probe_seconds = t.elapsed().as_secs_f64();
     }
     stage.finish();
@@ -273,6 +250,46 @@ pub fn run_shard(
     stats.observed_texels = o;
     stats.seconds = t0.elapsed().as_secs_f64();
     Ok(stats)
+}
+
+/// The noise probe (see [`noise_probe`]): the photos perturbed by their own noise, projected
+/// and refined again into a scratch store, and the difference made each texel's photo noise.
+/// A function of its own so the instruction-count guard (`tools/icount.py`) can find it.
+#[inline(never)]
+fn probe_noise(
+    ctx: &refine::Refine,
+    cfg: &Config,
+    state: &mut TileStore<TexelState>,
+    (photos, noise): (&[Image], &[noise_probe::ViewNoise]),
+    passes: refine::Passes,
+    mode: Mode,
+) -> Result<()> {
+    let (p, views) = (ctx.p, ctx.views);
+    let perturbed: Vec<Image> = (photos.iter().zip(noise).enumerate())
+        .map(|(i, (ph, n))| noise_probe::perturbed(ph, n, cfg.seed, i as u64))
+        .collect();
+    let probe_views: Vec<View> = (views.iter().zip(&perturbed))
+        .map(|(v, im)| v.with_image(im))
+        .collect();
+    let path = ctx.scratch.dir.join("probe-state.tiles");
+    let mut probe_state = p.create_store(&path, TexelState::default())?;
+    let pctx = refine::Refine {
+        views: &probe_views,
+        label: "noise probe",
+        ..*ctx
+    };
+    project_and_refine(&pctx, &mut probe_state, passes, mode)?;
+    noise_probe::apply(
+        &p.layout,
+        ctx.charts,
+        ctx.geom,
+        state,
+        &mut probe_state,
+        ctx.window,
+        ctx.scratch,
+    )?;
+    drop(probe_state);
+    std::fs::remove_file(&path).map_err(|e| crate::base::error::Error::io(&path, e))
 }
 
 /// The weighted mean of every view of `ctx` into `state` (L_orig, weight, OBSERVED; synced),

@@ -176,6 +176,7 @@ impl Refine<'_> {
     /// rays only for clean pixels that straddle a chart seam. Returns each view's noise as
     /// the last pass estimated it (none without passes), and per pass each view's
     /// [`mean_relative_residual`] before the pass's update.
+    #[inline(never)] // a stage entry tools/icount.py measures
     pub fn run(
         &self,
         state: &mut TileStore<TexelState>,
