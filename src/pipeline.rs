@@ -43,7 +43,7 @@ use crate::base::interrupt;
 use crate::base::progress::{self, note, Mode, Stage};
 use crate::checkpoint::{self as ck, Manifest, Writer};
 use crate::config::{Config, Method, UpdateRule};
-use crate::output::{output_units, uv_fold, write_map, write_outputs};
+use crate::output::{check_out_dir, output_units, uv_fold, write_map, write_outputs};
 use crate::physics::light::EmitterSampler;
 use crate::report::{Counts, IterationStats, Refinement, Report};
 use crate::stages::indirect::gather::{
@@ -175,6 +175,7 @@ pub fn reconstruct_resumable(
 ) -> Result<(Report, Start)> {
     let clock = Instant::now();
     let world = comm::world();
+    world.decide(|| check_out_dir(out))?;
     let run = world.agree(Run::open(cfg, out, mode))?;
     let found = match resume {
         true => world.decide(|| run.find_checkpoint())?,
@@ -200,6 +201,7 @@ pub fn run_projection(
     mode: Mode,
 ) -> Result<(RunContext, ProjectionStats)> {
     let world = comm::world();
+    world.decide(|| check_out_dir(out))?;
     let opened = || -> Result<_> {
         let p = prepare(cfg, mode)?;
         let dir = work_dir(out, world);
@@ -352,6 +354,8 @@ struct Running {
     prior_s: f64,
     /// Whether this process writes the checkpoints (rank 0).
     root: bool,
+    /// Where notes go (the checkpoint cadence's).
+    mode: Mode,
 }
 
 impl Running {
@@ -361,15 +365,11 @@ impl Running {
     }
 
     /// Checkpoint at `stage` if it is due: always after the direct light and when finished,
-    /// else once `every` seconds have passed since the last one. Returns whether it wrote one.
-    fn checkpoint_if_due(
-        &mut self,
-        state_path: &Path,
-        stage: RunStage,
-        every: f64,
-    ) -> Result<bool> {
+    /// else once the writer's period has passed since the last one (`checkpoint::cadence`).
+    /// Returns whether it wrote one.
+    fn checkpoint_if_due(&mut self, state_path: &Path, stage: RunStage) -> Result<bool> {
         let forced = matches!(stage, RunStage::Direct | RunStage::Finished);
-        let due = forced || self.writer.since_last() >= every;
+        let due = forced || self.writer.due();
         if due {
             self.checkpoint(state_path, stage)?;
         }
@@ -401,7 +401,11 @@ impl Running {
         };
         let snapshot = (stage != RunStage::Finished).then_some(state_path);
         let seconds = self.elapsed();
-        self.writer.write(snapshot, &progress, seconds)
+        self.writer.write(snapshot, &progress, seconds)?;
+        if let Some(line) = self.writer.cadence_note() {
+            note(self.mode, &line);
+        }
+        Ok(())
     }
 }
 
@@ -558,11 +562,12 @@ impl<'a> Run<'a> {
             report,
             proj,
             stage: RunStage::Direct,
-            writer: Writer::new(&self.dir, self.hash, 0),
+            writer: Writer::new(&self.dir, self.hash, 0, cfg.checkpoint_every_seconds),
             start: Start::Fresh,
             clock,
             prior_s: 0.0,
             root: world.is_root(),
+            mode,
         };
         r.checkpoint(&self.state_path, RunStage::Direct)?;
         Ok(r)
@@ -671,11 +676,17 @@ impl<'a> Run<'a> {
             report,
             proj: m.payload.projection,
             stage: m.payload.stage,
-            writer: Writer::new(&self.dir, self.hash, m.seq),
+            writer: Writer::new(
+                &self.dir,
+                self.hash,
+                m.seq,
+                self.cfg.checkpoint_every_seconds,
+            ),
             start: Start::Resumed(m.seq),
             clock,
             prior_s: m.seconds,
             root: world.is_root(),
+            mode: self.mode,
         })
     }
 
@@ -811,7 +822,7 @@ impl<'a> Run<'a> {
             stopped: done || n + 1 == cfg.iterations,
         };
         r.stage = stage;
-        let saved = r.checkpoint_if_due(&self.state_path, stage, cfg.checkpoint_every_seconds)?;
+        let saved = r.checkpoint_if_due(&self.state_path, stage)?;
         if interrupt::agreed() {
             return Err(r.interrupted(&self.state_path, stage, saved)?);
         }
@@ -1054,9 +1065,7 @@ impl<'a> Run<'a> {
             let photons = ctx.photons_in(done);
             stage.inc(photons - last);
             last = photons;
-            let due = *root
-                && done - last_ck >= every
-                && writer.since_last() >= cfg.checkpoint_every_seconds;
+            let due = *root && done - last_ck >= every && writer.due();
             // a signal (on any rank): stop after this group, with a checkpoint of it
             let stop = done < batches && interrupt::agreed();
             // rank 0's clock decides; every rank first makes its tiles current there
@@ -1078,6 +1087,9 @@ impl<'a> Run<'a> {
                 };
                 let seconds = *prior_s + clock.elapsed().as_secs_f64();
                 writer.write(Some(state_path), &progress, seconds)?;
+                if let Some(line) = writer.cadence_note() {
+                    note(self.mode, &line);
+                }
                 last_ck = done;
             }
             if stop {

@@ -294,7 +294,8 @@ pub struct Config {
     pub checkpoint_every_batches: u32,
     /// Seconds of work between checkpoints: one is taken after the direct light and when the
     /// run finishes, and in between (after an iteration, or inside a photon pass) only once
-    /// this much time has passed since the last. 0 = at every opportunity.
+    /// this much time has passed since the last, or longer when the checkpoints' measured
+    /// write time or size calls for it (`checkpoint::cadence`). 0 = at every opportunity.
     #[serde(default)]
     pub checkpoint_every_seconds: f64,
     /// Budget for memory-mapped working sets, MiB.

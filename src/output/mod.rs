@@ -31,6 +31,7 @@ pub mod bsdf_xml;
 pub mod convergence;
 pub mod maps;
 pub mod obj;
+pub mod out_dir;
 pub mod plot;
 pub mod renders;
 pub mod scene_glb;
@@ -39,6 +40,7 @@ pub mod typeface;
 pub mod uv_fold;
 
 pub use maps::write_map;
+pub use out_dir::check_out_dir;
 
 use crate::atlas::context::HitTable;
 use crate::atlas::store::TileStore;

@@ -137,7 +137,7 @@ const FOLDERS: &[(&str, &[Layer])] = &[
     (
         "output",
         &[
-            (&["typeface", "bsdf_xml", "obj"], Independent),
+            (&["typeface", "bsdf_xml", "obj", "out_dir"], Independent),
             (
                 &[
                     "plot",
