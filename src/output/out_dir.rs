@@ -7,7 +7,8 @@ use crate::base::error::{Error, Result};
 use std::io::ErrorKind;
 use std::path::Path;
 
-/// What a run (and `kdmap accuracy`) writes at the top of its output directory.
+/// What a run (and `kdmap accuracy`, and the held-out judge `tools/heldout.py`) writes at
+/// the top of its output directory.
 const OUTPUT_DIRS: &[&str] = &[
     "textures",
     "maps",
@@ -15,6 +16,7 @@ const OUTPUT_DIRS: &[&str] = &[
     "meshes",
     "checkpoint",
     "accuracy",
+    "heldout",
 ];
 const OUTPUT_FILES: &[&str] = &[
     "scene.xml",
@@ -22,6 +24,8 @@ const OUTPUT_FILES: &[&str] = &[
     "report.json",
     "report_convergence.svg",
     "report_convergence.png",
+    "heldout_original.xml",
+    "heldout_relit.xml",
     PROBE,
 ];
 /// The file written and removed to learn whether the directory takes writes (a kill between

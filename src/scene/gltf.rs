@@ -35,6 +35,7 @@ use glam::DMat4;
 use std::collections::{BTreeMap, HashSet};
 use std::path::{Path, PathBuf};
 
+mod accessor;
 mod lights;
 mod primitive;
 mod sensor;

@@ -65,7 +65,7 @@ const FOLDERS: &[(&str, &[Layer])] = &[
     ),
     (
         "scene::gltf",
-        &[(&["primitive", "sensor", "lights"], Listed)],
+        &[(&["accessor", "primitive", "sensor", "lights"], Listed)],
     ),
     ("scene::mitsuba", &[(&["bsdf", "sensor"], Independent)]),
     ("scene::colmap", &[(&["text", "binary"], Independent)]),
