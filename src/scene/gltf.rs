@@ -132,6 +132,7 @@ pub fn parse(bytes: &[u8], path: &Path, opts: &LoadOptions) -> Result<Scene> {
 /// follows unchecked (a primitive's POSITION accessor) are checked here: an index past the
 /// accessors panics inside `gltf-json` otherwise.
 fn validated(bytes: &[u8], path: &Path) -> Result<::gltf::Gltf> {
+    check_glb_length(bytes, path)?;
     let raw =
         ::gltf::Gltf::from_slice_without_validation(bytes).map_err(|e| gltf_error(path, e))?;
     let root = raw.document.as_json();
@@ -155,6 +156,26 @@ fn validated(bytes: &[u8], path: &Path) -> Result<::gltf::Gltf> {
     let document =
         ::gltf::Document::from_json(raw.document.into_json()).map_err(|e| gltf_error(path, e))?;
     Ok(::gltf::Gltf { document, blob })
+}
+
+/// A GLB's header length must cover the header and fit in the file: the `gltf` crate
+/// subtracts the header's 12 bytes from it unchecked (a panic in debug builds).
+fn check_glb_length(bytes: &[u8], path: &Path) -> Result<()> {
+    if !bytes.starts_with(b"glTF") {
+        return Ok(());
+    }
+    let length = match bytes.get(8..12) {
+        Some(b) => u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as usize,
+        None => return Err(at(path, "GLB header", "truncated (under 12 bytes)")),
+    };
+    if length < 12 || length > bytes.len() {
+        let msg = format!(
+            "length {length} is not between 12 and the file's {} bytes",
+            bytes.len()
+        );
+        return Err(at(path, "GLB header", msg));
+    }
+    Ok(())
 }
 
 fn gltf_error(path: &Path, e: ::gltf::Error) -> Error {

@@ -234,6 +234,25 @@ fn gltf_position_naming_no_accessor_is_refused_not_a_panic() {
     assert_input(Err::<(), _>(e), path);
 }
 
+/// The fuzzer's second find: a GLB header whose length is under its own 12 bytes made the
+/// `gltf` crate subtract with overflow (debug builds); refused, like one longer than the file.
+#[test]
+fn glb_header_length_outside_the_file_is_refused_not_a_panic() {
+    let path = Path::new("short.glb");
+    for length in [0u32, 11, 1 << 30] {
+        let mut glb = b"glTF".to_vec();
+        glb.extend_from_slice(&2u32.to_le_bytes());
+        glb.extend_from_slice(&length.to_le_bytes());
+        glb.extend_from_slice(&[0; 20]);
+        let e = parse_gltf(&glb, path).unwrap_err();
+        assert!(e.to_string().contains("GLB header"), "{e}");
+        assert!(e.to_string().contains(&format!("length {length} ")), "{e}");
+        assert_input(Err::<(), _>(e), path);
+    }
+    let e = parse_gltf(b"glTF\x02\0\0\0", path).unwrap_err();
+    assert!(e.to_string().contains("truncated"), "{e}");
+}
+
 /// Accessors whose bytes fall outside their view or buffer, a stride shorter than an element
 /// (a `debug_assert!` in the crate), a count whose byte range overflows `usize`, and sparse
 /// substitutions of count 0: each refused before the `gltf` crate reads them.
