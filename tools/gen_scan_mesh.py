@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Why: a scan-like test scene for timing the unwrap of a mesh without UVs (issue 45, item 7).
+"""Why: a scan-like test scene for timing the unwrap of a mesh without UVs (scanned meshes: no UVs, a million tiny triangles).
 
 Writes into OUT (default cache/scan, which .gitignore ignores):
 

@@ -80,7 +80,7 @@ pub fn load(path: &Path, opts: &LoadOptions) -> Result<Scene> {
 
 /// [`load`] on the file's bytes already read.
 pub fn parse(bytes: &[u8], path: &Path, opts: &LoadOptions) -> Result<Scene> {
-    let doc = ::gltf::Gltf::from_slice(bytes).map_err(|e| gltf_error(path, e))?;
+    let doc = validated(bytes, path)?;
     for ext in doc.extensions_required() {
         if !extension_supported(ext) {
             return Err(at(
@@ -128,6 +128,56 @@ pub fn parse(bytes: &[u8], path: &Path, opts: &LoadOptions) -> Result<Scene> {
 
 /// A `gltf` crate error as a one-line input error: JSON syntax errors with their line and
 /// column, validation errors with the first offending JSON path.
+/// The document, validated by the `gltf` crate after the references its own validation
+/// follows unchecked (a primitive's POSITION accessor) are checked here: an index past the
+/// accessors panics inside `gltf-json` otherwise.
+fn validated(bytes: &[u8], path: &Path) -> Result<::gltf::Gltf> {
+    check_glb_length(bytes, path)?;
+    let raw =
+        ::gltf::Gltf::from_slice_without_validation(bytes).map_err(|e| gltf_error(path, e))?;
+    let root = raw.document.as_json();
+    for (m, mesh) in root.meshes.iter().enumerate() {
+        for (p, prim) in mesh.primitives.iter().enumerate() {
+            let pos = ::gltf::json::validation::Checked::Valid(::gltf::Semantic::Positions);
+            if let Some(i) = prim.attributes.get(&pos) {
+                if i.value() >= root.accessors.len() {
+                    let what = format!("meshes[{m}].primitives[{p}].attributes.POSITION");
+                    let msg = format!(
+                        "accessor {} does not exist ({} accessors)",
+                        i.value(),
+                        root.accessors.len()
+                    );
+                    return Err(at(path, &what, msg));
+                }
+            }
+        }
+    }
+    let blob = raw.blob;
+    let document =
+        ::gltf::Document::from_json(raw.document.into_json()).map_err(|e| gltf_error(path, e))?;
+    Ok(::gltf::Gltf { document, blob })
+}
+
+/// A GLB's header length must cover the header and fit in the file: the `gltf` crate
+/// subtracts the header's 12 bytes from it unchecked (a panic in debug builds).
+fn check_glb_length(bytes: &[u8], path: &Path) -> Result<()> {
+    if !bytes.starts_with(b"glTF") {
+        return Ok(());
+    }
+    let length = match bytes.get(8..12) {
+        Some(b) => u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as usize,
+        None => return Err(at(path, "GLB header", "truncated (under 12 bytes)")),
+    };
+    if length < 12 || length > bytes.len() {
+        let msg = format!(
+            "length {length} is not between 12 and the file's {} bytes",
+            bytes.len()
+        );
+        return Err(at(path, "GLB header", msg));
+    }
+    Ok(())
+}
+
 fn gltf_error(path: &Path, e: ::gltf::Error) -> Error {
     match e {
         ::gltf::Error::Deserialize(j) => Error::Input {

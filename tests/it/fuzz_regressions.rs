@@ -202,7 +202,7 @@ fn parse_gltf(bytes: &[u8], path: &Path) -> kdmap::Result<kdmap::scene::Scene> {
 const VEC3: &str = r#""componentType":5126,"type":"VEC3","min":[0,0,0],"max":[1,1,0]"#;
 const VIEW: &str = r#""buffer":0,"byteLength":36"#;
 
-/// The hand-made case of issue 45: an accessor of `count: 0` made the `gltf` crate's reader
+/// The hand-made case: an accessor of `count: 0` made the `gltf` crate's reader
 /// compute `count - 1` and panic (debug builds); it is refused, naming the accessor.
 #[test]
 fn gltf_accessor_of_count_zero_is_refused_not_a_panic() {
@@ -217,6 +217,40 @@ fn gltf_accessor_of_count_zero_is_refused_not_a_panic() {
     assert!(e.to_string().contains("accessors[0]"), "{e}");
     assert!(e.to_string().contains("count is 0"), "{e}");
     assert_input(Err::<(), _>(e), path);
+}
+
+/// The fuzzer's first find: a POSITION attribute naming an accessor that does not exist made
+/// `gltf-json`'s own validation index past its accessors and panic (every build).
+#[test]
+fn gltf_position_naming_no_accessor_is_refused_not_a_panic() {
+    let path = Path::new("position.gltf");
+    let good = gltf_triangle(&format!(r#"{VEC3},"bufferView":0,"count":3"#), VIEW);
+    let text = String::from_utf8(good).unwrap();
+    assert!(text.contains(r#""POSITION":0"#));
+    let bad = text.replace(r#""POSITION":0"#, r#""POSITION":7"#);
+    let e = parse_gltf(bad.as_bytes(), path).unwrap_err();
+    assert!(e.to_string().contains("accessor 7 does not exist"), "{e}");
+    assert!(e.to_string().contains("POSITION"), "{e}");
+    assert_input(Err::<(), _>(e), path);
+}
+
+/// The fuzzer's second find: a GLB header whose length is under its own 12 bytes made the
+/// `gltf` crate subtract with overflow (debug builds); refused, like one longer than the file.
+#[test]
+fn glb_header_length_outside_the_file_is_refused_not_a_panic() {
+    let path = Path::new("short.glb");
+    for length in [0u32, 11, 1 << 30] {
+        let mut glb = b"glTF".to_vec();
+        glb.extend_from_slice(&2u32.to_le_bytes());
+        glb.extend_from_slice(&length.to_le_bytes());
+        glb.extend_from_slice(&[0; 20]);
+        let e = parse_gltf(&glb, path).unwrap_err();
+        assert!(e.to_string().contains("GLB header"), "{e}");
+        assert!(e.to_string().contains(&format!("length {length} ")), "{e}");
+        assert_input(Err::<(), _>(e), path);
+    }
+    let e = parse_gltf(b"glTF\x02\0\0\0", path).unwrap_err();
+    assert!(e.to_string().contains("truncated"), "{e}");
 }
 
 /// Accessors whose bytes fall outside their view or buffer, a stride shorter than an element
