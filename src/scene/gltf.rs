@@ -166,14 +166,19 @@ fn check_glb_length(bytes: &[u8], path: &Path) -> Result<()> {
     }
     let length = match bytes.get(8..12) {
         Some(b) => u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as usize,
-        None => return Err(at(path, "GLB header", "truncated (under 12 bytes)")),
+        None => {
+            return Err(Error::input(
+                path,
+                "malformed GLB: header truncated (under 12 bytes)",
+            ))
+        }
     };
     if length < 12 || length > bytes.len() {
         let msg = format!(
-            "length {length} is not between 12 and the file's {} bytes",
+            "malformed GLB: header length {length} is not between 12 and the file's {} bytes",
             bytes.len()
         );
-        return Err(at(path, "GLB header", msg));
+        return Err(Error::input(path, msg));
     }
     Ok(())
 }

@@ -245,7 +245,7 @@ fn glb_header_length_outside_the_file_is_refused_not_a_panic() {
         glb.extend_from_slice(&length.to_le_bytes());
         glb.extend_from_slice(&[0; 20]);
         let e = parse_gltf(&glb, path).unwrap_err();
-        assert!(e.to_string().contains("GLB header"), "{e}");
+        assert!(e.to_string().contains("malformed GLB: header"), "{e}");
         assert!(e.to_string().contains(&format!("length {length} ")), "{e}");
         assert_input(Err::<(), _>(e), path);
     }
