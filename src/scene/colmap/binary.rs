@@ -100,8 +100,14 @@ fn open(path: &Path) -> Result<Vec<u8>> {
     std::fs::read(path).map_err(|e| Error::io(path, e))
 }
 
-/// Every camera of `cameras.bin`.
-pub fn cameras(path: &Path) -> Result<Vec<CameraRecord>> {
+/// The records of a COLMAP binary file: their count (each at least `min_size` bytes), then
+/// each read by `read`, and nothing after the last.
+fn records<T>(
+    path: &Path,
+    what: &str,
+    min_size: usize,
+    read: impl Fn(&mut Reader) -> Result<T>,
+) -> Result<Vec<T>> {
     let bytes = open(path)?;
     let mut r = Reader {
         path,
@@ -109,15 +115,20 @@ pub fn cameras(path: &Path) -> Result<Vec<CameraRecord>> {
         pos: 0,
         record: 0,
     };
-    // id, model, width, height and at least three parameters
-    let n = r.count("cameras", 4 + 4 + 8 + 8 + 3 * 8)?;
+    let n = r.count(what, min_size)?;
     let mut out = Vec::with_capacity(n);
     for _ in 0..n {
         r.record = r.pos;
-        out.push(camera(&mut r)?);
+        out.push(read(&mut r)?);
     }
     r.finish()?;
     Ok(out)
+}
+
+/// Every camera of `cameras.bin`.
+pub fn cameras(path: &Path) -> Result<Vec<CameraRecord>> {
+    // id, model, width, height and at least three parameters
+    records(path, "cameras", 4 + 4 + 8 + 8 + 3 * 8, camera)
 }
 
 fn camera(r: &mut Reader) -> Result<CameraRecord> {
@@ -140,22 +151,8 @@ fn camera(r: &mut Reader) -> Result<CameraRecord> {
 
 /// Every image of `images.bin`.
 pub fn images(path: &Path) -> Result<Vec<ImageRecord>> {
-    let bytes = open(path)?;
-    let mut r = Reader {
-        path,
-        bytes: &bytes,
-        pos: 0,
-        record: 0,
-    };
     // id, pose, camera id, a one-byte name and its NUL, the point count
-    let n = r.count("images", 4 + 7 * 8 + 4 + 2 + 8)?;
-    let mut out = Vec::with_capacity(n);
-    for _ in 0..n {
-        r.record = r.pos;
-        out.push(image(&mut r)?);
-    }
-    r.finish()?;
-    Ok(out)
+    records(path, "images", 4 + 7 * 8 + 4 + 2 + 8, image)
 }
 
 fn image(r: &mut Reader) -> Result<ImageRecord> {
