@@ -46,7 +46,7 @@ static CHECKPOINT_WRITES: AtomicU64 = AtomicU64::new(0);
 /// what the state's fields mean and their size (92 bytes a texel), and the fields of the
 /// config and report it carries (bincode is not self-describing, so a checkpoint with other
 /// fields would not decode).
-pub const VERSION: u32 = 13;
+pub const VERSION: u32 = 14;
 const MAGIC: &str = "KDMCKPT";
 /// The current manifest.
 pub const MANIFEST: &str = "progress.kdm";
@@ -219,6 +219,99 @@ fn pump(
     Ok((len, h.finish()))
 }
 
+/// Share of a run's time that writing its mid-run checkpoints may take.
+pub const TIME_SHARE: f64 = 0.05;
+/// Share of the free disk the checkpoint files may take: the two kept snapshots and the one
+/// being written.
+pub const DISK_SHARE: f64 = 0.5;
+
+/// What the last checkpoint write measured: the inputs of [`cadence`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WriteCost {
+    /// Bytes of one snapshot.
+    pub snapshot_bytes: u64,
+    /// Seconds the whole write took (copy, hash, fsync, manifest).
+    pub seconds: f64,
+    /// Bytes free on the checkpoint directory's disk after it, if known.
+    pub free_bytes: Option<u64>,
+    /// Bytes of the snapshots kept after it (the next write replaces the older one).
+    pub kept_bytes: u64,
+}
+
+/// Why the period between mid-run checkpoints is what it is.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Why {
+    /// `checkpoint_every_seconds = 0`: at every opportunity.
+    EveryChance,
+    /// `checkpoint_every_seconds`, the least period (nothing measured yet, or it is enough).
+    Least,
+    /// Writing one takes so long that a shorter period would spend more than [`TIME_SHARE`].
+    WriteTime,
+    /// Three snapshots would take more than [`DISK_SHARE`] of the free disk: none mid-run.
+    Disk,
+}
+
+/// The period between mid-run checkpoints and why (see [`cadence`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Cadence {
+    /// Seconds from the end of one checkpoint to the next; infinite: none mid-run.
+    pub period_s: f64,
+    pub why: Why,
+}
+
+/// The period between mid-run checkpoints: at least `least_s`, and long enough that writing
+/// them takes at most [`TIME_SHARE`] of the run (a write of `w` seconds every `p` seconds
+/// takes `w / (p + w)`, so `p >= w (1 / share - 1)`); none mid-run when the snapshots on disk
+/// during a write (two kept, one new) would exceed [`DISK_SHARE`] of the room they have
+/// (the free bytes and those the kept ones hold). `least_s = 0` checkpoints at every chance.
+pub fn cadence(least_s: f64, cost: Option<&WriteCost>) -> Cadence {
+    let at = |period_s, why| Cadence { period_s, why };
+    if least_s <= 0.0 {
+        return at(0.0, Why::EveryChance);
+    }
+    let Some(c) = cost else {
+        return at(least_s, Why::Least);
+    };
+    if let Some(free) = c.free_bytes {
+        let room = free.saturating_add(c.kept_bytes) as f64;
+        if 3.0 * c.snapshot_bytes as f64 > DISK_SHARE * room {
+            return at(f64::INFINITY, Why::Disk);
+        }
+    }
+    let by_time = c.seconds * (1.0 / TIME_SHARE - 1.0);
+    match by_time > least_s {
+        true => at(by_time, Why::WriteTime),
+        false => at(least_s, Why::Least),
+    }
+}
+
+/// The note that says what [`cadence`] chose and why.
+pub fn describe(c: &Cadence, least_s: f64, cost: &WriteCost) -> String {
+    let mb = |b: u64| b as f64 / 1e6;
+    let one = format!(
+        "a checkpoint is {:.0} MB, written in {:.1} s ({:.0} MB/s)",
+        mb(cost.snapshot_bytes),
+        cost.seconds,
+        mb(cost.snapshot_bytes) / cost.seconds.max(1e-9)
+    );
+    let pct = 100.0 * TIME_SHARE;
+    match c.why {
+        Why::EveryChance => format!("checkpoints at every chance (run.checkpoint_every_seconds = 0): {one}"),
+        Why::Least => format!(
+            "checkpoints at most every {least_s:.0} s (run.checkpoint_every_seconds): {one}, under {pct:.0}% of the run"
+        ),
+        Why::WriteTime => format!(
+            "checkpoints every {:.0} s rather than {least_s:.0} s: {one}, so that writing them takes at most {pct:.0}% of the run",
+            c.period_s
+        ),
+        Why::Disk => format!(
+            "no more checkpoints until the run ends: {one}, and three of them would take more than {:.0}% of the {:.0} MB free",
+            100.0 * DISK_SHARE,
+            mb(cost.free_bytes.unwrap_or(0) + cost.kept_bytes)
+        ),
+    }
+}
+
 /// Writes checkpoints of one run into its checkpoint directory.
 #[derive(Debug)]
 pub struct Writer {
@@ -231,11 +324,19 @@ pub struct Writer {
     pub seconds: f64,
     /// When the last checkpoint was written (or the writer made).
     last: std::time::Instant,
+    /// `run.checkpoint_every_seconds`: the least period between mid-run checkpoints.
+    least_s: f64,
+    /// What the last snapshot's write measured, and the period chosen from it.
+    cost: Option<WriteCost>,
+    cadence: Cadence,
+    /// The cadence last described in a note.
+    told: Option<Cadence>,
 }
 
 impl Writer {
-    /// A writer continuing after checkpoint `seq` (0 for a fresh run).
-    pub fn new(dir: &Path, inputs_hash: u64, seq: u64) -> Writer {
+    /// A writer continuing after checkpoint `seq` (0 for a fresh run), with mid-run
+    /// checkpoints at least `least_s` seconds apart (see [`cadence`]).
+    pub fn new(dir: &Path, inputs_hash: u64, seq: u64, least_s: f64) -> Writer {
         Writer {
             dir: dir.to_path_buf(),
             inputs_hash,
@@ -243,7 +344,32 @@ impl Writer {
             bytes_written: 0,
             seconds: 0.0,
             last: std::time::Instant::now(),
+            least_s,
+            cost: None,
+            cadence: cadence(least_s, None),
+            told: None,
         }
+    }
+
+    /// Whether a mid-run checkpoint is due: the period [`cadence`] chose has passed since the
+    /// last one.
+    pub fn due(&self) -> bool {
+        self.since_last() >= self.cadence.period_s
+    }
+
+    /// What the period is and why, when it is first measured or has changed by half or more
+    /// since the last such note.
+    pub fn cadence_note(&mut self) -> Option<String> {
+        let (c, cost) = (self.cadence, self.cost?);
+        let same = self.told.is_some_and(|t| {
+            let ratio = c.period_s / t.period_s;
+            t.why == c.why && (c.period_s == t.period_s || (0.67..1.5).contains(&ratio))
+        });
+        if same {
+            return None;
+        }
+        self.told = Some(c);
+        Some(describe(&c, self.least_s, &cost))
     }
 
     /// Seconds since the last checkpoint this writer wrote (or since it was made).
@@ -327,21 +453,46 @@ impl Writer {
         std::fs::rename(&tmp, &cur).map_err(|e| Error::io(&cur, e))?;
         fsio::sync_dir(&self.dir)?;
         self.seq = seq;
-        // Keep the snapshots of this checkpoint and the previous one.
-        if let Ok(rd) = std::fs::read_dir(&self.dir) {
-            for e in rd.flatten() {
-                let name = e.file_name().to_string_lossy().into_owned();
-                // Older snapshots, and copies a kill left half-written.
-                let stale = snapshot_seq(&name).is_some_and(|s| s + 1 < seq)
-                    || (name.starts_with("state.") && name.ends_with(".tmp"));
-                if stale {
-                    let _ = std::fs::remove_file(e.path());
-                }
+        let kept_bytes = self.remove_stale_snapshots();
+        let seconds = t0.elapsed().as_secs_f64();
+        self.seconds += seconds;
+        self.last = std::time::Instant::now();
+        if let Some(s) = &m.snapshot {
+            self.measured(WriteCost {
+                snapshot_bytes: s.bytes,
+                seconds,
+                free_bytes: fsio::free_bytes(&self.dir),
+                kept_bytes,
+            });
+        }
+        Ok(())
+    }
+
+    /// A snapshot's write measured: the period follows it.
+    fn measured(&mut self, cost: WriteCost) {
+        self.cadence = cadence(self.least_s, Some(&cost));
+        self.cost = Some(cost);
+    }
+
+    /// Delete the snapshots before the previous checkpoint's, and copies a kill left
+    /// half-written. Returns the bytes of the snapshots kept.
+    fn remove_stale_snapshots(&self) -> u64 {
+        let Ok(rd) = std::fs::read_dir(&self.dir) else {
+            return 0;
+        };
+        let mut kept = 0;
+        for e in rd.flatten() {
+            let name = e.file_name().to_string_lossy().into_owned();
+            let seq = snapshot_seq(&name);
+            let stale = seq.is_some_and(|s| s + 1 < self.seq)
+                || (name.starts_with("state.") && name.ends_with(".tmp"));
+            if stale {
+                let _ = std::fs::remove_file(e.path());
+            } else if seq.is_some() {
+                kept += e.metadata().map_or(0, |m| m.len());
             }
         }
-        self.seconds += t0.elapsed().as_secs_f64();
-        self.last = std::time::Instant::now();
-        Ok(())
+        kept
     }
 }
 
@@ -440,6 +591,112 @@ pub fn restore<P>(dir: &Path, m: &Manifest<P>, state_path: &Path) -> Result<()> 
 mod tests {
     use super::*;
 
+    fn cost(mb: u64, seconds: f64, free_mb: Option<u64>, kept_mb: u64) -> WriteCost {
+        WriteCost {
+            snapshot_bytes: mb << 20,
+            seconds,
+            free_bytes: free_mb.map(|f| f << 20),
+            kept_bytes: kept_mb << 20,
+        }
+    }
+
+    #[test]
+    fn the_period_keeps_checkpoint_writes_to_five_percent_of_the_run() {
+        // nothing measured yet, or writes fast enough: the configured period
+        assert_eq!(
+            cadence(60.0, None),
+            Cadence {
+                period_s: 60.0,
+                why: Why::Least
+            }
+        );
+        let fast = cost(100, 1.0, Some(100_000), 200);
+        assert_eq!(cadence(60.0, Some(&fast)).why, Why::Least);
+        // 19 x 3 s = 57 s < 60 s: still the configured period
+        assert_eq!(cadence(60.0, Some(&cost(300, 3.0, None, 0))).period_s, 60.0);
+        // 4.6 GB at 100 MB/s: 46 s a write, so 19 x 46 s = 874 s between writes
+        let slow = cost(4600, 46.0, Some(1_000_000), 9200);
+        let c = cadence(60.0, Some(&slow));
+        assert_eq!(c.why, Why::WriteTime);
+        assert!((c.period_s - 874.0).abs() < 1e-9, "{c:?}");
+        // the share of the time spent writing is exactly 5% at that period
+        assert!((46.0 / (c.period_s + 46.0) - TIME_SHARE).abs() < 1e-12);
+        // 0: every chance, whatever the cost
+        assert_eq!(
+            cadence(0.0, Some(&slow)),
+            Cadence {
+                period_s: 0.0,
+                why: Why::EveryChance
+            }
+        );
+    }
+
+    #[test]
+    fn no_mid_run_checkpoints_when_three_would_take_over_half_the_free_disk() {
+        // 1 GB snapshots, 2 kept: room 2 + free; 3 GB must fit in half of it
+        let at = |free_mb| cadence(60.0, Some(&cost(1024, 1.0, Some(free_mb), 2048))).why;
+        assert_eq!(at(4 * 1024), Why::Least, "3 GB <= (4 + 2) / 2");
+        assert_eq!(
+            at(4 * 1024 - 1),
+            Why::Disk,
+            "3 GB > (4 GB - 1 MB + 2 GB) / 2"
+        );
+        assert_eq!(
+            cadence(60.0, Some(&cost(1024, 1.0, Some(0), 2048))).period_s,
+            f64::INFINITY
+        );
+        // free space unknown: only the time share
+        assert_eq!(
+            cadence(60.0, Some(&cost(1024, 1.0, None, 0))).why,
+            Why::Least
+        );
+    }
+
+    #[test]
+    fn the_note_says_the_period_and_why_and_only_when_it_changes() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut w = Writer::new(dir.path(), 1, 0, 60.0);
+        assert_eq!(w.cadence_note(), None, "nothing measured");
+        w.measured(cost(4600, 46.0, None, 0));
+        let n = w.cadence_note().unwrap();
+        assert!(
+            n.starts_with("checkpoints every 874 s rather than 60 s"),
+            "{n}"
+        );
+        assert!(
+            n.contains("4823 MB, written in 46.0 s (105 MB/s)") && n.contains("5%"),
+            "{n}"
+        );
+        w.measured(cost(4600, 50.0, None, 0));
+        assert_eq!(w.cadence_note(), None, "within a factor 1.5");
+        w.measured(cost(4600, 1.0, Some(1000), 0));
+        let n = w.cadence_note().unwrap();
+        assert!(
+            n.starts_with("no more checkpoints until the run ends"),
+            "{n}"
+        );
+        assert!(!w.due(), "an infinite period is never due");
+    }
+
+    #[test]
+    fn a_snapshot_write_measures_its_cost() {
+        let dir = tempfile::tempdir().unwrap();
+        let state = dir.path().join("state.tiles");
+        std::fs::write(&state, vec![7u8; 1 << 16]).unwrap();
+        let mut w = Writer::new(dir.path(), 1, 0, 60.0);
+        w.write(Some(&state), &0u32, 0.0).unwrap();
+        let c = w.cost.unwrap();
+        assert_eq!((c.snapshot_bytes, c.kept_bytes), (1 << 16, 1 << 16));
+        assert!(c.seconds > 0.0 && c.free_bytes.is_some(), "{c:?}");
+        w.write(Some(&state), &0u32, 0.0).unwrap();
+        w.write(Some(&state), &0u32, 0.0).unwrap();
+        assert_eq!(w.cost.unwrap().kept_bytes, 2 << 16, "two snapshots kept");
+        // a manifest alone (the finished run's) measures nothing
+        let before = w.cost;
+        w.write(None, &0u32, 0.0).unwrap();
+        assert_eq!(w.cost, before);
+    }
+
     /// The checkpoint carries the config in bincode, which is not self-describing: with a field
     /// added or removed an older checkpoint no longer decodes ("bad payload"), so the checkpoint
     /// format version must change with the config's fields. This is the list of them at
@@ -472,7 +729,7 @@ mod tests {
         want.sort();
         assert_eq!(
             (VERSION, got),
-            (13, want.iter().map(|s| s.to_string()).collect::<Vec<_>>()),
+            (14, want.iter().map(|s| s.to_string()).collect::<Vec<_>>()),
             "the config's fields changed: bump VERSION and update this list"
         );
     }

@@ -1,11 +1,14 @@
-//! Image input and output: OpenEXR photos in (float or half, RGB(A), any channel order) with
-//! bad pixels masked and counted, OpenEXR results out (written atomically), and sRGB PNG
-//! previews. Nothing else in the crate touches an image file format.
+//! Image input and output: photos in (OpenEXR: float or half, RGB(A), any channel order;
+//! PNG and JPEG through a response curve, in `ldr`) with bad pixels masked and counted,
+//! OpenEXR results out (written atomically), and sRGB PNG previews. Besides the headers the
+//! scene reads for a photo's size (`scene::photos`), nothing else in the crate decodes a photo.
 //!
 //! Pixels are stored row-major with row 0 at the top, as OpenEXR and Mitsuba's film store them.
 
 use crate::base::error::{Error, Result};
 use crate::base::fsio;
+use crate::config::Response;
+use crate::scene::photos::is_8bit;
 use crate::scene::Sensor;
 use exr::prelude::{
     self as x, f16, Encoding, FlatSamples, LayerAttributes, ReadChannels, ReadLayers,
@@ -15,6 +18,9 @@ use glam::Vec3;
 use std::io::{Read, Seek, SeekFrom};
 use std::path::Path;
 
+mod ldr;
+pub use ldr::{read_ldr, read_ldr_bytes, response_lut, DARK_CODE, JPEG_RING};
+
 /// A linear RGB image with a per-pixel validity mask.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Image {
@@ -22,7 +28,8 @@ pub struct Image {
     pub height: u32,
     /// Row-major, row 0 = top. Masked pixels hold zero.
     pub pixels: Vec<Vec3>,
-    /// `false` where the file held a non-finite or negative value in any of R, G, B.
+    /// `false` where the file held a non-finite or negative value in any of R, G, B, or (an
+    /// 8-bit photo) a clipped or near-black pixel.
     pub valid: Vec<bool>,
     /// How many pixels are masked (`valid == false`).
     pub masked: usize,
@@ -182,6 +189,13 @@ fn check_exr_size(reader: &mut (impl Read + Seek), file_bytes: u64, path: &Path)
     Ok(())
 }
 
+/// Whether the run has one worker thread (`--threads 1`, or one core): exr then encodes and
+/// decodes on the calling thread instead of starting threads of its own, so a one-thread run
+/// is one thread (and its instruction counts, `tools/icount.py`, do not depend on the others').
+fn one_thread() -> bool {
+    rayon::current_num_threads() == 1
+}
+
 /// [`read_exr`] from any seekable reader of the file's bytes.
 fn read_exr_from(mut reader: impl Read + Seek, path: &Path) -> Result<Image> {
     let file_bytes = reader
@@ -195,9 +209,14 @@ fn read_exr_from(mut reader: impl Read + Seek, path: &Path) -> Result<Image> {
         .all_channels()
         .all_layers()
         .all_attributes()
-        .pedantic()
-        .from_buffered(reader)
-        .map_err(|e| exr_error(path, e))?;
+        .pedantic();
+    // one worker thread (`--threads 1`): no decoding threads of exr's own either
+    let img = match one_thread() {
+        true => img.non_parallel(),
+        false => img,
+    }
+    .from_buffered(reader)
+    .map_err(|e| exr_error(path, e))?;
 
     let mut names: Vec<String> = Vec::new();
     for layer in &img.layer_data {
@@ -265,10 +284,14 @@ pub fn read_exr_expect(path: impl AsRef<Path>, width: u32, height: u32) -> Resul
     Ok(img)
 }
 
-/// [`read_exr`] the photo taken by `sensor`; its size must be the sensor's film size.
-pub fn read_sensor_image(path: impl AsRef<Path>, sensor: &Sensor) -> Result<Image> {
+/// The photo taken by `sensor`: an OpenEXR as it is, a PNG or JPEG (by its extension) through
+/// `response` ([`read_ldr`]); its size must be the sensor's film size.
+pub fn read_photo(path: impl AsRef<Path>, sensor: &Sensor, response: &Response) -> Result<Image> {
     let path = path.as_ref();
-    let img = read_exr(path)?;
+    let img = match is_8bit(path) {
+        true => read_ldr(path, response)?,
+        false => read_exr(path)?,
+    };
     if (img.width, img.height) != (sensor.width, sensor.height) {
         return Err(Error::input(
             path,
@@ -279,6 +302,11 @@ pub fn read_sensor_image(path: impl AsRef<Path>, sensor: &Sensor) -> Result<Imag
         ));
     }
     Ok(img)
+}
+
+/// [`read_photo`] with the default response (sRGB) for a PNG or JPEG.
+pub fn read_sensor_image(path: impl AsRef<Path>, sensor: &Sensor) -> Result<Image> {
+    read_photo(path, sensor, &Response::Srgb)
 }
 
 fn check_len(path: &Path, width: u32, height: u32, pixels: &[Vec3]) -> Result<()> {
@@ -343,17 +371,21 @@ pub fn write_exr_rgb_fn(
                 let c = at(p);
                 (to_h(c.x), to_h(c.y), to_h(c.z))
             });
-            x::Image::from_layer(x::Layer::new(size, attrs, Encoding::SMALL_LOSSLESS, ch))
-                .write()
-                .to_file(tmp)
+            let w = x::Image::from_layer(x::Layer::new(size, attrs, Encoding::SMALL_LOSSLESS, ch));
+            match one_thread() {
+                true => w.write().non_parallel().to_file(tmp),
+                false => w.write().to_file(tmp),
+            }
         } else {
             let ch = SpecificChannels::rgb(|p| {
                 let c = at(p);
                 (c.x, c.y, c.z)
             });
-            x::Image::from_layer(x::Layer::new(size, attrs, Encoding::SMALL_LOSSLESS, ch))
-                .write()
-                .to_file(tmp)
+            let w = x::Image::from_layer(x::Layer::new(size, attrs, Encoding::SMALL_LOSSLESS, ch));
+            match one_thread() {
+                true => w.write().non_parallel().to_file(tmp),
+                false => w.write().to_file(tmp),
+            }
         }
         .map_err(|e| exr_write_error(path, e))
     })

@@ -74,7 +74,7 @@ enum Command {
     },
     /// Recover the albedo textures: the whole method, steps 1-9, and every output.
     Reconstruct {
-        /// A Mitsuba 3 or glTF 2.0 scene (photos in `<scene dir>/images/<sensor id>.exr`) or a run config (TOML).
+        /// A Mitsuba 3 or glTF 2.0 scene (photos in `<scene dir>/images/<sensor id>.exr|png|jpg`) or a run config (TOML).
         input: PathBuf,
         /// Output directory.
         #[arg(long)]
@@ -136,7 +136,7 @@ enum Command {
     /// Steps 1-2 of the method on their own: unwrap the atlas, project every photo onto it and
     /// write the luminance and coverage maps to `<out>/maps/` (with PNG previews).
     Project {
-        /// A Mitsuba 3 or glTF 2.0 scene (photos in `<scene dir>/images/<sensor id>.exr`) or a run config (TOML).
+        /// A Mitsuba 3 or glTF 2.0 scene (photos in `<scene dir>/images/<sensor id>.exr|png|jpg`) or a run config (TOML).
         input: PathBuf,
         /// Output directory.
         #[arg(long)]
@@ -550,13 +550,12 @@ fn summary_json(scene: &Scene) -> serde_json::Value {
             v
         })
         .collect();
-    let images = scene.dir().join("images");
     let sensors: Vec<_> = scene
         .sensors
         .iter()
         .map(|c| {
-            let image = images.join(format!("{}.exr", c.id));
-            json!({
+            let image = sensor_photo(scene, c);
+            let mut v = json!({
                 "id": c.id,
                 "width": c.width,
                 "height": c.height,
@@ -565,7 +564,11 @@ fn summary_json(scene: &Scene) -> serde_json::Value {
                 "position": c.to_world.w_axis.truncate(),
                 "image": image,
                 "image_present": image.is_file(),
-            })
+            });
+            if let Some(l) = &c.lens {
+                v["colmap_camera"] = json!({"model": l.model.name(), "params": l.params});
+            }
+            v
         })
         .collect();
     json!({
@@ -577,6 +580,12 @@ fn summary_json(scene: &Scene) -> serde_json::Value {
     })
 }
 
+/// The photo of sensor `id` in the scene's `images/` (`<id>.exr` if it has none, or several).
+fn photo_of(images: &Path, id: &str) -> PathBuf {
+    let found = kdmap::scene::photos::find(images, id).ok().flatten();
+    found.unwrap_or_else(|| images.join(format!("{id}.exr")))
+}
+
 /// The human-readable summary printed by `inspect`.
 fn inspect(input: &Path, json: bool) -> Result<()> {
     let cfg = Config::load(input, &Overrides::default())?;
@@ -584,6 +593,9 @@ fn inspect(input: &Path, json: bool) -> Result<()> {
     let plan = plan_run(&cfg, &scene);
     if json {
         let mut doc = summary_json(&scene);
+        if let Some(dir) = &cfg.colmap {
+            doc["colmap"] = serde_json::json!({"model": dir, "to_world": cfg.colmap_to_world});
+        }
         match &plan {
             Ok((p, n)) => {
                 doc["atlas"] = serde_json::to_value(p).unwrap_or_default();
@@ -594,6 +606,7 @@ fn inspect(input: &Path, json: bool) -> Result<()> {
         return emit(&json_text(&doc)?);
     }
     let mut text = summary(&scene);
+    text.push_str(&colmap_text(&cfg));
     text.push_str(&plan_text(&cfg, &scene, &plan));
     emit(&text)
 }
@@ -727,9 +740,8 @@ fn summary(scene: &Scene) -> String {
         );
     }
     let _ = writeln!(s, "sensors: {}", scene.sensors.len());
-    let images = scene.dir().join("images");
     for c in &scene.sensors {
-        let image = images.join(format!("{}.exr", c.id));
+        let image = sensor_photo(scene, c);
         let state = if image.is_file() {
             "present"
         } else {
@@ -746,8 +758,52 @@ fn summary(scene: &Scene) -> String {
             v3(c.to_world.w_axis.truncate()),
             image.display()
         );
+        if let Some(l) = &c.lens {
+            let _ = writeln!(
+                s,
+                "  {:<16} COLMAP {}: {}",
+                "",
+                l.model.name(),
+                l.describe()
+            );
+        }
     }
     s
+}
+
+/// A sensor's photo when the run config names none: the one the scene names (a COLMAP
+/// image's), else `<scene dir>/images/<id>.exr`.
+fn sensor_photo(scene: &Scene, c: &kdmap::scene::Sensor) -> PathBuf {
+    let images = scene.dir().join("images");
+    (c.photo.clone()).unwrap_or_else(|| photo_of(&images, &c.id))
+}
+
+/// Where the sensors came from when a COLMAP model stands for them: its directory and
+/// format, and the similarity into the scene's frame.
+fn colmap_text(cfg: &Config) -> String {
+    let Some(dir) = &cfg.colmap else {
+        return String::new();
+    };
+    let format = match kdmap::scene::colmap::model_files(dir) {
+        Ok((kdmap::scene::colmap::Format::Text, ..)) => "text",
+        Ok(_) => "binary",
+        Err(_) => "?",
+    };
+    let sim = match &cfg.colmap_to_world {
+        Some(m) => match kdmap::config::Similarity::from_rows(m) {
+            Ok(s) => format!(
+                "to_world: scale {}, translation {:?}",
+                s.scale,
+                s.translation.to_array()
+            ),
+            Err(e) => e,
+        },
+        None => "to_world: identity".to_string(),
+    };
+    format!(
+        "sensors from the COLMAP {format} model {} ({sim})\n",
+        dir.display()
+    )
 }
 
 /// One shape's line of the summary.

@@ -43,7 +43,7 @@ use crate::base::interrupt;
 use crate::base::progress::{self, note, Mode, Stage};
 use crate::checkpoint::{self as ck, Manifest, Writer};
 use crate::config::{Config, Method, UpdateRule};
-use crate::output::{output_units, uv_fold, write_map, write_outputs};
+use crate::output::{check_out_dir, output_units, uv_fold, write_map, write_outputs};
 use crate::physics::light::EmitterSampler;
 use crate::report::{Counts, IterationStats, Refinement, Report};
 use crate::stages::indirect::gather::{
@@ -166,6 +166,7 @@ pub fn reconstruct(cfg: &Config, out: &Path, mode: Mode) -> Result<Report> {
 /// continuing from the newest good checkpoint there. A resumed run's outputs are
 /// bit-identical to an uninterrupted run's; a checkpoint of other inputs or settings is
 /// refused.
+#[inline(never)] // a stage entry tools/icount.py measures
 pub fn reconstruct_resumable(
     cfg: &Config,
     out: &Path,
@@ -174,6 +175,7 @@ pub fn reconstruct_resumable(
 ) -> Result<(Report, Start)> {
     let clock = Instant::now();
     let world = comm::world();
+    world.decide(|| check_out_dir(out))?;
     let run = world.agree(Run::open(cfg, out, mode))?;
     let found = match resume {
         true => world.decide(|| run.find_checkpoint())?,
@@ -199,6 +201,7 @@ pub fn run_projection(
     mode: Mode,
 ) -> Result<(RunContext, ProjectionStats)> {
     let world = comm::world();
+    world.decide(|| check_out_dir(out))?;
     let opened = || -> Result<_> {
         let p = prepare(cfg, mode)?;
         let dir = work_dir(out, world);
@@ -253,6 +256,7 @@ pub fn run_projection(
 /// reconstruction whose output folds tiled textures, `[output] uv_fold`), the shapes the fold
 /// may take are left unfiltered: the fold averages their noise over the repeats, and the
 /// filter would only blur their detail (see `uv_fold::foldable_slots`).
+#[inline(never)] // a stage entry tools/icount.py measures
 fn denoise(
     p: &RunContext,
     cfg: &Config,
@@ -289,10 +293,12 @@ fn with_shard<R>(world: &World, f: impl FnOnce(&Shard) -> R) -> R {
     let owns = |u: usize| world.owns(u as u64);
     let sync = |s: &mut TileStore<TexelState>| ranks::share_tiles(world, s);
     let pixels = |img: &mut [Option<glam::Vec3>], unit| ranks::share_pixels(world, img, unit);
+    let sum = |v: u64| world.sum(v);
     f(&Shard {
         owns: &owns,
         sync: &sync,
         sync_pixels: &pixels,
+        sum: &sum,
     })
 }
 
@@ -348,6 +354,8 @@ struct Running {
     prior_s: f64,
     /// Whether this process writes the checkpoints (rank 0).
     root: bool,
+    /// Where notes go (the checkpoint cadence's).
+    mode: Mode,
 }
 
 impl Running {
@@ -357,15 +365,11 @@ impl Running {
     }
 
     /// Checkpoint at `stage` if it is due: always after the direct light and when finished,
-    /// else once `every` seconds have passed since the last one. Returns whether it wrote one.
-    fn checkpoint_if_due(
-        &mut self,
-        state_path: &Path,
-        stage: RunStage,
-        every: f64,
-    ) -> Result<bool> {
+    /// else once the writer's period has passed since the last one (`checkpoint::cadence`).
+    /// Returns whether it wrote one.
+    fn checkpoint_if_due(&mut self, state_path: &Path, stage: RunStage) -> Result<bool> {
         let forced = matches!(stage, RunStage::Direct | RunStage::Finished);
-        let due = forced || self.writer.since_last() >= every;
+        let due = forced || self.writer.due();
         if due {
             self.checkpoint(state_path, stage)?;
         }
@@ -397,7 +401,11 @@ impl Running {
         };
         let snapshot = (stage != RunStage::Finished).then_some(state_path);
         let seconds = self.elapsed();
-        self.writer.write(snapshot, &progress, seconds)
+        self.writer.write(snapshot, &progress, seconds)?;
+        if let Some(line) = self.writer.cadence_note() {
+            note(self.mode, &line);
+        }
+        Ok(())
     }
 }
 
@@ -502,12 +510,23 @@ impl<'a> Run<'a> {
         )?;
         report.timings.projection = t.elapsed().as_secs_f64();
         report.timings.noise_probe = ps.probe_seconds;
+        report.timings.calibration = ps.calibration_seconds;
         let ids = p
             .views
             .iter()
             .map(|(si, _)| p.scene.sensors[*si].id.clone());
         report.refinement = Refinement::new(ids.collect(), ps.refine_residual.clone());
         report.poses = ps.pose.clone();
+        report.capture = ps.gains.clone();
+        for line in crate::stages::project::exposure::notes(&report.capture) {
+            note(mode, &line);
+        }
+        let (ids, checks): (Vec<String>, Vec<_>) = (report.capture.iter())
+            .filter_map(|c| Some((c.view.clone(), c.check.clone()?)))
+            .unzip();
+        for line in project::capture_notes(&ids, &checks) {
+            note(mode, &line);
+        }
         if let Some(line) = report.refinement.summary() {
             note(mode, &line);
         }
@@ -544,17 +563,19 @@ impl<'a> Run<'a> {
             report,
             proj,
             stage: RunStage::Direct,
-            writer: Writer::new(&self.dir, self.hash, 0),
+            writer: Writer::new(&self.dir, self.hash, 0, cfg.checkpoint_every_seconds),
             start: Start::Fresh,
             clock,
             prior_s: 0.0,
             root: world.is_root(),
+            mode,
         };
         r.checkpoint(&self.state_path, RunStage::Direct)?;
         Ok(r)
     }
 
     /// The direct light, each rank its tiles, their E_d and sums shared in tile order.
+    #[inline(never)] // a stage entry tools/icount.py measures
     fn direct(&self, state: &mut TileStore<TexelState>) -> Result<direct::DirectStats> {
         let (p, cfg, world) = (&self.p, &self.cfg, self.world);
         let owns = |t: usize| world.owns(t as u64);
@@ -574,6 +595,7 @@ impl<'a> Run<'a> {
     /// stream), its irradiance
     /// smoothed like a photon `E_i`. It depends on no `K_d`, so it is traced once, here; a
     /// scene without such materials skips it. Nothing is saved if it is interrupted.
+    #[inline(never)] // a stage entry tools/icount.py measures
     fn caustics(
         &self,
         state: &mut TileStore<TexelState>,
@@ -655,11 +677,17 @@ impl<'a> Run<'a> {
             report,
             proj: m.payload.projection,
             stage: m.payload.stage,
-            writer: Writer::new(&self.dir, self.hash, m.seq),
+            writer: Writer::new(
+                &self.dir,
+                self.hash,
+                m.seq,
+                self.cfg.checkpoint_every_seconds,
+            ),
             start: Start::Resumed(m.seq),
             clock,
             prior_s: m.seconds,
             root: world.is_root(),
+            mode: self.mode,
         })
     }
 
@@ -795,7 +823,7 @@ impl<'a> Run<'a> {
             stopped: done || n + 1 == cfg.iterations,
         };
         r.stage = stage;
-        let saved = r.checkpoint_if_due(&self.state_path, stage, cfg.checkpoint_every_seconds)?;
+        let saved = r.checkpoint_if_due(&self.state_path, stage)?;
         if interrupt::agreed() {
             return Err(r.interrupted(&self.state_path, stage, saved)?);
         }
@@ -803,6 +831,7 @@ impl<'a> Run<'a> {
     }
 
     /// E_i by photon tracing into `accum` (the rest of `pass` from where it stands), smoothed.
+    #[inline(never)] // a stage entry tools/icount.py measures
     fn photon_estimate(
         &self,
         r: &mut Running,
@@ -843,6 +872,7 @@ impl<'a> Run<'a> {
 
     /// E_i gathered from the observed radiance into `accum`: the rays are cast in the first
     /// gather of a run (or of a resumed attempt), later iterations re-read their hits.
+    #[inline(never)] // a stage entry tools/icount.py measures
     fn gather_estimate(&self, r: &mut Running) -> Result<Estimate> {
         let p = &self.p;
         let t = Instant::now();
@@ -931,6 +961,7 @@ impl<'a> Run<'a> {
 
     /// Steps 3-5 (`solve::kd_step`) with a progress stage `name` over the tiles: `(clamped
     /// texels, what the fill filled)`.
+    #[inline(never)] // a stage entry tools/icount.py measures
     fn kd_step(&self, r: &mut Running, name: &str) -> Result<(u64, Filled)> {
         // the K_d pass, then the fill's read and write of every tile
         let stage = self.tile_stage(name, 3);
@@ -1035,9 +1066,7 @@ impl<'a> Run<'a> {
             let photons = ctx.photons_in(done);
             stage.inc(photons - last);
             last = photons;
-            let due = *root
-                && done - last_ck >= every
-                && writer.since_last() >= cfg.checkpoint_every_seconds;
+            let due = *root && done - last_ck >= every && writer.due();
             // a signal (on any rank): stop after this group, with a checkpoint of it
             let stop = done < batches && interrupt::agreed();
             // rank 0's clock decides; every rank first makes its tiles current there
@@ -1059,6 +1088,9 @@ impl<'a> Run<'a> {
                 };
                 let seconds = *prior_s + clock.elapsed().as_secs_f64();
                 writer.write(Some(state_path), &progress, seconds)?;
+                if let Some(line) = writer.cadence_note() {
+                    note(self.mode, &line);
+                }
                 last_ck = done;
             }
             if stop {
@@ -1110,6 +1142,7 @@ impl<'a> Run<'a> {
     }
 
     /// Shapes of one colour kept to one colour (`stages::one_colour`), timed.
+    #[inline(never)] // a stage entry tools/icount.py measures
     fn one_colour(&self, r: &mut Running) -> Result<UniformStats> {
         let (p, t) = (&self.p, Instant::now());
         let known: Vec<bool> = (p.layout.slots.iter())

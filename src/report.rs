@@ -57,6 +57,9 @@ pub struct Timings {
     /// The projection's noise probe (part of `projection`; see `project::noise_probe`).
     #[serde(default)]
     pub noise_probe: f64,
+    /// The photos' calibration (gains and poses; part of `projection`).
+    #[serde(default)]
+    pub calibration: f64,
     pub direct: f64,
     pub photons: f64,
     #[serde(default)]
@@ -164,6 +167,10 @@ pub struct Report {
     /// found (`output::uv_fold`); empty when off or when no shape tiles.
     #[serde(default)]
     pub uv_fold: Vec<UvFold>,
+    /// Per view, its photo's gain (exposure times white balance) and what fixed it
+    /// (`stages::project::exposure`); 1 and "known" unless estimated or pinned.
+    #[serde(default)]
+    pub capture: Vec<ViewCapture>,
     /// Per view, its camera pose as refined against the other views (`[views] refine_pose`;
     /// empty when off). The outputs (re-renders, `scene.xml` sensors) use these poses.
     #[serde(default)]
@@ -406,6 +413,7 @@ impl Report {
             refinement: Default::default(),
             uv_fold: Vec::new(),
             poses: Vec::new(),
+            capture: Vec::new(),
         }
     }
 }
@@ -498,5 +506,77 @@ mod tests {
         v.as_object_mut().unwrap().remove("refinement");
         let back: Report = serde_json::from_value(v).unwrap();
         assert_eq!(back.refinement, Refinement::default());
+    }
+}
+
+/// What fixed a view's gain.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum GainSource {
+    /// `exposure = "known"`: the photo is in scene units.
+    Known,
+    /// The run config gives it.
+    Pinned,
+    /// Relative to the other views, the absolute scale from emitters the photos show.
+    Emitters,
+    /// Relative to the other views, their geometric mean taken as 1 (no absolute anchor).
+    Relative,
+    /// Shares too little with the other views and shows no emitter: left at 1.
+    Alone,
+}
+
+/// How a view's photo was calibrated: its gain (exposure times white balance) and what it
+/// rests on, and how it agrees with the others afterwards.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ViewCapture {
+    /// The view's sensor id.
+    pub view: String,
+    /// `photo = gain x radiance`, per channel.
+    pub gain: [f32; 3],
+    pub source: GainSource,
+    /// Sampled texels this view shares with at least one other view.
+    pub shared_texels: u64,
+    /// Interior emitter pixels it shows (the absolute anchor), and their photo / radiance
+    /// ratio per channel (median), if enough.
+    pub anchor_pixels: u64,
+    pub anchor_ratio: Option<[f32; 3]>,
+    /// How the view agrees with the others after calibration (the last refinement pass);
+    /// `None` without refinement passes.
+    #[serde(default)]
+    pub check: Option<ViewCheck>,
+}
+
+/// A view against its re-render from the others after calibration (`project::diagnose`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ViewCheck {
+    /// Clean pixels compared.
+    pub pixels: u64,
+    /// Median photo / re-render per channel (1 when the exposure is right).
+    pub ratio: [f32; 3],
+    /// Share of the texels it sees where it departs from the fused estimate beyond its noise
+    /// and the spread views are expected to have (`project::DISAGREE_Z`).
+    pub disagreeing: f32,
+    /// The residual misalignment the pose refinement measured, in pixels (x right, y down),
+    /// where it ran.
+    pub shift: Option<[f32; 2]>,
+}
+
+impl ViewCapture {
+    /// A gain given, not estimated.
+    pub fn given(gain: [f32; 3], source: GainSource) -> Self {
+        ViewCapture {
+            view: String::new(),
+            gain,
+            source,
+            shared_texels: 0,
+            anchor_pixels: 0,
+            anchor_ratio: None,
+            check: None,
+        }
+    }
+
+    /// The gain's luminance-weighted mean: the exposure part, white balance aside.
+    pub fn exposure(&self) -> f32 {
+        0.2126 * self.gain[0] + 0.7152 * self.gain[1] + 0.0722 * self.gain[2]
     }
 }

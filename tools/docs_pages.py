@@ -250,6 +250,8 @@ def accuracy_page(entries, order=()):
                           "held-out pixels", "texels", "texels mean rel.", "texels rel. L1"],
                          rows) + "\n")
 
+    out += captures_section(latest)
+
     # The competitor anchor
     anchored = {s: e for s, e in latest.items() if isinstance(e.get("anchor"), dict)}
     scored = {s: e for s, e in anchored.items() if get(e, "anchor", "compare")}
@@ -280,6 +282,32 @@ def accuracy_page(entries, order=()):
                        "score; `--anchor-full` runs and scores the 150 iterations): "
                        + ", ".join(timed) + ". Times: [performance](performance.md).\n")
     return "\n".join(out)
+
+
+def captures_section(latest):
+    """Degraded captures (tools/captures.py) beside the same scene's perfect photos: held-out
+    albedo of each and their ratio, the figure the capture targets are stated in."""
+    rows = []
+    for s, e in latest.items():
+        cap = e.get("capture")
+        if not isinstance(cap, dict):
+            continue
+        base = latest.get(cap.get("scene"))
+        mine = get(e, "mitsuba", "albedo", "albedo_mean_rel_error")
+        theirs = get(base, "mitsuba", "albedo", "albedo_mean_rel_error")
+        ratio = f"{mine / theirs:.2f}x" if _num(mine) and _num(theirs) and theirs else "-"
+        rows.append([label(s, e), str(cap.get("preset")), str(cap.get("pinned") or "-"),
+                     pct(mine), pct(theirs), ratio])
+    if not rows:
+        return []
+    return ["## Degraded captures\n",
+            "The training photos changed as a real camera changes them (`tools/captures.py`, "
+            "`tools/degrade_capture.py`): per-photo exposure and white balance, poses a pixel or "
+            "two off, 8-bit JPEG, all of them; held-out albedo against the same scene's perfect "
+            "photos. 8-bit captures have one view's gain pinned (their emitters are clipped, "
+            "so nothing else fixes the absolute scale).\n",
+            table(["capture", "degradation", "pinned view", "held-out albedo",
+                   "perfect photos", "ratio"], rows) + "\n"]
 
 
 def performance_page(entries, order=()):

@@ -23,7 +23,7 @@ elif [[ "${1:-}" =~ ^[0-9]+$ ]]; then
 fi
 targets=("$@")
 if [[ ${#targets[@]} -eq 0 ]]; then
-    targets=(mitsuba_xml obj ply exr run_config manifest snapshot)
+    targets=(mitsuba_xml obj ply exr run_config manifest snapshot gltf)
 fi
 
 # Longest input per target: a few times the largest seed (EXR decoding is the slowest).
@@ -33,7 +33,7 @@ max_len() {
         obj | ply | run_config) echo 4096 ;;
         exr) echo 2048 ;;
         manifest) echo 8192 ;;
-        snapshot) echo 16384 ;;
+        snapshot | gltf) echo 16384 ;;
     esac
 }
 
@@ -48,6 +48,8 @@ seed() {
         obj) for f in tests/fixtures/*/meshes/*.obj; do
             [[ $(stat -c %s "$f") -le 4096 ]] && cp -n "$f" "$c/$(echo "$f" | tr / _)"; done ;;
         run_config) cp -n configs/*.toml "$c"/ ;;
+        gltf) for f in tests/fixtures/*/*.gltf; do
+            cp -n "$f" "$c/$(echo "$f" | tr / _)"; done ;;
     esac
 }
 

@@ -75,7 +75,7 @@ def run_settings(cfg, scene_xml):
 
 def views_table(albedo):
     """A `[views]` table of {sensor id: EXR path}, as TOML text."""
-    lines = ["[views]"]
+    lines = ["[views]", 'exposure = "known"  # albedo images: nothing to calibrate']
     for sensor, path in sorted(albedo.items()):
         lines.append(f"{sensor} = {toml_value(path)}")
     return "\n".join(lines) + "\n"

@@ -31,11 +31,13 @@ class FloorConfig(unittest.TestCase):
         self.assertEqual(got["projection"], {"refine_passes": 8, "refine_step": 1.5})
         self.assertEqual(got["atlas"], {"texels_per_unit": "auto"})
         self.assertIs(got["solver"]["foo"], True)
-        self.assertEqual(got["views"], views)
+        # albedo images are read as they are: no exposure estimate
+        self.assertEqual(got["views"], {"exposure": "known", **views})
 
     def test_no_config_gives_scene_and_views_only(self):
         got = tomllib.loads(pf.floor_config({}, "/s/in.xml", {"c": "/c.exr"}))
-        self.assertEqual(got, {"scene": "/s/in.xml", "views": {"c": "/c.exr"}})
+        want = {"scene": "/s/in.xml", "views": {"exposure": "known", "c": "/c.exr"}}
+        self.assertEqual(got, want)
 
     def test_configs_it_cannot_carry_are_refused(self):
         with self.assertRaisesRegex(ValueError, r"\[views\]"):

@@ -439,7 +439,9 @@ pub const KEYS: &[Key] = &[
         "checkpoint_every_seconds",
         "seconds",
         "Checkpoints besides the one after \
-        direct light and the last: at most this often (0 = at every chance).",
+        direct light and the last: at most this often, and less often when writing them would \
+        take over 5% of the run or three would take over half the free disk (0 = at every \
+        chance).",
         |c| float(c.checkpoint_every_seconds),
     ),
     key(

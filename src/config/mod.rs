@@ -11,7 +11,7 @@ mod validate;
 mod views;
 
 pub use raw::RawConfig;
-pub use views::{Exposure, Response};
+pub use views::{Exposure, Response, Similarity};
 
 use crate::base::error::{Error, Result};
 use serde::{Deserialize, Serialize};
@@ -294,7 +294,8 @@ pub struct Config {
     pub checkpoint_every_batches: u32,
     /// Seconds of work between checkpoints: one is taken after the direct light and when the
     /// run finishes, and in between (after an iteration, or inside a photon pass) only once
-    /// this much time has passed since the last. 0 = at every opportunity.
+    /// this much time has passed since the last, or longer when the checkpoints' measured
+    /// write time or size calls for it (`checkpoint::cadence`). 0 = at every opportunity.
     #[serde(default)]
     pub checkpoint_every_seconds: f64,
     /// Budget for memory-mapped working sets, MiB.
@@ -335,7 +336,7 @@ impl Config {
         Config {
             scene,
             views: BTreeMap::new(),
-            exposure: Exposure::Known,
+            exposure: Exposure::Estimate,
             pinned_gains: BTreeMap::new(),
             refine_pose: false,
             response: Response::Srgb,
@@ -425,6 +426,7 @@ impl Config {
                 self.area_samples = 9;
             }
             Preset::Paper => {
+                self.exposure = Exposure::Known;
                 self.method = Method::Photons;
                 self.iterations = Method::Photons.default_iterations();
                 self.update = UpdateRule::Paper;

@@ -411,12 +411,13 @@ fn views_hold_photos_pinned_gains_and_the_capture_settings() {
     assert_eq!(c.views["cam1"], PathBuf::from("/x/photos/c1.png"));
     assert_eq!(c.pinned_gains["cam1"], [1.0, 0.5, 2.0]);
     assert_eq!(c.pinned_gains["cam2"], [0.25; 3]);
-    // the defaults: gains known, poses as given, sRGB
+    // the defaults: gains estimated (known in the paper's method), poses as given, sRGB
     let d = Config::for_scene("a.xml".into());
     assert_eq!(
         (d.exposure, d.refine_pose, d.response),
-        (Exposure::Known, false, Response::Srgb)
+        (Exposure::Estimate, false, Response::Srgb)
     );
+    assert_eq!(Config::paper("a.xml".into()).exposure, Exposure::Known);
 }
 
 #[test]
@@ -444,4 +445,54 @@ fn bad_views_entries_are_refused_naming_the_key() {
         let e = c.validate().unwrap_err();
         assert!(e.contains("views."), "{line}: {e}");
     }
+}
+
+#[test]
+fn to_world_must_be_a_similarity_of_a_colmap_model() {
+    let cfg = |m: &str, colmap: bool| {
+        let model = if colmap { "colmap = \"sparse\"\n" } else { "" };
+        let text = format!("scene = \"a.xml\"\n[views]\n{model}to_world = {m}\n");
+        Config::from_toml(Path::new("run.toml"), &text).unwrap()
+    };
+    // scale 2, a quarter turn about z, a translation: x' = -2y + 1, y' = 2x + 2, z' = 2z + 3
+    let ok = cfg(
+        "[[0, -2, 0, 1], [2, 0, 0, 2], [0, 0, 2, 3], [0, 0, 0, 1]]",
+        true,
+    );
+    ok.validate().unwrap();
+    let s = super::Similarity::from_rows(&ok.colmap_to_world.unwrap()).unwrap();
+    assert!((s.scale - 2.0).abs() < 1e-12);
+    let p = s.point(glam::DVec3::X);
+    assert!(
+        (p - glam::DVec3::new(1.0, 4.0, 3.0)).length() < 1e-12,
+        "{p}"
+    );
+    let bad = [
+        (
+            "[[1, 0.01, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]",
+            "shears or scales unevenly",
+        ),
+        (
+            "[[2, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]",
+            "shears or scales unevenly",
+        ),
+        (
+            "[[-1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]",
+            "no mirror",
+        ),
+        (
+            "[[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 1, 1]]",
+            "last row",
+        ),
+    ];
+    for (m, want) in bad {
+        let e = cfg(m, true).validate().unwrap_err();
+        assert!(
+            e.contains("views.to_world is not a similarity") && e.contains(want),
+            "{m}: {e}"
+        );
+    }
+    let identity = "[[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]";
+    let e = cfg(identity, false).validate().unwrap_err();
+    assert!(e.contains("views.colmap is not"), "{e}");
 }

@@ -5,6 +5,7 @@
 //! refusal must name the key.
 
 use super::Config;
+use glam::{DMat3, DVec3};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -222,9 +223,80 @@ pub(super) fn validate(c: &Config) -> std::result::Result<(), String> {
         _ => Ok(()),
     }?;
     if let Some(m) = &c.colmap_to_world {
+        if c.colmap.is_none() {
+            return Err(
+                "views.to_world is set but views.colmap is not: it maps a COLMAP \
+                        model's frame to the scene's"
+                    .into(),
+            );
+        }
+        Similarity::from_rows(m)?;
+    }
+    Ok(())
+}
+
+/// A similarity transform `x -> scale rotation x + translation` (uniform scale, a proper
+/// rotation): `[views] to_world`, from a COLMAP model's frame to the scene's.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Similarity {
+    pub scale: f64,
+    pub rotation: DMat3,
+    pub translation: DVec3,
+}
+
+/// How far `A^T A` of a similarity's 3x3 part `A` may be from `scale^2 I`, relative to
+/// `scale^2`: rows of rotations typed with six decimals pass, a shear of 1e-4 does not.
+const SIMILARITY_TOLERANCE: f64 = 1e-5;
+
+impl Similarity {
+    pub const IDENTITY: Similarity = Similarity {
+        scale: 1.0,
+        rotation: DMat3::IDENTITY,
+        translation: DVec3::ZERO,
+    };
+
+    /// The similarity of a 4x4 matrix given as rows; refused, in one line naming
+    /// `views.to_world`, when it is not one (shear, non-uniform scale, a mirror, a projective
+    /// last row). The rotation is re-orthonormalized.
+    pub fn from_rows(m: &[[f64; 4]; 4]) -> std::result::Result<Similarity, String> {
+        let bad = |what: &str| Err(format!("views.to_world is not a similarity: {what}"));
         if !m.iter().flatten().all(|v| v.is_finite()) {
             return Err("views.to_world: every entry must be finite".into());
         }
+        if m[3] != [0.0, 0.0, 0.0, 1.0] {
+            return bad("its last row must be 0 0 0 1");
+        }
+        let a = DMat3::from_cols_array_2d(&[
+            [m[0][0], m[1][0], m[2][0]],
+            [m[0][1], m[1][1], m[2][1]],
+            [m[0][2], m[1][2], m[2][2]],
+        ]);
+        let det = a.determinant();
+        if !det.is_finite() || det <= 0.0 {
+            return bad("its 3x3 part must have a positive determinant (no mirror, not singular)");
+        }
+        let scale = det.cbrt();
+        let g = a.transpose() * a * (1.0 / (scale * scale));
+        let off = (g - DMat3::IDENTITY).to_cols_array();
+        if !off.iter().all(|x| x.abs() <= SIMILARITY_TOLERANCE) {
+            return bad(
+                "its 3x3 part shears or scales unevenly (A^T A is not a multiple of the identity)",
+            );
+        }
+        let mut rotation = a * (1.0 / scale);
+        for _ in 0..3 {
+            rotation = (rotation + rotation.inverse().transpose()) * 0.5;
+        }
+        let translation = DVec3::new(m[0][3], m[1][3], m[2][3]);
+        Ok(Similarity {
+            scale,
+            rotation,
+            translation,
+        })
     }
-    Ok(())
+
+    /// The image of point `p`.
+    pub fn point(&self, p: DVec3) -> DVec3 {
+        self.rotation * p * self.scale + self.translation
+    }
 }

@@ -3,7 +3,7 @@
 //! and written a row at a time, so no texture needs to fit in memory. Also builds each shape's
 //! re-render texture `L_render = K_d / pi (E_d + E_i)`.
 
-use super::plot::{draw_legend, fill, legend_height, ErrorScale, NO_DATA};
+use super::plot::{legend_canvas, ErrorScale, LegendStyle, NO_DATA};
 use crate::atlas::store::TileStore;
 use crate::atlas::store::{flags, TexelGeom, TexelState};
 use crate::atlas::texture::{Scratch, SlotTexture};
@@ -12,11 +12,10 @@ use crate::base::fsio;
 use crate::image::{auto_exposure_with, srgb8, write_exr_rgb_fn, write_png_rows};
 use crate::report::Confidence;
 use crate::stages::confidence::{kd_stderr, ConfidenceSums};
-use crate::{Error, Result};
+use crate::Result;
 use glam::Vec3;
 use std::f32::consts::PI;
 use std::path::Path;
-use tiny_skia::Pixmap;
 
 /// Dilation passes for the textures a renderer samples (albedo, re-render radiance): wider
 /// than a bilinear footprint so mip-mapping viewers don't pull in the black background either.
@@ -238,22 +237,12 @@ fn write_error_png(
     let f = (256 / w.max(h).max(1)).clamp(1, 8);
     let (iw, ih) = (w * f, h * f);
     let cw = iw.max(240);
-    let font = if cw >= 600 { 2 } else { 1 };
-    let lh = legend_height(font) + 4;
-    let mut legend = Pixmap::new(cw, lh).ok_or_else(|| {
-        Error::internal(format!(
-            "{}: cannot make a {cw}x{lh} legend",
-            path.display()
-        ))
-    })?;
-    legend.fill(tiny_skia::Color::BLACK);
-    fill(&mut legend, 0.0, 0.0, cw as f32, 1.0, [0, 0, 0]);
-    draw_legend(&mut legend, 0, 2, cw, scale, font, [255, 255, 255]);
+    let legend = legend_canvas(cw, scale, &LegendStyle::light_on([0, 0, 0], cw))?;
+    let lh = legend.height;
     let (mut last, mut rows) = (u32::MAX, (Vec::new(), Vec::new(), Vec::new()));
     write_png_rows(path, cw, ih + lh, |y| {
         if y >= ih {
-            let o = ((y - ih) * cw * 4) as usize;
-            return Ok(legend.data()[o..o + 4 * cw as usize].to_vec());
+            return Ok(legend.rgba_row(y - ih));
         }
         if y / f != last {
             last = y / f;

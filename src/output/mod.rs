@@ -18,7 +18,7 @@
 //! <out>/scene.xml                        the recovered scene for Mitsuba 3 (folded shapes on
 //!                                        their input UVs)
 //! <out>/scene.glb                        the recovered scene as binary glTF 2.0 (albedo PNGs inside)
-//! <out>/report_convergence.png           RMS and max relative error per iteration
+//! <out>/report_convergence.svg|png       RMS, mean and max relative error per iteration
 //! <out>/report.json                      the run's report, with the paper's table; written last
 //! ```
 //!
@@ -28,16 +28,19 @@
 //! directory is complete.
 
 pub mod bsdf_xml;
-pub mod font;
+pub mod convergence;
 pub mod maps;
 pub mod obj;
+pub mod out_dir;
 pub mod plot;
 pub mod renders;
 pub mod scene_glb;
 pub mod scene_xml;
+pub mod typeface;
 pub mod uv_fold;
 
 pub use maps::write_map;
+pub use out_dir::check_out_dir;
 
 use crate::atlas::context::HitTable;
 use crate::atlas::store::TileStore;
@@ -47,7 +50,6 @@ use crate::atlas::RunContext;
 use crate::base::error::{Error, Result};
 use crate::base::fsio;
 use crate::base::progress::Tick;
-use crate::image::write_pixmap_png;
 use crate::physics::render::Texture;
 use crate::report::{PoseCorrection, Report};
 use crate::scene::{Scene, Sensor};
@@ -96,6 +98,7 @@ fn view_pixels(p: &RunContext, si: usize) -> u64 {
 /// The caller sets the other report fields (including `timings.total`) before calling.
 /// `tick` gets each shape's texels once its textures and maps are written, and each view's
 /// pixels once it is re-rendered ([`output_units`] in all).
+#[inline(never)] // a stage entry tools/icount.py measures
 pub fn write_outputs(
     p: &RunContext,
     hits: &HitTable,
@@ -167,12 +170,13 @@ pub fn write_outputs(
         .collect();
     let mut table = Vec::new();
     let renders = out.join("renders");
-    for (si, path) in &p.views {
+    for (i, (si, path)) in p.views.iter().enumerate() {
+        let gain = report.capture.get(i).map_or([1.0; 3], |c| c.gain);
         table.extend(renders::write_view(
             p,
             hits,
             &textures,
-            (&sensors[*si], path),
+            (&sensors[*si], path, gain),
             &renders,
             &scale,
         )?);
@@ -183,8 +187,7 @@ pub fn write_outputs(
         r.check()?;
     }
 
-    let plot = plot::convergence_plot(&report.iterations);
-    write_pixmap_png(&out.join("report_convergence.png"), &plot)?;
+    convergence::write_convergence(out, &report.iterations)?;
 
     report.timings.output = t0.elapsed().as_secs_f64();
     report.resources.after("output");

@@ -1,10 +1,15 @@
-//! The pictures that carry numbers: the error colour scale (viridis) with its legend bar, and
-//! the convergence plot of `report.json`'s iterations. Everything is drawn with tiny-skia;
-//! labels come from the built-in bitmap font (`font.rs`).
+//! The pictures that carry numbers, their common part: the error colour scale (viridis), its
+//! legend bar (a plotters chart: ticks, percent labels, caption) and the RGB canvas plotters
+//! draws the output PNGs' labels on. Text comes from the embedded font (`typeface.rs`); the
+//! convergence chart is in `convergence.rs`.
 
-use super::font::{draw_text, text_height, text_width};
-use crate::report::IterationStats;
-use tiny_skia::{Color, Paint, PathBuilder, Pixmap, Rect, Stroke, Transform};
+use super::typeface;
+use crate::base::error::{Error, Result};
+use crate::image::write_png_rows;
+use plotters::coord::Shift;
+use plotters::prelude::*;
+use std::ops::Range;
+use std::path::Path;
 
 /// Matplotlib's viridis at nine evenly spaced points (8-bit sRGB), interpolated linearly:
 /// perceptually ordered, readable in grey scale and by colour-blind readers.
@@ -95,219 +100,198 @@ pub fn decade_percent_label(k: i32) -> String {
     }
 }
 
-/// Height in pixels of a legend drawn by [`draw_legend`] at font `scale`.
-pub fn legend_height(scale: u32) -> u32 {
-    (10 + 4 + 4) * scale + text_height(scale) + 4
+/// An opaque 8-bit RGB picture: the buffer plotters' bitmap backend draws on (3 bytes a
+/// pixel, rows top first), written as an RGBA PNG.
+pub struct Canvas {
+    pub width: u32,
+    pub height: u32,
+    pub rgb: Vec<u8>,
 }
 
-fn paint(c: [u8; 3]) -> Paint<'static> {
-    let mut p = Paint::default();
-    p.set_color_rgba8(c[0], c[1], c[2], 255);
-    p.anti_alias = false;
-    p
-}
+/// What drawing on a [`Canvas`] can fail with.
+pub type DrawError = DrawingAreaErrorKind<<BitMapBackend<'static> as DrawingBackend>::ErrorType>;
 
-pub(crate) fn fill(pm: &mut Pixmap, x: f32, y: f32, w: f32, h: f32, c: [u8; 3]) {
-    if let Some(r) = Rect::from_xywh(x, y, w, h) {
-        pm.fill_rect(r, &paint(c), Transform::identity(), None);
+impl Canvas {
+    /// A `width x height` canvas filled with `background`.
+    pub fn new(width: u32, height: u32, background: [u8; 3]) -> Canvas {
+        let n = width as usize * height as usize;
+        Canvas {
+            width,
+            height,
+            rgb: background.repeat(n),
+        }
+    }
+
+    pub fn pixel(&self, x: u32, y: u32) -> [u8; 3] {
+        let o = 3 * (y as usize * self.width as usize + x as usize);
+        [self.rgb[o], self.rgb[o + 1], self.rgb[o + 2]]
+    }
+
+    pub fn put(&mut self, x: u32, y: u32, c: [u8; 3]) {
+        let o = 3 * (y as usize * self.width as usize + x as usize);
+        self.rgb[o..o + 3].copy_from_slice(&c);
+    }
+
+    /// Row `y` as opaque RGBA, as [`write_png_rows`] takes it.
+    pub fn rgba_row(&self, y: u32) -> Vec<u8> {
+        let w = self.width as usize;
+        let row = &self.rgb[3 * y as usize * w..3 * (y as usize + 1) * w];
+        row.chunks_exact(3)
+            .flat_map(|c| [c[0], c[1], c[2], 255])
+            .collect()
+    }
+
+    pub fn write_png(&self, path: &Path) -> Result<()> {
+        write_png_rows(path, self.width, self.height, |y| Ok(self.rgba_row(y)))
+    }
+
+    /// Let plotters draw on the whole canvas (the embedded font registered first).
+    pub fn draw<T>(
+        &mut self,
+        what: &str,
+        f: impl FnOnce(&DrawingArea<BitMapBackend<'_>, Shift>) -> std::result::Result<T, DrawError>,
+    ) -> Result<T> {
+        typeface::register();
+        let (w, h) = (self.width, self.height);
+        let root = BitMapBackend::with_buffer(&mut self.rgb, (w, h)).into_drawing_area();
+        let out = f(&root).map_err(|e| draw_error(what, e))?;
+        root.present().map_err(|e| draw_error(what, e))?;
+        Ok(out)
     }
 }
 
-/// Draw the colour bar of `scale` at `(x, y)`, `width` pixels wide, with tick marks and
-/// percentage labels under it, in `text` colour. Takes [`legend_height`] pixels.
-pub fn draw_legend(
-    pm: &mut Pixmap,
-    x: i32,
-    y: i32,
-    width: u32,
+/// A plotters failure as the crate's error (a bug: our layouts are fixed).
+pub fn draw_error(what: &str, e: impl std::fmt::Display) -> Error {
+    Error::internal(format!("cannot draw {what}: {e}"))
+}
+
+/// An 8-bit sRGB colour as plotters takes it.
+pub fn rgb(c: [u8; 3]) -> RGBColor {
+    RGBColor(c[0], c[1], c[2])
+}
+
+/// The legend's caption, under its tick labels: what the colours measure.
+pub const LEGEND_TITLE: &str = "relative luminance error";
+
+/// How a legend looks: the width of a character in pixels, text (and tick) colour,
+/// background.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LegendStyle {
+    pub char_px: u32,
+    pub text: [u8; 3],
+    pub background: [u8; 3],
+}
+
+impl LegendStyle {
+    /// Light text on `background`, larger on pictures at least 400 pixels wide, smaller on
+    /// ones too narrow for [`LEGEND_TITLE`] in 7-pixel characters.
+    pub fn light_on(background: [u8; 3], width: u32) -> LegendStyle {
+        let fit = width / (LEGEND_TITLE.len() as u32 + 2);
+        LegendStyle {
+            char_px: if width >= 400 { 10 } else { fit.clamp(5, 7) },
+            text: [240, 240, 240],
+            background,
+        }
+    }
+
+    /// The text's height in pixels.
+    pub fn text_px(&self) -> u32 {
+        typeface::size_for_advance(self.char_px).ceil() as u32
+    }
+
+    /// The labels' font and colour.
+    pub fn font(&self) -> TextStyle<'static> {
+        let size = typeface::size_for_advance(self.char_px);
+        (typeface::FAMILY, size).into_font().color(&rgb(self.text))
+    }
+
+    fn bar_height(&self) -> u32 {
+        self.text_px()
+    }
+
+    /// Under the bar: tick marks, their labels and the caption.
+    fn label_area(&self) -> u32 {
+        2 * TICK + 2 * self.text_px() + self.text_px() / 2 + 4
+    }
+}
+
+/// Length of the legend's tick marks, in pixels.
+const TICK: u32 = 4;
+/// The legend's x axis counts thousandths of the scale's maximum.
+const LEGEND_UNITS: i32 = 1000;
+/// Free pixels above and below a legend.
+const LEGEND_PAD: u32 = 3;
+
+/// Height in pixels of a legend drawn by [`draw_legend`] in `style`.
+pub fn legend_height(style: &LegendStyle) -> u32 {
+    2 * LEGEND_PAD + style.bar_height() + style.label_area()
+}
+
+/// Draw the colour bar of `scale` across `area` (best [`legend_height`] tall) on its
+/// background: a plotters chart whose x axis is the error, with ticks at [`ErrorScale::ticks`]
+/// labelled in percent and [`LEGEND_TITLE`] under them. Returns the bar's pixel columns
+/// within `area` (the first shows 0, the last `scale.max`).
+pub fn draw_legend<DB: DrawingBackend>(
+    area: &DrawingArea<DB, Shift>,
     scale: &ErrorScale,
-    font: u32,
-    text: [u8; 3],
-) {
-    let bar_h = 10 * font;
-    // Room for half a label each side so the end labels are not clipped.
-    let margin = text_width("00.0%", font) / 2 + 2;
-    let inner = width.saturating_sub(2 * margin).max(2);
-    let x0 = x + margin as i32;
-    for i in 0..inner {
-        let t = i as f32 / (inner - 1) as f32;
-        fill(
-            pm,
-            (x0 + i as i32) as f32,
-            y as f32 + 2.0,
-            1.0,
-            bar_h as f32,
-            viridis(t),
-        );
+    style: &LegendStyle,
+) -> std::result::Result<Range<i32>, DrawingAreaErrorKind<DB::ErrorType>> {
+    area.fill(&rgb(style.background))?;
+    let bar = legend_axis(area, scale, style)?;
+    // A column at a time: the column of the axis' value v shows v's colour.
+    let (w, h) = bar.dim_in_pixel();
+    for x in 0..w as i32 {
+        let v = x as f32 / (w as f32 - 1.0).max(1.0) * scale.max;
+        let c = rgb(scale.color(v)).filled();
+        bar.draw(&Rectangle::new([(x, 0), (x + 1, h as i32)], c))?;
     }
-    let color = Color::from_rgba8(text[0], text[1], text[2], 255);
-    for (v, label) in scale.ticks() {
-        let tx = x0 + ((v / scale.max) * (inner - 1) as f32).round() as i32;
-        let ty = y + 2 + bar_h as i32;
-        fill(
-            pm,
-            tx as f32,
-            ty as f32,
-            font as f32,
-            (4 * font) as f32,
-            text,
-        );
-        let lw = text_width(&label, font) as i32;
-        draw_text(pm, tx - lw / 2, ty + 8 * font as i32, &label, font, color);
-    }
+    let (columns, x0) = (bar.get_pixel_range().0, area.get_base_pixel().0);
+    Ok(columns.start - x0..columns.end - x0)
 }
 
-/// Where the convergence plot's data go: the plot area in pixels, the decades of the log
-/// y axis and the iteration range of the x axis.
-struct Frame {
-    left: f32,
-    top: f32,
-    pw: f32,
-    ph: f32,
-    /// Decades of the y axis, `10^lo ..= 10^hi`.
-    lo: i32,
-    hi: i32,
-    x_max: f32,
-}
-
-/// Values below this show at it on the log axis (zeros included).
-const PLOT_FLOOR: f64 = 1e-6;
-
-impl Frame {
-    fn px(&self, i: f32) -> f32 {
-        self.left + self.pw * i / self.x_max
-    }
-
-    fn py(&self, v: f64) -> f32 {
-        let l = v.max(PLOT_FLOOR).log10();
-        let t = (l - self.lo as f64) / (self.hi - self.lo) as f64;
-        self.top + self.ph * (1.0 - t as f32)
-    }
-}
-
-/// Whole decades `(lo, hi)` around every finite positive value (at least one decade).
-fn decade_range(iters: &[IterationStats]) -> (i32, i32) {
-    let vals: Vec<f64> = iters
-        .iter()
-        .flat_map(|s| [s.rms_rel_error, s.max_rel_error])
-        .filter(|v| v.is_finite())
-        .map(|v| v.max(PLOT_FLOOR))
-        .collect();
-    if vals.is_empty() {
-        return (-3, 0);
-    }
-    let mn = vals.iter().cloned().fold(f64::INFINITY, f64::min);
-    let mx = vals.iter().cloned().fold(0.0, f64::max);
-    let lo = mn.log10().floor() as i32;
-    let hi = (mx.log10().ceil() as i32).max(lo + 1);
-    (lo, hi)
-}
-
-/// The convergence plot: RMS and maximum per-texel relative error per iteration on a log
-/// axis (decades labelled in percent), iterations along x.
-pub fn convergence_plot(iters: &[IterationStats]) -> Pixmap {
-    let (w, h) = (800u32, 500u32);
-    let mut pm = Pixmap::new(w, h).expect("fixed plot size");
-    pm.fill(Color::WHITE);
-    let (left, right, top, bottom) = (130.0f32, 30.0f32, 60.0f32, 80.0f32);
-    let (lo, hi) = decade_range(iters);
-    let f = Frame {
-        left,
-        top,
-        pw: w as f32 - left - right,
-        ph: h as f32 - top - bottom,
-        lo,
-        hi,
-        x_max: (iters.len().max(2) - 1) as f32,
+/// The legend's axis, ticks, labels and caption; returns the plot area the bar fills. The x
+/// axis counts thousandths of `scale.max` (plotters formats an integer axis with custom key
+/// points), the ticks are [`ErrorScale::ticks`] with their labels.
+fn legend_axis<DB: DrawingBackend>(
+    area: &DrawingArea<DB, Shift>,
+    scale: &ErrorScale,
+    style: &LegendStyle,
+) -> std::result::Result<DrawingArea<DB, Shift>, DrawingAreaErrorKind<DB::ErrorType>> {
+    let font = style.font();
+    // Room for half an end label each side.
+    let half = area.estimate_text_size("100%", &font)?.0 / 2 + 2;
+    let ticks = scale.ticks();
+    let at = |v: f32| (v / scale.max * LEGEND_UNITS as f32).round() as i32;
+    let keys: Vec<i32> = ticks.iter().map(|t| at(t.0)).collect();
+    let label = |k: &i32| match keys.iter().position(|x| x == k) {
+        Some(i) => ticks[i].1.clone(),
+        None => String::new(),
     };
-    draw_axes(&mut pm, &f, iters.len());
-    type Series = ([u8; 3], &'static str, fn(&IterationStats) -> f64);
-    let series: [Series; 2] = [
-        ([31, 119, 180], "RMS", |s| s.rms_rel_error),
-        ([214, 39, 40], "MAX", |s| s.max_rel_error),
-    ];
-    for (si, (color, name, get)) in series.iter().enumerate() {
-        let pts: Vec<(f32, f32)> = iters
-            .iter()
-            .enumerate()
-            .filter(|(_, s)| get(s).is_finite())
-            .map(|(i, s)| (f.px(i as f32), f.py(get(s))))
-            .collect();
-        draw_series(&mut pm, &pts, *color);
-        // Legend entry, top right.
-        let ly = 20.0 + si as f32 * 24.0;
-        let lx = w as f32 - 150.0;
-        fill(&mut pm, lx, ly + 6.0, 36.0, 3.0, *color);
-        draw_text(
-            &mut pm,
-            (lx + 46.0) as i32,
-            ly as i32,
-            name,
-            2,
-            Color::BLACK,
-        );
-    }
-    pm
+    let mut chart = ChartBuilder::on(area)
+        .margin(LEGEND_PAD)
+        .margin_left(half)
+        .margin_right(half)
+        .x_label_area_size(style.label_area())
+        .build_cartesian_2d((0..LEGEND_UNITS).with_key_points(keys.clone()), 0..1)?;
+    chart
+        .configure_mesh()
+        .disable_mesh()
+        .disable_y_axis()
+        .axis_style(rgb(style.text))
+        .set_tick_mark_size(LabelAreaPosition::Bottom, TICK as i32)
+        .x_label_style(font.clone())
+        .x_label_formatter(&label)
+        .x_desc(LEGEND_TITLE)
+        .axis_desc_style(font)
+        .draw()?;
+    Ok(chart.plotting_area().strip_coord_spec())
 }
 
-/// Grid, ticks, labels and axes of the convergence plot for `n` iterations.
-fn draw_axes(pm: &mut Pixmap, f: &Frame, n: usize) {
-    let font = 2u32;
-    let black = Color::BLACK;
-    let grid = [220u8, 220, 220];
-    let (left, top, pw, ph) = (f.left, f.top, f.pw, f.ph);
-    // Decade grid lines and labels.
-    for k in f.lo..=f.hi {
-        let y = f.py(10f64.powi(k));
-        fill(pm, left, y, pw, 1.0, grid);
-        fill(pm, left - 8.0, y, 8.0, 2.0, [0, 0, 0]);
-        let label = decade_percent_label(k);
-        let lw = text_width(&label, font) as f32;
-        let ty = (y - text_height(font) as f32 / 2.0) as i32;
-        draw_text(pm, (left - 14.0 - lw) as i32, ty, &label, font, black);
-    }
-    // Iteration ticks: at most ~10 labels.
-    let step = n.div_ceil(10).max(1);
-    for i in (0..n.max(2)).step_by(step) {
-        let x = f.px(i as f32);
-        fill(pm, x, top, 1.0, ph, grid);
-        fill(pm, x, top + ph, 2.0, 8.0, [0, 0, 0]);
-        let label = i.to_string();
-        let lw = text_width(&label, font) as f32;
-        let tx = (x - lw / 2.0) as i32;
-        draw_text(pm, tx, (top + ph + 14.0) as i32, &label, font, black);
-    }
-    // Axes.
-    fill(pm, left, top, 2.0, ph, [0, 0, 0]);
-    fill(pm, left, top + ph, pw, 2.0, [0, 0, 0]);
-    let xl = "ITERATION";
-    let tx = (left + pw / 2.0 - text_width(xl, font) as f32 / 2.0) as i32;
-    draw_text(pm, tx, (pm.height() as f32 - 30.0) as i32, xl, font, black);
-    draw_text(pm, 20, 20, "REL. ERROR", font, black);
-}
-
-/// One data series: a polyline through `pts` and a square marker at each.
-fn draw_series(pm: &mut Pixmap, pts: &[(f32, f32)], color: [u8; 3]) {
-    let mut paint = Paint::default();
-    paint.set_color_rgba8(color[0], color[1], color[2], 255);
-    paint.anti_alias = true;
-    if pts.len() >= 2 {
-        let mut pb = PathBuilder::new();
-        pb.move_to(pts[0].0, pts[0].1);
-        for &(x, y) in &pts[1..] {
-            pb.line_to(x, y);
-        }
-        if let Some(path) = pb.finish() {
-            let stroke = Stroke {
-                width: 3.0,
-                ..Default::default()
-            };
-            pm.stroke_path(&path, &paint, &stroke, Transform::identity(), None);
-        }
-    }
-    for &(x, y) in pts {
-        fill(pm, x - 4.0, y - 4.0, 8.0, 8.0, color);
-    }
+/// A `width`-wide picture of just the legend of `scale` in `style`.
+pub fn legend_canvas(width: u32, scale: &ErrorScale, style: &LegendStyle) -> Result<Canvas> {
+    let mut c = Canvas::new(width, legend_height(style), style.background);
+    c.draw("the error legend", |area| draw_legend(area, scale, style))?;
+    Ok(c)
 }
 
 #[cfg(test)]
@@ -337,9 +321,6 @@ mod tests {
         let s = ErrorScale { max: 0.05 };
         let t: Vec<String> = s.ticks().into_iter().map(|t| t.1).collect();
         assert_eq!(t, ["0%", "1%", "2%", "3%", "4%", "5%"]);
-        for (_, l) in (ErrorScale { max: 0.2 }).ticks() {
-            assert!(super::super::font::supports(&l), "{l}");
-        }
     }
 
     #[test]
@@ -354,23 +335,90 @@ mod tests {
         assert_eq!(ErrorScale::from_exceedance(&[1000; 9], 1000).max, 100.0);
     }
 
+    const BLACK_BG: LegendStyle = LegendStyle {
+        char_px: 7,
+        text: [240, 240, 240],
+        background: [0, 0, 0],
+    };
+
     #[test]
-    fn plot_draws_with_and_without_data() {
-        let it = |i: u32, r: f64, m: f64| IterationStats {
-            iteration: i,
-            rms_rel_error: r,
-            max_rel_error: m,
-            ..Default::default()
-        };
-        let pm = convergence_plot(&[it(0, 0.2, 0.9), it(1, 0.02, 0.1), it(2, 0.004, 0.019)]);
-        // some red and blue pixels are drawn
-        let has = |c: [u8; 3]| {
-            pm.pixels()
-                .iter()
-                .any(|p| [p.red(), p.green(), p.blue()] == c)
-        };
-        assert!(has([31, 119, 180]) && has([214, 39, 40]));
-        let _ = convergence_plot(&[]);
-        let _ = convergence_plot(&[it(0, 0.0, f64::NAN)]);
+    fn the_legend_bar_shows_the_scale_colours_at_their_values() {
+        let scale = ErrorScale { max: 0.05 };
+        let mut c = Canvas::new(300, legend_height(&BLACK_BG), BLACK_BG.background);
+        let cols = c
+            .draw("a legend", |a| draw_legend(a, &scale, &BLACK_BG))
+            .unwrap();
+        assert!(
+            cols.start > 0 && cols.end < 300 && cols.len() > 200,
+            "{cols:?}"
+        );
+        let y = LEGEND_PAD + BLACK_BG.bar_height() / 2;
+        // 0, 1%, ..., 5%: the column of a value holds its colour (within one column's step)
+        for (v, _) in scale.ticks() {
+            let x = cols.start + ((v / scale.max) * (cols.len() - 1) as f32).round() as i32;
+            let (got, want) = (c.pixel(x as u32, y), scale.color(v));
+            let near = (0..3).all(|k| got[k].abs_diff(want[k]) <= 3);
+            assert!(near, "{v}: {got:?} vs {want:?} at x {x}");
+        }
+        assert_eq!(c.pixel(cols.start as u32, y), viridis(0.0));
+        assert!(
+            c.pixel(cols.end as u32 + 1, y) == [0, 0, 0],
+            "right of the bar"
+        );
+    }
+
+    #[test]
+    fn the_legend_labels_draw_text_under_the_bar() {
+        let scale = ErrorScale { max: 0.2 };
+        let c = legend_canvas(240, &scale, &BLACK_BG).unwrap();
+        assert_eq!(c.height, legend_height(&BLACK_BG));
+        // below the bar and the tick marks: grey text pixels (viridis is never grey)
+        let top = LEGEND_PAD + BLACK_BG.bar_height() + TICK + 1;
+        let text = (top..c.height)
+            .flat_map(|y| (0..c.width).map(move |x| (x, y)))
+            .filter(|&(x, y)| {
+                let p = c.pixel(x, y);
+                p[0] > 100 && p[0] == p[1] && p[1] == p[2]
+            })
+            .count();
+        assert!(text > 200, "{text} text pixels");
+        // the rows hold both the tick labels and the caption: text in the lower half too
+        let low = (c.height - BLACK_BG.text_px()..c.height)
+            .any(|y| (0..c.width).any(|x| c.pixel(x, y)[0] > 100));
+        assert!(low, "no caption");
+    }
+
+    #[test]
+    fn legends_fit_their_caption_at_every_width() {
+        for width in [120, 160, 240, 399, 400, 1200] {
+            let style = LegendStyle::light_on([0, 0, 0], width);
+            let caption = LEGEND_TITLE.len() as u32 * style.char_px;
+            assert!(caption <= width || style.char_px == 5, "{width}: {style:?}");
+            let c = legend_canvas(width, &ErrorScale { max: 1.0 }, &style).unwrap();
+            // nothing drawn into the last row or column: the caption and end labels fit
+            let last = c.height - 1;
+            assert!(
+                (0..c.width).all(|x| c.pixel(x, last) == [0, 0, 0]),
+                "{width}"
+            );
+            assert!(
+                (0..c.height).all(|y| c.pixel(c.width - 1, y) == [0, 0, 0]),
+                "{width}"
+            );
+        }
+    }
+
+    #[test]
+    fn a_canvas_writes_an_opaque_png() {
+        let mut c = Canvas::new(3, 2, [1, 2, 3]);
+        c.put(2, 1, [9, 8, 7]);
+        assert_eq!(c.rgba_row(1), [1, 2, 3, 255, 1, 2, 3, 255, 9, 8, 7, 255]);
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("c.png");
+        c.write_png(&path).unwrap();
+        let pm = tiny_skia::Pixmap::load_png(&path).unwrap();
+        assert_eq!((pm.width(), pm.height()), (3, 2));
+        let p = pm.pixel(2, 1).unwrap();
+        assert_eq!([p.red(), p.green(), p.blue(), p.alpha()], [9, 8, 7, 255]);
     }
 }

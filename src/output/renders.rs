@@ -19,23 +19,23 @@
 //! 0 for pixels outside the table) with `renders/masks.json` = `{"shapes": [id, ...]}` in the
 //! scene's shape order, so the table can be recomputed from the EXRs by other tools.
 
-use super::font::{draw_text, text_height, text_width};
-use super::plot::{draw_legend, legend_height, ErrorScale};
+use super::plot::{draw_legend, legend_height, Canvas, ErrorScale, LegendStyle};
 use crate::atlas::context::HitTable;
 use crate::atlas::RunContext;
 use crate::base::fsio;
 use crate::image::{
-    auto_exposure, read_sensor_image, write_exr_rgb, write_pixmap_png, write_png_srgb, Image,
+    auto_exposure, read_photo, write_exr_rgb, write_pixmap_png, write_png_srgb, Image,
 };
 use crate::physics::camera::Camera;
 use crate::physics::render::{apply_pixel_filter, render_view_with, Film, Plan, Texture};
 use crate::report::ViewShapeRow;
 use crate::scene::{luminance, Scene, Sensor};
-use crate::stages::project::{PixelInfo, View};
+use crate::stages::project::{exposure, PixelInfo, View};
 use crate::{Error, Result};
 use glam::Vec3;
+use plotters::style::text_anchor::{HPos, Pos, VPos};
 use std::path::Path;
-use tiny_skia::{Color, Pixmap};
+use tiny_skia::Pixmap;
 
 /// Sub-pixel rays per pixel side.
 pub const SUPERSAMPLE: u32 = 4;
@@ -182,18 +182,19 @@ fn write_masks_json(dir: &Path, scene: &Scene) -> Result<()> {
     fsio::write_atomic(&path, text.as_bytes())
 }
 
-/// Re-render view `(sensor, photo path)` (the sensor at the pose the run used), write its
-/// EXR, PNG and comparison PNG into `dir`, and return its table rows.
+/// Re-render view `(sensor, photo path, gain)` (the sensor at the pose the run used), write
+/// its EXR, PNG and comparison PNG into `dir`, and return its table rows; the photo is divided
+/// by its gain (exposure and white balance) as the projection divided it.
 pub fn write_view(
     p: &RunContext,
     hits: &HitTable,
     textures: &[Option<Texture>],
-    (sensor, photo_path): (&Sensor, &Path),
+    (sensor, photo_path, gain): (&Sensor, &Path, [f32; 3]),
     dir: &Path,
     scale: &ErrorScale,
 ) -> Result<Vec<ViewShapeRow>> {
     fsio::create_dir(dir)?;
-    let photo = read_sensor_image(photo_path, sensor)?;
+    let photo = exposure::apply(&read_photo(photo_path, sensor, &p.response)?, gain);
     let camera = Camera::from_sensor(sensor);
     let view = View::new(&p.scene, &p.accel, camera.clone(), &photo);
     let render = render_recovered(p, hits, &view, textures, SUPERSAMPLE);
@@ -207,8 +208,8 @@ pub fn write_view(
         &render,
         exposure,
     )?;
-    let cmp = compare_image(p, &view, &photo, &render, exposure, scale);
-    write_pixmap_png(&dir.join(format!("{}_compare.png", sensor.id)), &cmp)?;
+    let cmp = compare_image(p, &view, (&photo, &render), exposure, scale)?;
+    cmp.write_png(&dir.join(format!("{}_compare.png", sensor.id)))?;
     if let Some(mask) = table_mask(&p.scene, &view.pixels, w, h) {
         write_pixmap_png(&dir.join(format!("{}_mask.png", sensor.id)), &mask)?;
         write_masks_json(dir, &p.scene)?;
@@ -236,70 +237,73 @@ fn srgb8(v: f32) -> u8 {
     (e * 255.0 + 0.5) as u8
 }
 
+/// Background of the comparison image around its panels.
+const COMPARE_BG: [u8; 3] = [32, 32, 32];
+/// Pixels between the comparison image's panels.
+const GAP: u32 = 4;
+/// The comparison image's panel titles, left to right.
+pub const PANEL_TITLES: [&str; 3] = ["Original", "Render", "Relative error"];
+
 /// original | render | relative error `|Y_render - Y_photo| / Y_photo`, titled, with the
 /// error legend under the third panel. The first two share `exposure`; error is shown where
 /// the pixel's center lies on a reconstructed shape and the photo is not black.
 fn compare_image(
     p: &RunContext,
     view: &View,
-    photo: &Image,
-    render: &[Vec3],
+    (photo, render): (&Image, &[Vec3]),
     exposure: f32,
     scale: &ErrorScale,
-) -> Pixmap {
+) -> Result<Canvas> {
     let (w, h) = (photo.width, photo.height);
-    let gap = 4u32;
-    let font = if w >= 400 { 2 } else { 1 };
-    let title_h = text_height(font) + 8;
-    let legend_h = legend_height(font) + 4;
-    let (cw, ch) = (3 * w + 2 * gap, title_h + h + legend_h);
-    let mut pm = Pixmap::new(cw, ch).expect("image sizes come from a valid film");
-    pm.fill(Color::from_rgba8(32, 32, 32, 255));
+    let style = LegendStyle::light_on(COMPARE_BG, w);
+    let title_h = style.text_px() * 3 / 2 + 6;
+    let lh = legend_height(&style);
+    let mut c = Canvas::new(3 * w + 2 * GAP, title_h + h + lh, COMPARE_BG);
     let gain = exposure.exp2();
-    let err_color = |i: usize| -> [u8; 3] {
-        let s = view.pixels[i].shape;
-        let recon = p
-            .scene
-            .shapes
-            .get(s as usize)
-            .is_some_and(|sh| sh.is_reconstructed());
-        let yo = luminance(photo.pixels[i]);
-        if !recon || !photo.valid[i] || yo <= 0.0 {
-            return [0, 0, 0];
-        }
-        scale.color((luminance(render[i]) - yo).abs() / yo)
-    };
-    let data = pm.data_mut();
     for y in 0..h {
         for x in 0..w {
             let i = (y * w + x) as usize;
-            let panels: [[u8; 3]; 3] = [
-                (photo.pixels[i] * gain).to_array().map(srgb8),
-                (render[i] * gain).to_array().map(srgb8),
-                err_color(i),
-            ];
-            for (k, c) in panels.iter().enumerate() {
-                let px = k as u32 * (w + gap) + x;
-                let o = 4 * ((title_h + y) * cw + px) as usize;
-                data[o..o + 4].copy_from_slice(&[c[0], c[1], c[2], 255]);
+            let err = error_color(p, view, photo, render, scale, i);
+            let panels =
+                [photo.pixels[i] * gain, render[i] * gain].map(|v| v.to_array().map(srgb8));
+            for (k, col) in [panels[0], panels[1], err].into_iter().enumerate() {
+                c.put(k as u32 * (w + GAP) + x, title_h + y, col);
             }
         }
     }
-    for (k, title) in ["ORIGINAL", "RENDER", "REL. ERROR"].iter().enumerate() {
-        let x0 = k as u32 * (w + gap) + w / 2;
-        let tx = x0 as i32 - text_width(title, font) as i32 / 2;
-        draw_text(&mut pm, tx, 4, title, font, Color::WHITE);
+    c.draw("a comparison image", |root| {
+        let font = style.font().pos(Pos::new(HPos::Center, VPos::Top));
+        for (k, title) in PANEL_TITLES.iter().enumerate() {
+            let x = k as u32 * (w + GAP) + w / 2;
+            root.draw_text(title, &font, (x as i32, 4))?;
+        }
+        let area = root.clone().shrink((2 * (w + GAP), title_h + h), (w, lh));
+        draw_legend(&area, scale, &style).map(|_| ())
+    })?;
+    Ok(c)
+}
+
+/// The error panel's colour of pixel `i`: black off reconstructed shapes and where the photo
+/// is black or invalid.
+fn error_color(
+    p: &RunContext,
+    view: &View,
+    photo: &Image,
+    render: &[Vec3],
+    scale: &ErrorScale,
+    i: usize,
+) -> [u8; 3] {
+    let s = view.pixels[i].shape;
+    let recon = p
+        .scene
+        .shapes
+        .get(s as usize)
+        .is_some_and(|sh| sh.is_reconstructed());
+    let yo = luminance(photo.pixels[i]);
+    if !recon || !photo.valid[i] || yo <= 0.0 {
+        return [0, 0, 0];
     }
-    draw_legend(
-        &mut pm,
-        (2 * (w + gap)) as i32,
-        (title_h + h + 2) as i32,
-        w,
-        scale,
-        font,
-        [255, 255, 255],
-    );
-    pm
+    scale.color((luminance(render[i]) - yo).abs() / yo)
 }
 
 #[cfg(test)]

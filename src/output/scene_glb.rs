@@ -251,7 +251,13 @@ fn add_camera(d: &mut Doc, s: &Sensor) {
     let yfov = 2.0 * ((fx / 2.0).tan() / aspect).atan();
     d.cameras.push(json!({"name": s.id, "type": "perspective",
         "perspective": {"yfov": yfov, "aspectRatio": aspect, "znear": 0.01}}));
-    d.nodes.push(json!({"name": s.id, "camera": d.cameras.len() - 1, "matrix": matrix(&gltf_frame(&s.to_world))}));
+    let mut node = json!({"name": s.id, "camera": d.cameras.len() - 1, "matrix": matrix(&gltf_frame(&s.to_world))});
+    if let Some(l) = &s.lens {
+        // glTF cameras have neither distortion nor a principal point: the nearest is centred.
+        node["extras"] = json!({"colmap_camera": {"model": l.model.name(), "params": l.params,
+            "note": "the nearest glTF camera: yfov from fx, centred; the distortion and the principal point offset are not represented"}});
+    }
+    d.nodes.push(node);
 }
 
 /// A Mitsuba-style frame (+z = `dir`) for a directional light.

@@ -110,8 +110,36 @@ pub fn scene_xml(scene: &Scene, sensors: &[Sensor], folded: &[bool]) -> String {
     s
 }
 
-/// One `<sensor>` as Mitsuba reads it back.
+/// What Mitsuba's `perspective` sensor cannot hold of a COLMAP camera, as an XML comment
+/// (empty for other sensors): its distortion, unequal focal lengths.
+fn lens_comment(sensor: &Sensor) -> String {
+    let Some(l) = &sensor.lens else {
+        return String::new();
+    };
+    let mut lost = Vec::new();
+    if l.distorts() {
+        lost.push("its lens distortion");
+    }
+    if l.fx != l.fy {
+        lost.push("fy != fx (Mitsuba's pixels are square)");
+    }
+    let lost = match lost.is_empty() {
+        true => "nothing is lost".to_string(),
+        false => format!("{} is not represented", lost.join(" and ")),
+    };
+    let text = format!(
+        "COLMAP {} camera ({}) written as the nearest perspective sensor (fov from fx, \
+         principal point offset from cx, cy): {lost}",
+        l.model.name(),
+        l.describe()
+    );
+    format!("  <!-- {} -->\n", esc(&text).replace("--", "- -"))
+}
+
+/// One `<sensor>` as Mitsuba reads it back (a COLMAP camera as the nearest one, with a
+/// comment saying what is lost).
 fn write_sensor(w: &mut String, sensor: &Sensor) {
+    w.push_str(&lens_comment(sensor));
     let _ = writeln!(
         w,
         "  <sensor type=\"perspective\" id=\"{}\">",

@@ -298,7 +298,8 @@ fn read_map(file: &Path) -> Result<(u32, u32, Vec<Rgb>)> {
     }
 }
 
-fn read_exr(file: &Path) -> std::result::Result<(u32, u32, Vec<Rgb>), String> {
+/// An OpenEXR file's width, height and linear RGB pixels (also the truth textures').
+pub(super) fn read_exr(file: &Path) -> std::result::Result<(u32, u32, Vec<Rgb>), String> {
     use exr::prelude::*;
     if !file.is_file() {
         return Err("no such file".to_string());
@@ -316,7 +317,8 @@ fn read_exr(file: &Path) -> std::result::Result<(u32, u32, Vec<Rgb>), String> {
     Ok((size.width() as u32, size.height() as u32, px))
 }
 
-fn read_hdr(file: &Path) -> std::result::Result<(u32, u32, Vec<Rgb>), String> {
+/// A Radiance HDR file's width, height and linear RGB pixels (also the truth textures').
+pub(super) fn read_hdr(file: &Path) -> std::result::Result<(u32, u32, Vec<Rgb>), String> {
     use image::ImageDecoder;
     let f = std::fs::File::open(file).map_err(|e| e.to_string())?;
     let dec = image::codecs::hdr::HdrDecoder::new(std::io::BufReader::new(f))

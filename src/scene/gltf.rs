@@ -20,7 +20,7 @@
 //! - perspective cameras become Mitsuba sensors (glTF looks down -Z with +X right; Mitsuba
 //!   looks along +z with +x left: the same frame turned half a turn about y), `yfov` is the
 //!   vertical field of view; the film size is the photo's (`[views]` or
-//!   `images/<node name>.exr`), which must match `aspectRatio` when one is given. A camera
+//!   `images/<node name>.exr|png|jpg|jpeg`), which must match `aspectRatio` when one is given. A camera
 //!   without a photo gets a nominal film [`NOMINAL_HEIGHT`] pixels high. Box pixel filter;
 //! - `KHR_lights_punctual` point, spot and directional lights (see [`lights`] for the units
 //!   and the spot cone).
@@ -35,6 +35,7 @@ use glam::DMat4;
 use std::collections::{BTreeMap, HashSet};
 use std::path::{Path, PathBuf};
 
+mod accessor;
 mod lights;
 mod primitive;
 mod sensor;
@@ -79,7 +80,7 @@ pub fn load(path: &Path, opts: &LoadOptions) -> Result<Scene> {
 
 /// [`load`] on the file's bytes already read.
 pub fn parse(bytes: &[u8], path: &Path, opts: &LoadOptions) -> Result<Scene> {
-    let doc = ::gltf::Gltf::from_slice(bytes).map_err(|e| gltf_error(path, e))?;
+    let doc = validated(bytes, path)?;
     for ext in doc.extensions_required() {
         if !extension_supported(ext) {
             return Err(at(
@@ -127,6 +128,61 @@ pub fn parse(bytes: &[u8], path: &Path, opts: &LoadOptions) -> Result<Scene> {
 
 /// A `gltf` crate error as a one-line input error: JSON syntax errors with their line and
 /// column, validation errors with the first offending JSON path.
+/// The document, validated by the `gltf` crate after the references its own validation
+/// follows unchecked (a primitive's POSITION accessor) are checked here: an index past the
+/// accessors panics inside `gltf-json` otherwise.
+fn validated(bytes: &[u8], path: &Path) -> Result<::gltf::Gltf> {
+    check_glb_length(bytes, path)?;
+    let raw =
+        ::gltf::Gltf::from_slice_without_validation(bytes).map_err(|e| gltf_error(path, e))?;
+    let root = raw.document.as_json();
+    for (m, mesh) in root.meshes.iter().enumerate() {
+        for (p, prim) in mesh.primitives.iter().enumerate() {
+            let pos = ::gltf::json::validation::Checked::Valid(::gltf::Semantic::Positions);
+            if let Some(i) = prim.attributes.get(&pos) {
+                if i.value() >= root.accessors.len() {
+                    let what = format!("meshes[{m}].primitives[{p}].attributes.POSITION");
+                    let msg = format!(
+                        "accessor {} does not exist ({} accessors)",
+                        i.value(),
+                        root.accessors.len()
+                    );
+                    return Err(at(path, &what, msg));
+                }
+            }
+        }
+    }
+    let blob = raw.blob;
+    let document =
+        ::gltf::Document::from_json(raw.document.into_json()).map_err(|e| gltf_error(path, e))?;
+    Ok(::gltf::Gltf { document, blob })
+}
+
+/// A GLB's header length must cover the header and fit in the file: the `gltf` crate
+/// subtracts the header's 12 bytes from it unchecked (a panic in debug builds).
+fn check_glb_length(bytes: &[u8], path: &Path) -> Result<()> {
+    if !bytes.starts_with(b"glTF") {
+        return Ok(());
+    }
+    let length = match bytes.get(8..12) {
+        Some(b) => u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as usize,
+        None => {
+            return Err(Error::input(
+                path,
+                "malformed GLB: header truncated (under 12 bytes)",
+            ))
+        }
+    };
+    if length < 12 || length > bytes.len() {
+        let msg = format!(
+            "malformed GLB: header length {length} is not between 12 and the file's {} bytes",
+            bytes.len()
+        );
+        return Err(Error::input(path, msg));
+    }
+    Ok(())
+}
+
 fn gltf_error(path: &Path, e: ::gltf::Error) -> Error {
     match e {
         ::gltf::Error::Deserialize(j) => Error::Input {

@@ -5,16 +5,20 @@
 //! loads OBJ/PLY meshes and the built-in shapes; [`load`] picks the format by the file's
 //! extension. Nothing downstream knows about XML or glTF.
 
+pub mod colmap;
 pub mod envmap;
 pub mod filter;
 pub mod gltf;
+pub mod lens;
 pub mod material;
 pub mod mesh;
 pub mod mitsuba;
+pub mod photos;
 pub mod truth;
 
 pub use envmap::EnvMap;
 pub use filter::PixelFilter;
+pub use lens::{Lens, LensModel};
 pub use material::{KnownBsdf, KnownMaterial, Rough};
 
 use crate::config::Config;
@@ -25,7 +29,8 @@ use std::sync::Arc;
 
 /// The scene of a run: `cfg.scene` read as glTF 2.0 if it ends in `.gltf` or `.glb`, else as
 /// Mitsuba 3 XML. A glTF scene takes its film sizes from the run's photos and its light units
-/// from `cfg.photometric_scale`.
+/// from `cfg.photometric_scale`. With `cfg.colmap`, the COLMAP model's cameras replace the
+/// scene's sensors ([`colmap::replace_sensors`]).
 pub fn load(cfg: &Config) -> Result<Scene> {
     load_with(cfg, true)
 }
@@ -37,6 +42,15 @@ pub fn load_outline(cfg: &Config) -> Result<Scene> {
 }
 
 fn load_with(cfg: &Config, meshes: bool) -> Result<Scene> {
+    let mut scene = load_file(cfg, meshes)?;
+    if let Some(dir) = &cfg.colmap {
+        colmap::replace_sensors(&mut scene, dir, cfg.colmap_to_world.as_ref())?;
+    }
+    Ok(scene)
+}
+
+/// The scene file alone, by its format.
+fn load_file(cfg: &Config, meshes: bool) -> Result<Scene> {
     if self::gltf::is_gltf(&cfg.scene) {
         let opts = self::gltf::LoadOptions {
             views: &cfg.views,
@@ -290,6 +304,13 @@ pub struct Sensor {
     pub principal_point: Vec2,
     /// The film's reconstruction filter.
     pub filter: PixelFilter,
+    /// A COLMAP camera's lens (its intrinsics and distortion, as COLMAP defines them): when
+    /// set, it alone maps pixels to rays, and the fields above describe the nearest Mitsuba
+    /// `perspective` sensor (what `scene.xml` gets). `None` for Mitsuba and glTF cameras.
+    pub lens: Option<Lens>,
+    /// The photo the scene names for this sensor (a COLMAP image's file), if it names one;
+    /// else the photo is `<scene dir>/images/<id>.exr`.
+    pub photo: Option<PathBuf>,
 }
 
 impl Sensor {
@@ -314,6 +335,8 @@ impl Sensor {
             crop_offset: (0, 0),
             principal_point: Vec2::ZERO,
             filter,
+            lens: None,
+            photo: None,
         }
     }
 }

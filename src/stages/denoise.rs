@@ -149,6 +149,7 @@ fn independent(n: u32) -> f32 {
 /// `radius` texels (the same values: a texel's window lies within its tile's halo).
 /// `radius = 0` does nothing; slots `skip` marks are left as they are (`skip` may be shorter
 /// than the slots: the rest are filtered).
+#[inline(never)] // a stage entry tools/icount.py measures
 pub fn denoise_luminance(
     layout: &Layout,
     charts: &Charts,

@@ -118,7 +118,16 @@ fn stores(out: &Path) -> (TileStore<TexelGeom>, TileStore<TexelState>) {
 /// `<scene>/albedo/` projected (with the same refinement) as if they were the photos, scored
 /// as if the projected values were the recovered albedo.
 fn floor(root: &Path, cfg: &Config) -> Vec<ShapeAccuracy> {
+    let acc = floor_against(root, cfg, &[&root.join("truth.xml")]).remove(0);
+    print_acc("resolution floor", &acc);
+    acc
+}
+
+/// [`floor`]'s projected state scored against each of `truths`.
+fn floor_against(root: &Path, cfg: &Config, truths: &[&Path]) -> Vec<Vec<ShapeAccuracy>> {
     let mut cfg = cfg.clone();
+    // albedo images are not photos of the lit scene: nothing to calibrate
+    cfg.exposure = kdmap::config::Exposure::Known;
     for id in ["cam_train_0", "cam_train_1", "cam_train_2"] {
         cfg.views
             .insert(id.into(), root.join("albedo").join(format!("{id}.exr")));
@@ -134,10 +143,79 @@ fn floor(root: &Path, cfg: &Config) -> Vec<ShapeAccuracy> {
             }
         })
         .unwrap();
-    let truth = Truth::load(&root.join("truth.xml")).unwrap();
-    let acc = kdmap::accuracy::accuracy(&truth, &p, &geom, &state).unwrap();
-    print_acc("resolution floor", &acc);
-    acc
+    let score = |t: &&Path| {
+        let truth = Truth::load(t).unwrap();
+        kdmap::accuracy::accuracy(&truth, &p, &geom, &state).unwrap()
+    };
+    truths.iter().map(score).collect()
+}
+
+/// The sRGB code `c` (of 255) as linear, as Mitsuba 3 decodes an 8-bit texture.
+fn srgb_decode(c: u8) -> f32 {
+    let c = c as f32 / 255.0;
+    match c <= 0.04045 {
+        true => c / 12.92,
+        false => ((c + 0.055) / 1.055).powf(2.4),
+    }
+}
+
+/// `cbox-tex`'s truth with the brick texture as a JPEG (quality 100) and the coffee one as
+/// a linear OpenEXR of the PNG's decoded codes, written into `dir`. Returns its path.
+fn truth_as_jpeg_and_exr(root: &Path, dir: &Path) -> std::path::PathBuf {
+    let tex = root.join("textures");
+    let brick = image::open(tex.join("brick.png")).unwrap().to_rgb8();
+    let jpg = std::fs::File::create(dir.join("brick.jpg")).unwrap();
+    let mut enc = image::codecs::jpeg::JpegEncoder::new_with_quality(jpg, 100);
+    enc.encode_image(&brick).unwrap();
+    let coffee = image::open(tex.join("coffee.png")).unwrap().to_rgb8();
+    let (w, h) = (coffee.width() as usize, coffee.height() as usize);
+    exr::prelude::write_rgb_file(dir.join("coffee.exr"), w, h, |x, y| {
+        let c = coffee.get_pixel(x as u32, y as u32).0.map(srgb_decode);
+        (c[0], c[1], c[2])
+    })
+    .unwrap();
+    let xml = std::fs::read_to_string(root.join("truth.xml")).unwrap();
+    let (r, d) = (root.display(), dir.display());
+    let xml = xml
+        .replace("\"meshes/", &format!("\"{r}/meshes/"))
+        .replace("\"textures/brick.png", &format!("\"{d}/brick.jpg"))
+        .replace("\"textures/coffee.png", &format!("\"{d}/coffee.exr"))
+        .replace("\"textures/", &format!("\"{r}/textures/"));
+    let path = dir.join("truth.xml");
+    std::fs::write(&path, xml).unwrap();
+    path
+}
+
+/// A truth whose textures are JPEG and OpenEXR (Mitsuba 3's conventions: 8-bit codes are
+/// sRGB, EXR values linear) scores a run as the PNG truth does: exactly for the EXR (the same
+/// linear values), within the 8-bit codes for the JPEG.
+#[test]
+fn jpeg_and_exr_truth_textures_score_as_the_png_ones() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/cbox-tex");
+    let tmp = tempfile::tempdir().unwrap();
+    let variant = truth_as_jpeg_and_exr(&root, tmp.path());
+    let cfg = Config::for_scene(root.join("input.xml"));
+    let acc = floor_against(&root, &cfg, &[&root.join("truth.xml"), &variant]);
+    let (png, other) = (&acc[0], &acc[1]);
+    print_acc("PNG truth", png);
+    print_acc("JPEG/EXR truth", other);
+    assert_eq!(png.len(), other.len());
+    for (a, b) in png.iter().zip(other) {
+        assert_eq!((&a.shape, a.texels), (&b.shape, b.texels));
+        let err = (a.mean_rel_error - b.mean_rel_error).abs();
+        let truth = (0..3).map(|c| (a.mean_truth[c] - b.mean_truth[c]).abs());
+        let truth = truth.fold(0.0, f64::max);
+        eprintln!(
+            "{}: score differs by {err:.5}, mean truth by {truth:.5}",
+            a.shape
+        );
+        match a.shape.as_str() {
+            "right" => assert!(err == 0.0 && truth == 0.0, "{}: EXR differs", a.shape),
+            // a code of 255 is 0.4% at mid grey; reading the JPEG as linear would be ~20%
+            "left" => assert!(err < 0.004 && truth < 0.004, "{}: JPEG differs", a.shape),
+            _ => assert_eq!(a.mean_rel_error, b.mean_rel_error, "{}", a.shape),
+        }
+    }
 }
 
 /// Texel-weighted mean relative albedo error over all shapes of a scene.

@@ -215,24 +215,110 @@ fn impossible_settings_and_bad_config_are_refused() {
     assert_eq!(o.status.code(), Some(66), "a missing scene: EX_NOINPUT");
 }
 
+/// `reconstruct` of the Cornell box into `out` (few photons: it is refused before they
+/// matter).
+fn reconstruct_into(out: &Path) -> std::process::Output {
+    let scene = fixture("cbox").join("input.xml");
+    let args = ["--photons", "1000", "--iterations", "1"];
+    let out = out.to_str().unwrap();
+    kdmap(
+        &[
+            &["reconstruct", scene.to_str().unwrap(), "--out", out][..],
+            &args[..],
+        ]
+        .concat(),
+    )
+}
+
+/// The one line of a refused `--out`: it names the path, exits with EX_IOERR, and comes
+/// before any work (nothing else on stderr: no loading, atlas or progress lines).
+fn refused_out(o: &std::process::Output, out: &Path, why: &str) {
+    let e = one_line_error(o);
+    assert!(
+        e.starts_with(&format!("error: {}: {why}", out.display())),
+        "{e}"
+    );
+    assert_eq!(o.status.code(), Some(74), "an unusable output: EX_IOERR");
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    let others: Vec<&str> = stderr
+        .lines()
+        .filter(|l| !l.starts_with("error:"))
+        .collect();
+    assert!(others.is_empty(), "work before the refusal: {stderr}");
+}
+
 #[test]
 fn unwritable_output_is_a_clear_error() {
     let tmp = tempfile::tempdir().unwrap();
     // a regular file where the output directory should be
     let blocker = tmp.path().join("out");
     std::fs::write(&blocker, "not a directory").unwrap();
+    refused_out(
+        &reconstruct_into(&blocker),
+        &blocker,
+        "exists and is not a directory",
+    );
+    // ... or on the way to it
+    let under = blocker.join("run");
+    refused_out(
+        &reconstruct_into(&under),
+        &under,
+        "cannot create the output directory",
+    );
+    // `project` checks it the same way
     let scene = fixture("cbox").join("input.xml");
     let o = kdmap(&[
-        "reconstruct",
+        "project",
         scene.to_str().unwrap(),
         "--out",
         blocker.to_str().unwrap(),
-        "--photons",
-        "1000",
-        "--iterations",
-        "1",
     ]);
-    let e = one_line_error(&o);
-    assert!(e.contains("out"), "{e}");
-    assert_eq!(o.status.code(), Some(74), "an unwritable output: EX_IOERR");
+    refused_out(&o, &blocker, "exists and is not a directory");
+    // a place no one may create a directory in, root included (sysfs)
+    let sys = Path::new("/sys/kdmap-out");
+    if Path::new("/sys/kernel").is_dir() {
+        refused_out(
+            &reconstruct_into(sys),
+            sys,
+            "cannot create the output directory",
+        );
+    }
+}
+
+#[test]
+fn an_output_directory_holding_other_files_is_refused_untouched() {
+    let tmp = tempfile::tempdir().unwrap();
+    let home = tmp.path().join("home");
+    std::fs::create_dir(&home).unwrap();
+    std::fs::write(home.join("thesis.tex"), "mine").unwrap();
+    std::fs::create_dir(home.join("maps")).unwrap();
+    refused_out(
+        &reconstruct_into(&home),
+        &home,
+        "holds 'thesis.tex', which kdmap did not write",
+    );
+    let mut left: Vec<_> = std::fs::read_dir(&home)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().into_string().unwrap())
+        .collect();
+    left.sort();
+    assert_eq!(left, ["maps", "thesis.tex"], "the refusal wrote into it");
+}
+
+#[test]
+fn a_read_only_output_directory_is_refused_unless_root() {
+    use std::os::unix::fs::PermissionsExt;
+    let tmp = tempfile::tempdir().unwrap();
+    let ro = tmp.path().join("ro");
+    std::fs::create_dir(&ro).unwrap();
+    std::fs::set_permissions(&ro, std::fs::Permissions::from_mode(0o555)).unwrap();
+    // root writes through permissions: nothing to refuse then
+    let writable = std::fs::write(ro.join("probe"), "x").is_ok();
+    let o = reconstruct_into(&ro);
+    std::fs::set_permissions(&ro, std::fs::Permissions::from_mode(0o755)).unwrap();
+    if writable {
+        eprintln!("running as root: a read-only directory is writable, not checked");
+        return;
+    }
+    refused_out(&o, &ro, "the output directory is not writable");
 }

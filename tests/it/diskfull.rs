@@ -166,17 +166,18 @@ fn a_full_disk_or_unwritable_output_fails_in_one_line_and_resume_ends_bit_for_bi
     assert!(!out.join("report.json").exists());
     resume_to_the_end(&a, &full, &out);
 
-    // 3. An output directory that cannot be written (a regular file where `textures/` goes):
-    // the run fails at the end, the last checkpoint survives, and resumes once it is fixed.
+    // 3. An output file that cannot be written (a directory where the floor's albedo goes;
+    // the directory itself passes the check before the run): the run fails at the end, the
+    // last checkpoint survives, and resumes once it is fixed.
     let out = tmp.path().join("blocked");
-    std::fs::create_dir_all(&out).unwrap();
-    std::fs::write(out.join("textures"), b"not a directory").unwrap();
+    let blocker = out.join("textures/floor_albedo.exr");
+    std::fs::create_dir_all(blocker.join("in the way")).unwrap();
     let a = fast_args(&cfg, &out);
     let o = run(&a);
-    one_error_line(&o, &[out.join("textures").to_str().unwrap()]);
+    one_error_line(&o, &[blocker.to_str().unwrap()]);
     let m = assert_checkpoint_intact(&out);
     assert_eq!(m.seq, 7);
-    std::fs::remove_file(out.join("textures")).unwrap();
+    std::fs::remove_dir_all(&blocker).unwrap();
     resume_to_the_end(&a, &full, &out);
 
     // 4. An output directory whose parent is a regular file: nothing can be written at all.

@@ -167,3 +167,140 @@ fn exr_header_claiming_more_pixels_than_the_file_holds_is_refused() {
     assert_input(Err::<(), _>(e), &path);
     assert_input(kdmap::image::read_exr(&path), &path);
 }
+
+// ---- glTF -----------------------------------------------------------------------------------
+
+/// One triangle whose POSITION is `accessor` (a JSON object's members, without braces) over
+/// buffer view 0 (`view`): three vertices, 36 bytes, in a base64 `data:` URI.
+fn gltf_triangle(accessor: &str, view: &str) -> Vec<u8> {
+    use base64::Engine as _;
+    let mut bin = Vec::new();
+    for v in [0.0f32, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0] {
+        bin.extend_from_slice(&v.to_le_bytes());
+    }
+    let data = base64::engine::general_purpose::STANDARD.encode(&bin);
+    format!(
+        r#"{{"asset":{{"version":"2.0"}},"scene":0,"scenes":[{{"nodes":[0]}}],
+        "nodes":[{{"name":"tri","mesh":0}}],
+        "meshes":[{{"primitives":[{{"attributes":{{"POSITION":0}}}}]}}],
+        "accessors":[{{{accessor}}}],"bufferViews":[{{{view}}}],
+        "buffers":[{{"byteLength":36,"uri":"data:application/octet-stream;base64,{data}"}}]}}"#
+    )
+    .into_bytes()
+}
+
+fn parse_gltf(bytes: &[u8], path: &Path) -> kdmap::Result<kdmap::scene::Scene> {
+    let views = std::collections::BTreeMap::new();
+    let opts = kdmap::scene::gltf::LoadOptions {
+        views: &views,
+        photometric_scale: 1.0,
+        meshes: true,
+    };
+    kdmap::scene::gltf::parse(bytes, path, &opts)
+}
+
+const VEC3: &str = r#""componentType":5126,"type":"VEC3","min":[0,0,0],"max":[1,1,0]"#;
+const VIEW: &str = r#""buffer":0,"byteLength":36"#;
+
+/// The hand-made case: an accessor of `count: 0` made the `gltf` crate's reader
+/// compute `count - 1` and panic (debug builds); it is refused, naming the accessor.
+#[test]
+fn gltf_accessor_of_count_zero_is_refused_not_a_panic() {
+    let path = Path::new("count0.gltf");
+    let ok = parse_gltf(
+        &gltf_triangle(&format!(r#"{VEC3},"bufferView":0,"count":3"#), VIEW),
+        path,
+    );
+    assert_eq!(ok.unwrap().shapes[0].mesh.triangles.len(), 1);
+    let bytes = gltf_triangle(&format!(r#"{VEC3},"bufferView":0,"count":0"#), VIEW);
+    let e = parse_gltf(&bytes, path).unwrap_err();
+    assert!(e.to_string().contains("accessors[0]"), "{e}");
+    assert!(e.to_string().contains("count is 0"), "{e}");
+    assert_input(Err::<(), _>(e), path);
+}
+
+/// The fuzzer's first find: a POSITION attribute naming an accessor that does not exist made
+/// `gltf-json`'s own validation index past its accessors and panic (every build).
+#[test]
+fn gltf_position_naming_no_accessor_is_refused_not_a_panic() {
+    let path = Path::new("position.gltf");
+    let good = gltf_triangle(&format!(r#"{VEC3},"bufferView":0,"count":3"#), VIEW);
+    let text = String::from_utf8(good).unwrap();
+    assert!(text.contains(r#""POSITION":0"#));
+    let bad = text.replace(r#""POSITION":0"#, r#""POSITION":7"#);
+    let e = parse_gltf(bad.as_bytes(), path).unwrap_err();
+    assert!(e.to_string().contains("accessor 7 does not exist"), "{e}");
+    assert!(e.to_string().contains("POSITION"), "{e}");
+    assert_input(Err::<(), _>(e), path);
+}
+
+/// The fuzzer's second find: a GLB header whose length is under its own 12 bytes made the
+/// `gltf` crate subtract with overflow (debug builds); refused, like one longer than the file.
+#[test]
+fn glb_header_length_outside_the_file_is_refused_not_a_panic() {
+    let path = Path::new("short.glb");
+    for length in [0u32, 11, 1 << 30] {
+        let mut glb = b"glTF".to_vec();
+        glb.extend_from_slice(&2u32.to_le_bytes());
+        glb.extend_from_slice(&length.to_le_bytes());
+        glb.extend_from_slice(&[0; 20]);
+        let e = parse_gltf(&glb, path).unwrap_err();
+        assert!(e.to_string().contains("malformed GLB: header"), "{e}");
+        assert!(e.to_string().contains(&format!("length {length} ")), "{e}");
+        assert_input(Err::<(), _>(e), path);
+    }
+    let e = parse_gltf(b"glTF\x02\0\0\0", path).unwrap_err();
+    assert!(e.to_string().contains("truncated"), "{e}");
+}
+
+/// Accessors whose bytes fall outside their view or buffer, a stride shorter than an element
+/// (a `debug_assert!` in the crate), a count whose byte range overflows `usize`, and sparse
+/// substitutions of count 0: each refused before the `gltf` crate reads them.
+#[test]
+fn gltf_accessor_ranges_are_checked_before_the_gltf_crate_reads_them() {
+    let path = Path::new("ranges.gltf");
+    let sparse = |n: u32| {
+        format!(
+            r#"{VEC3},"bufferView":0,"count":3,"sparse":{{"count":{n},
+            "indices":{{"bufferView":0,"componentType":5121}},"values":{{"bufferView":0}}}}"#
+        )
+    };
+    let cases = [
+        (
+            format!(r#"{VEC3},"bufferView":0,"count":4"#),
+            VIEW.to_string(),
+        ),
+        (
+            format!(r#"{VEC3},"bufferView":0,"count":3,"byteOffset":4"#),
+            VIEW.into(),
+        ),
+        (
+            format!(r#"{VEC3},"bufferView":0,"count":3"#),
+            r#""buffer":0,"byteLength":36,"byteOffset":4"#.into(),
+        ),
+        (
+            format!(r#"{VEC3},"bufferView":0,"count":2"#),
+            r#""buffer":0,"byteLength":36,"byteStride":4"#.into(),
+        ),
+        (
+            format!(r#"{VEC3},"bufferView":0,"count":3000000000000000000"#),
+            r#""buffer":0,"byteLength":36,"byteStride":12"#.into(),
+        ),
+        (
+            format!(
+                r#"{VEC3},"count":3000000000000000000,"sparse":{{"count":1,"indices":{{"bufferView":0,"componentType":5121}},"values":{{"bufferView":0}}}}"#
+            ),
+            VIEW.into(),
+        ),
+        (sparse(0), VIEW.into()),
+        (sparse(4), VIEW.into()),
+    ];
+    for (accessor, view) in cases {
+        let r = parse_gltf(&gltf_triangle(&accessor, &view), path);
+        assert!(
+            matches!(&r, Err(e) if e.to_string().contains("accessors[0]")),
+            "{accessor} / {view}: {r:?}"
+        );
+        assert_input(r, path);
+    }
+}

@@ -30,7 +30,13 @@ const FOLDERS: &[(&str, &[Layer])] = &[
             (&["pipeline"], Listed),
         ],
     ),
-    ("config", &[(&["raw", "validate", "keys"], Independent)]),
+    (
+        "config",
+        &[
+            (&["views"], Listed),
+            (&["raw", "validate", "keys"], Independent),
+        ],
+    ),
     (
         "base",
         &[(
@@ -49,16 +55,20 @@ const FOLDERS: &[(&str, &[Layer])] = &[
     (
         "scene",
         &[
-            (&["material", "filter", "mesh", "envmap"], Listed),
-            (&["mitsuba", "gltf"], Independent),
+            (
+                &["material", "filter", "mesh", "envmap", "lens", "photos"],
+                Listed,
+            ),
+            (&["mitsuba", "gltf", "colmap"], Independent),
             (&["truth"], Listed),
         ],
     ),
     (
         "scene::gltf",
-        &[(&["primitive", "sensor", "lights"], Listed)],
+        &[(&["accessor", "primitive", "sensor", "lights"], Listed)],
     ),
     ("scene::mitsuba", &[(&["bsdf", "sensor"], Independent)]),
+    ("scene::colmap", &[(&["text", "binary"], Independent)]),
     (
         "physics",
         &[(
@@ -108,10 +118,12 @@ const FOLDERS: &[(&str, &[Layer])] = &[
         &[(
             &[
                 "view",
+                "exposure",
                 "noise",
                 "shrinkage",
                 "total_variation",
                 "noise_probe",
+                "diagnose",
                 "refine",
             ],
             Listed,
@@ -125,10 +137,11 @@ const FOLDERS: &[(&str, &[Layer])] = &[
     (
         "output",
         &[
-            (&["font", "bsdf_xml", "obj"], Independent),
+            (&["typeface", "bsdf_xml", "obj", "out_dir"], Independent),
             (
                 &[
                     "plot",
+                    "convergence",
                     "maps",
                     "renders",
                     "scene_glb",

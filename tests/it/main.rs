@@ -4,7 +4,9 @@
 mod accuracy;
 mod budget;
 mod camera;
+mod capture;
 mod cli;
+mod colmap;
 mod diskfull;
 mod failfast;
 mod fuzz_regressions;
@@ -12,6 +14,7 @@ mod gltf;
 mod import;
 mod known;
 mod layers;
+mod ldr;
 #[cfg(feature = "mpi")]
 mod mpi;
 mod output;

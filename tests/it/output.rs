@@ -92,6 +92,7 @@ fn run() -> &'static Run {
             .map(|i| IterationStats {
                 iteration: i,
                 rms_rel_error: 0.1 / 4f64.powi(i as i32),
+                mean_rel_error: 0.07 / 4f64.powi(i as i32),
                 max_rel_error: 0.5 / 3f64.powi(i as i32),
                 ..Default::default()
             })
@@ -140,6 +141,7 @@ fn every_contract_file_exists() {
         "scene.xml".to_string(),
         "report.json".into(),
         "report_convergence.png".into(),
+        "report_convergence.svg".into(),
     ];
     for id in recon_ids(&r.p) {
         for f in [
@@ -242,10 +244,13 @@ fn maps_hold_the_state_and_eq_10() {
         assert!(n > 0, "{id} has covered texels");
         assert!(estimated > 0, "{id}: no texel has a standard error");
         assert_gutter_dilated(&albedo, &cov, (st.width, st.height), id);
-        // The error preview is larger than the map: the legend bar sits under it.
+        // The error preview is larger than the map: the legend bar sits under it, its labels
+        // at the bottom.
         let png = std::fs::read(r.out.join(format!("maps/{id}_error.png"))).unwrap();
         let pm = tiny_skia::Pixmap::decode_png(&png).unwrap();
         assert!(pm.height() > st.height && pm.width() >= st.width);
+        let labels = text_pixels(&pm, 0..pm.width(), pm.height() - 30..pm.height());
+        assert!(labels > 100, "{id}: {labels} legend text pixels");
     }
 }
 
@@ -309,6 +314,53 @@ fn assert_gutter_dilated(albedo: &[Vec3], cov: &[bool], (w, h): (u32, u32), id: 
             }
         }
     }
+}
+
+/// Pixels of light grey text (the labels' colour, anti-aliased on a dark background) in the
+/// given columns and rows: no viridis colour is grey, and the "no data" grey is darker.
+fn text_pixels(
+    pm: &tiny_skia::Pixmap,
+    xs: std::ops::Range<u32>,
+    ys: std::ops::Range<u32>,
+) -> usize {
+    ys.flat_map(|y| xs.clone().map(move |x| (x, y)))
+        .filter(|&(x, y)| {
+            let p = pm.pixel(x, y).unwrap();
+            p.red() > 100 && p.red() == p.green() && p.green() == p.blue()
+        })
+        .count()
+}
+
+#[test]
+fn compare_images_have_panel_titles_and_the_legend_under_the_error() {
+    let r = run();
+    for (si, _) in &r.p.views {
+        let s = &r.p.scene.sensors[*si];
+        let path = r.out.join(format!("renders/{}_compare.png", s.id));
+        let pm = tiny_skia::Pixmap::load_png(&path).unwrap();
+        assert_eq!(pm.width(), 3 * s.width + 8);
+        let title_rows = 0..12;
+        for k in 0..3 {
+            let cols = k * (s.width + 4)..k * (s.width + 4) + s.width;
+            assert!(text_pixels(&pm, cols, title_rows.clone()) > 20, "title {k}");
+        }
+        let bottom = pm.height() - 30..pm.height();
+        let under_error = text_pixels(&pm, 2 * (s.width + 4)..pm.width(), bottom.clone());
+        assert!(under_error > 100, "{under_error} legend text pixels");
+        assert_eq!(text_pixels(&pm, 0..2 * s.width, bottom), 0);
+    }
+}
+
+#[test]
+fn the_convergence_chart_is_svg_text_and_a_png() {
+    let r = run();
+    let svg = std::fs::read_to_string(r.out.join("report_convergence.svg")).unwrap();
+    let texts: Vec<&str> = svg.lines().map(str::trim).collect();
+    for t in ["RMS", "mean", "max", "iteration", "10%", "1%"] {
+        assert!(texts.contains(&t), "no text {t:?} in the SVG");
+    }
+    let pm = tiny_skia::Pixmap::load_png(r.out.join("report_convergence.png")).unwrap();
+    assert_eq!((pm.width(), pm.height()), (800, 500));
 }
 
 #[test]

@@ -17,6 +17,7 @@ const BIN_SUBSAMPLES: u32 = 8;
 
 /// Rasterize every atlas into a new geometry store at `path` (texel -> surface point), one
 /// row band of tiles at a time so memory stays bounded by a band, not a texture.
+#[inline(never)] // a stage entry tools/icount.py measures
 pub fn build_geometry(p: &RunContext, path: &Path, mode: Mode) -> Result<TileStore<TexelGeom>> {
     let mut store = p.create_store(path, TexelGeom::default())?;
     let total: u64 = p

@@ -15,11 +15,12 @@ use crate::atlas::uv::{build_atlas_with_progress, AtlasSettings, ShapeAtlas};
 use crate::base::error::{Error, Result};
 use crate::base::fsio::Fnv;
 use crate::base::progress::{note, Mode, Stage};
-use crate::config::{Config, Density};
-use crate::image::{read_sensor_image, Image};
+use crate::config::{Config, Density, Exposure, Response};
+use crate::image::{read_photo, Image};
 use crate::physics::accel::Accel;
 use crate::physics::light::emitter_power;
 use crate::report::ShapeTexels;
+use crate::scene::photos::is_8bit;
 use crate::scene::{KnownBsdf, KnownMaterial, Material, Mesh, Scene, Sides};
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
@@ -36,6 +37,8 @@ pub struct RunContext {
     pub layout: Layout,
     /// Sensor index -> photo path, for the sensors that have a photo.
     pub views: Vec<(usize, PathBuf)>,
+    /// How the 8-bit photos' codes become linear values (the run config's).
+    pub response: Response,
     /// The texel density of every reconstructed shape and how it was chosen.
     pub density: DensityPlan,
     /// The photos decoded by [`prepare`], per view, until a stage takes them
@@ -85,16 +88,19 @@ pub fn state_dir(out: &Path) -> PathBuf {
 /// then choose the texel densities, unwrap every reconstructed shape and lay out the tiles.
 /// What the scene file alone tells (photos against films, no emitter at all) is checked
 /// before the meshes are read.
+#[inline(never)] // a stage entry tools/icount.py measures
 pub fn prepare(cfg: &Config, mode: Mode) -> Result<RunContext> {
     let outline = crate::scene::load_outline(cfg)?;
     let views = match_views(&outline, cfg, mode)?;
     if outline.emitters.is_empty() {
         check_lit(&outline)?;
     }
-    let photos = read_photos(&outline, &views, mode)?;
+    note_unscaled(cfg, &outline, &views, mode);
+    let photos = read_photos(&outline, &views, &cfg.response, mode)?;
     let scene = crate::scene::load(cfg)?;
     check_lit(&scene)?;
-    let p = prepare_scene(cfg, scene, views, mode)?;
+    let mut p = prepare_scene(cfg, scene, views, mode)?;
+    p.response = cfg.response.clone();
     *p.photos.lock().unwrap_or_else(|e| e.into_inner()) = photos.into_iter().map(Some).collect();
     Ok(p)
 }
@@ -104,7 +110,9 @@ pub fn prepare(cfg: &Config, mode: Mode) -> Result<RunContext> {
 pub fn prepare_layout(cfg: &Config, mode: Mode) -> Result<RunContext> {
     let scene = crate::scene::load(cfg)?;
     let views = match_views(&scene, cfg, mode)?;
-    prepare_scene(cfg, scene, views, mode)
+    let mut p = prepare_scene(cfg, scene, views, mode)?;
+    p.response = cfg.response.clone();
+    Ok(p)
 }
 
 fn prepare_scene(
@@ -205,43 +213,86 @@ pub fn check_lit(scene: &Scene) -> Result<()> {
     }
 }
 
-/// Every view's photo decoded to its end (in parallel) and its size checked against its
-/// sensor's film: the first bad photo in view order is the error. Masked pixels are noted.
-pub fn read_photos(scene: &Scene, views: &[(usize, PathBuf)], mode: Mode) -> Result<Vec<Image>> {
+/// Every view's photo decoded to its end (in parallel; 8-bit ones through `response`) and its
+/// size checked against its sensor's film: the first bad photo in view order is the error.
+/// Masked pixels are noted.
+pub fn read_photos(
+    scene: &Scene,
+    views: &[(usize, PathBuf)],
+    response: &Response,
+    mode: Mode,
+) -> Result<Vec<Image>> {
     let photos = views
         .par_iter()
-        .map(|(si, path)| read_sensor_image(path, &scene.sensors[*si]))
+        .map(|(si, path)| read_photo(path, &scene.sensors[*si], response))
         .collect::<Vec<Result<Image>>>()
         .into_iter()
         .collect::<Result<Vec<Image>>>()?;
     for ((_, path), image) in views.iter().zip(&photos) {
         if image.masked > 0 {
             let n = image.masked;
-            let msg = format!(
-                "{}: {n} non-finite or negative pixels masked",
-                path.display()
+            let what = match is_8bit(path) {
+                true => "clipped or near-black",
+                false => "non-finite or negative",
+            };
+            note(
+                mode,
+                &format!("{}: {n} {what} pixels masked", path.display()),
             );
-            note(mode, &msg);
         }
     }
     Ok(photos)
 }
 
-/// The (sensor, photo) pairs of a run: the config's `views`, or every sensor with an
-/// `images/<id>.exr` beside the scene (sensors without one are skipped with a note).
+/// Notes, once, that the run's 8-bit photos (PNG, JPEG) have no absolute scale when their
+/// gains are taken as known and not pinned: their linear values in [0, 1] would be read as
+/// scene radiance.
+fn note_unscaled(cfg: &Config, scene: &Scene, views: &[(usize, PathBuf)], mode: Mode) {
+    if cfg.exposure != Exposure::Known {
+        return;
+    }
+    let ids: Vec<&str> = (views.iter())
+        .filter(|(_, p)| is_8bit(p))
+        .map(|(si, _)| scene.sensors[*si].id.as_str())
+        .filter(|id| !cfg.pinned_gains.contains_key(*id))
+        .collect();
+    if !ids.is_empty() {
+        note(
+            mode,
+            &format!(
+                "8-bit photos have no absolute scale ({}): with [views] exposure = \"known\" \
+                 their linear values in [0, 1] are read as scene radiance; set exposure = \
+                 \"estimate\" or pin each view's gain ([views.<id>] exposure = g)",
+                ids.join(", ")
+            ),
+        );
+    }
+}
+
+/// The (sensor, photo) pairs of a run: the config's `views`, or every sensor with its photo
+/// beside the scene, the one the scene names (a COLMAP image's) or the one
+/// `images/<id>.exr|png|jpg|jpeg` (sensors without one are skipped with a note; a sensor
+/// with two is refused).
 pub fn match_views(scene: &Scene, cfg: &Config, mode: Mode) -> Result<Vec<(usize, PathBuf)>> {
     let mut views = Vec::new();
     if cfg.views.is_empty() {
         let dir = scene.dir().join("images");
         for (i, s) in scene.sensors.iter().enumerate() {
-            let p = dir.join(format!("{}.exr", s.id));
-            if p.is_file() {
-                views.push((i, p));
-            } else {
-                note(
-                    mode,
-                    &format!("sensor '{}' has no photo {}: skipped", s.id, p.display()),
-                );
+            let found = match &s.photo {
+                Some(p) => p.is_file().then(|| p.clone()),
+                None => crate::scene::photos::find(&dir, &s.id)?,
+            };
+            match found {
+                Some(p) => views.push((i, p)),
+                None => {
+                    let p = (s.photo.clone()).unwrap_or_else(|| dir.join(format!("{}.exr", s.id)));
+                    let msg = format!(
+                        "sensor '{}' has no photo {} (or .png, .jpg, .jpeg): skipped",
+                        s.id,
+                        p.display()
+                    );
+                    note(mode, &msg);
+                }
             }
         }
     } else {
@@ -262,7 +313,8 @@ pub fn match_views(scene: &Scene, cfg: &Config, mode: Mode) -> Result<Vec<(usize
     if views.is_empty() {
         return Err(Error::input(
             &cfg.scene,
-            "no photos: no sensor has an images/<sensor id>.exr and the config names no views",
+            "no photos: no sensor has an images/<sensor id>.exr (or .png, .jpg, .jpeg) and the \
+             config names no views",
         ));
     }
     Ok(views)
@@ -355,6 +407,7 @@ impl RunContext {
             atlases,
             layout,
             views,
+            response: Response::Srgb,
             density,
             photos: Mutex::new(Vec::new()),
         })
@@ -362,6 +415,7 @@ impl RunContext {
 
     /// Per reconstructed shape: its density (and how it was chosen), texture size and covered
     /// texels, counted in `geom` (for report.json).
+    #[inline(never)] // a stage entry tools/icount.py measures
     pub fn texel_report(
         &self,
         geom: &TileStore<TexelGeom>,

@@ -54,6 +54,7 @@ pub struct Charts {
 
 impl Charts {
     /// `atlases[shape]` must be the atlas of every slot's shape, of the slot's size.
+    #[inline(never)] // a stage entry tools/icount.py measures
     pub fn new(scene: &Scene, layout: &Layout, atlases: &[Option<ShapeAtlas>]) -> Result<Self> {
         let mut slot_of_shape = vec![None; scene.shapes.len()];
         let mut slots = Vec::with_capacity(layout.slots.len());

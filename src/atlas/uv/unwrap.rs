@@ -188,6 +188,21 @@ fn from_mesh_uvs(mesh: &Mesh, s: &AtlasSettings, area: f64) -> Result<ShapeAtlas
 /// within about 0.88..1.21 for a few more charts and no loss of fill or speed.
 const MAX_AREA_DISTORTION: f32 = 1.25;
 
+/// Triangles beyond which charts are packed in rows (`Packing::Fast`) rather than by shape:
+/// a scan-like mesh (a displaced sphere of 1M triangles) unwraps into tens of thousands of
+/// charts, and shape packing spent over 10 minutes on them (`tools/gen_scan_mesh.py`), far
+/// beyond the projection. Smaller meshes, every fixture among them, keep the denser packing.
+const FAST_PACKING_TRIANGLES: usize = 100_000;
+
+/// How charts are packed for a mesh of `triangles` triangles.
+fn packing(triangles: usize) -> uvunwrap::Packing {
+    if triangles > FAST_PACKING_TRIANGLES {
+        uvunwrap::Packing::Fast
+    } else {
+        uvunwrap::Packing::Shape
+    }
+}
+
 /// The triangles of one density level, with their own copy of the vertices they use: one
 /// uvunwrap input (charts never span inputs, so a chart has one density).
 struct LevelMesh {
@@ -269,6 +284,7 @@ fn unwrap(
         // uvunwrap keeps charts 2 x padding apart.
         padding: s.padding.div_ceil(2),
         max_area_distortion: MAX_AREA_DISTORTION,
+        packing: packing(mesh.triangles.len()),
         ..Default::default()
     };
     let result = uvunwrap::generate_with_progress(&inputs, &options, |p| {

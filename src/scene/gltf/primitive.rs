@@ -1,6 +1,6 @@
 //! One glTF mesh primitive -> one world-space [`Shape`]: triangles (lists, strips, fans),
 //! positions, normals and `TEXCOORD_0` read through the `gltf` crate's accessor readers after
-//! checking each accessor's type (the readers do not), indices checked against the vertex
+//! checking each accessor's type and byte ranges (the readers do not), indices checked against the vertex
 //! count, and the material's emission settled in scene units.
 //!
 //! glTF puts the texture origin at the top left (v down); kdmap meshes keep v up, as OBJ and
@@ -87,7 +87,8 @@ fn emission(b: &Builder, m: &::gltf::Material, here: &str) -> Result<Option<Vec3
     Ok(Some(e * b.opts.photometric_scale))
 }
 
-/// Refuse an accessor that is not `dims` of `types` (a typed message naming `what`).
+/// Refuse an accessor that is not `dims` of `types` (a typed message naming `what`), or
+/// whose bytes do not lie inside its buffer ([`super::accessor`]).
 fn check_accessor(
     b: &Builder,
     here: &str,
@@ -107,7 +108,14 @@ fn check_accessor(
             ),
         ));
     }
-    Ok(())
+    match super::accessor::layout_error(acc, b.buffers) {
+        Some(e) => Err(at(
+            b.path,
+            &format!("{here}.{what} (accessors[{}])", acc.index()),
+            e,
+        )),
+        None => Ok(()),
+    }
 }
 
 /// The primitive's mesh in its node's local frame.

@@ -8,7 +8,6 @@ use super::{at, node_label, Builder};
 use crate::scene::{FovAxis, PixelFilter, Sensor};
 use crate::Result;
 use glam::{DMat4, DVec4, Mat4};
-use std::path::Path;
 
 /// Film height (pixels) of a camera without a photo; its width follows `aspectRatio` (1 when
 /// the file gives none). Only `inspect` ever sees such a camera: a run skips it.
@@ -41,18 +40,6 @@ pub fn gltf_camera_to_world(world: &DMat4) -> Option<Mat4> {
         DVec4::W,
     );
     Some((rigid * turn).as_mat4())
-}
-
-/// The size of an OpenEXR photo from its header (first part's data window).
-fn photo_size(photo: &Path) -> Result<(u32, u32)> {
-    let meta = exr::meta::MetaData::read_from_file(photo, false).map_err(|e| {
-        crate::base::error::Error::input(photo, format!("not a readable OpenEXR file: {e}"))
-    })?;
-    let h = meta
-        .headers
-        .first()
-        .ok_or_else(|| crate::base::error::Error::input(photo, "OpenEXR file without a header"))?;
-    Ok((h.layer_size.width() as u32, h.layer_size.height() as u32))
 }
 
 /// The sensor of `cam` on `node` at `world`, named `id`.
@@ -91,11 +78,11 @@ pub(super) fn sensor(
     })?;
     let photo = match b.opts.views.get(&id) {
         Some(p) => Some(p.clone()),
-        None => Some(b.dir.join("images").join(format!("{id}.exr"))).filter(|p| p.is_file()),
+        None => crate::scene::photos::find(&b.dir.join("images"), &id)?,
     };
     let (width, height) = match &photo {
         Some(photo) if photo.is_file() => {
-            let (w, h) = photo_size(photo)?;
+            let (w, h) = crate::scene::photos::size(photo)?;
             if let Some(a) = aspect {
                 let pa = w as f64 / h.max(1) as f64;
                 if (pa / a - 1.0).abs() > ASPECT_TOLERANCE {

@@ -131,6 +131,8 @@ impl<'a, 'i> Parser<'a, 'i> {
             crop_offset: film.crop_offset,
             principal_point,
             filter: film.filter,
+            lens: None,
+            photo: None,
         })
     }
 

@@ -56,6 +56,8 @@
 //! by rays from there) before the weighted mean and the refinement passes, which then see only
 //! the refined poses; so do the noise probe and, through `report.json`, the outputs.
 
+mod diagnose;
+pub mod exposure;
 mod noise;
 pub mod noise_probe;
 pub mod pose;
@@ -64,6 +66,7 @@ mod shrinkage;
 pub mod total_variation;
 mod view;
 
+pub use diagnose::notes as capture_notes;
 pub use refine::{Refine, REFINE_SUPERSAMPLE};
 pub use shrinkage::{shrink_residual, shrink_residual_levels, NoiseLevels};
 pub use view::{classify_pixels, Pair, PixelInfo, Value, View};
@@ -103,6 +106,8 @@ pub struct ProjectionStats {
     pub seconds: f64,
     /// The noise probe's part of it (0 when off).
     pub probe_seconds: f64,
+    /// The photos' calibration's part of it (gains, poses).
+    pub calibration_seconds: f64,
     /// Per refinement pass, each view's mean relative residual `|photo - render| / photo`
     /// over its clean pixels before the pass's update (pass 0: the weighted mean's; see
     /// [`refine::mean_relative_residual`]).
@@ -112,17 +117,21 @@ pub struct ProjectionStats {
     pub pose: Vec<PoseCorrection>,
     /// The pose refinement's part of `seconds` (0 when off).
     pub pose_seconds: f64,
+    /// Per view, its photo's gain and what fixed it.
+    pub gains: Vec<crate::report::ViewCapture>,
 }
 
 /// How the stage is shared with the other processes of a run (decided by `pipeline`): this
 /// process computes the work units `owns` accepts (tiles, and bands of [`ROW_BAND`] rows of a
 /// re-rendered view), `sync` makes every tile of the state current after a step that changed
-/// it, `sync_pixels` makes an image computed in units of `n` consecutive pixels whole; so every
-/// process goes on from the same state. [`Shard::whole`]: one process.
+/// it, `sync_pixels` makes an image computed in units of `n` consecutive pixels whole, `sum`
+/// adds a count over the processes; so every process goes on from the same state.
+/// [`Shard::whole`]: one process.
 pub struct Shard<'a> {
     pub owns: &'a (dyn Fn(usize) -> bool + Sync),
     pub sync: &'a dyn Fn(&mut TileStore<TexelState>) -> Result<()>,
     pub sync_pixels: &'a SyncPixels<'a>,
+    pub sum: &'a dyn Fn(u64) -> u64,
 }
 
 /// See [`Shard::sync_pixels`].
@@ -143,10 +152,14 @@ impl Shard<'static> {
         fn pixels(_: &mut [Option<Vec3>], _: usize) -> Result<()> {
             Ok(())
         }
+        fn alone(v: u64) -> u64 {
+            v
+        }
         Shard {
             owns: &every,
             sync: &tiles,
             sync_pixels: &pixels,
+            sum: &alone,
         }
     }
 }
@@ -170,6 +183,7 @@ pub fn run(
 /// [`run`] shared by several processes: only the tiles `shard` owns are projected and refined
 /// here, and the store is synced after the weighted mean and after each refinement pass.
 #[allow(clippy::too_many_arguments)]
+#[inline(never)] // a stage entry tools/icount.py measures
 pub fn run_shard(
     p: &RunContext,
     cfg: &Config,
@@ -187,21 +201,35 @@ pub fn run_shard(
     let window = p.window::<TexelState>(cfg);
     let stage = Stage::new(mode, "projection", p.views.len() as u64, "views");
     let t0 = Instant::now();
-    let photos = read_photos(p, mode)?;
-    stats.masked_pixels = photos.iter().map(|ph| ph.masked).sum();
+    let raw = read_photos(p, mode)?;
+    stats.masked_pixels = raw.iter().map(|ph| ph.masked).sum();
     let bounds = tile_bounds(geom)?;
-    let mut views = Vec::with_capacity(photos.len());
-    for ((si, _), photo) in p.views.iter().zip(&photos) {
+    let mut nominal = Vec::with_capacity(raw.len());
+    for ((si, _), photo) in p.views.iter().zip(&raw) {
         let view = View::new(
             &p.scene,
             &p.accel,
             Camera::from_sensor(&p.scene.sensors[*si]),
             photo,
         );
-        views.push(view);
+        nominal.push(view);
         stage.inc(1);
         interrupt::check(interrupt::NOTHING_SAVED)?;
     }
+    let ids: Vec<String> = (p.views.iter())
+        .map(|(si, _)| p.scene.sensors[*si].id.clone())
+        .collect();
+    let t = Instant::now();
+    stats.gains = exposure::estimate(p, cfg, &nominal, &ids, geom)?;
+    stats.calibration_seconds = t.elapsed().as_secs_f64();
+    let photos: Vec<Image> = (raw.iter().zip(&stats.gains))
+        .map(|(ph, g)| exposure::apply(ph, g.gain))
+        .collect();
+    let views: Vec<View> = (nominal.iter().zip(&photos))
+        .map(|(v, ph)| v.with_image(ph))
+        .collect();
+    drop(nominal);
+    drop(raw);
     let ctx = refine::Refine {
         p,
         hits,
@@ -234,33 +262,12 @@ pub fn run_shard(
     let passes = refine::Passes::of(cfg);
     let (noise, residual) = project_and_refine(&ctx, state, passes, mode)?;
     stats.refine_residual = residual;
+    for (g, n) in stats.gains.iter_mut().zip(&noise) {
+        g.check = n.check.clone();
+    }
     if cfg.noise_probe && !noise.is_empty() {
         let t = Instant::now();
-        let perturbed: Vec<Image> = (photos.iter().zip(&noise).enumerate())
-            .map(|(i, (ph, n))| noise_probe::perturbed(ph, n, cfg.seed, i as u64))
-            .collect();
-        let probe_views: Vec<View> = (ctx.views.iter().zip(&perturbed))
-            .map(|(v, im)| v.with_image(im))
-            .collect();
-        let path = scratch.dir.join("probe-state.tiles");
-        let mut probe_state = p.create_store(&path, TexelState::default())?;
-        let pctx = refine::Refine {
-            views: &probe_views,
-            label: "noise probe",
-            ..ctx
-        };
-        project_and_refine(&pctx, &mut probe_state, passes, mode)?;
-        noise_probe::apply(
-            &p.layout,
-            charts,
-            geom,
-            state,
-            &mut probe_state,
-            window,
-            scratch,
-        )?;
-        drop(probe_state);
-        std::fs::remove_file(&path).map_err(|e| crate::base::error::Error::io(&path, e))?;
+        probe_noise(&ctx, cfg, state, (&photos, &noise), passes, mode)?;
         stats.probe_seconds = t.elapsed().as_secs_f64();
     }
     stage.finish();
@@ -274,6 +281,46 @@ pub fn run_shard(
     stats.observed_texels = o;
     stats.seconds = t0.elapsed().as_secs_f64();
     Ok(stats)
+}
+
+/// The noise probe (see [`noise_probe`]): the photos perturbed by their own noise, projected
+/// and refined again into a scratch store, and the difference made each texel's photo noise.
+/// A function of its own so the instruction-count guard (`tools/icount.py`) can find it.
+#[inline(never)]
+fn probe_noise(
+    ctx: &refine::Refine,
+    cfg: &Config,
+    state: &mut TileStore<TexelState>,
+    (photos, noise): (&[Image], &[noise_probe::ViewNoise]),
+    passes: refine::Passes,
+    mode: Mode,
+) -> Result<()> {
+    let (p, views) = (ctx.p, ctx.views);
+    let perturbed: Vec<Image> = (photos.iter().zip(noise).enumerate())
+        .map(|(i, (ph, n))| noise_probe::perturbed(ph, n, cfg.seed, i as u64))
+        .collect();
+    let probe_views: Vec<View> = (views.iter().zip(&perturbed))
+        .map(|(v, im)| v.with_image(im))
+        .collect();
+    let path = ctx.scratch.dir.join("probe-state.tiles");
+    let mut probe_state = p.create_store(&path, TexelState::default())?;
+    let pctx = refine::Refine {
+        views: &probe_views,
+        label: "noise probe",
+        ..*ctx
+    };
+    project_and_refine(&pctx, &mut probe_state, passes, mode)?;
+    noise_probe::apply(
+        &p.layout,
+        ctx.charts,
+        ctx.geom,
+        state,
+        &mut probe_state,
+        ctx.window,
+        ctx.scratch,
+    )?;
+    drop(probe_state);
+    std::fs::remove_file(&path).map_err(|e| crate::base::error::Error::io(&path, e))
 }
 
 /// The weighted mean of every view of `ctx` into `state` (L_orig, weight, OBSERVED; synced),
@@ -309,7 +356,7 @@ fn read_photos(p: &RunContext, mode: Mode) -> Result<Vec<Image>> {
         Some(photos) => Ok(photos),
         None => {
             p.release_photos();
-            read_photos_checked(&p.scene, &p.views, mode)
+            read_photos_checked(&p.scene, &p.views, &p.response, mode)
         }
     }
 }
@@ -507,7 +554,8 @@ pub fn backproject_tile(
     geom: &[TexelGeom],
     state: &[TexelState],
     acc: &mut [Residual],
-) {
+) -> Agreement {
+    let mut seen = Agreement::default();
     for ((g, s), a) in geom.iter().zip(state).zip(acc.iter_mut()) {
         if !g.covered() {
             continue;
@@ -533,7 +581,18 @@ pub fn backproject_tile(
         a.w2var += w * w * var;
         a.views += 1.0;
         a.out += (z > DISAGREE_Z) as u32 as f32;
+        seen.texels += 1;
+        seen.disagreeing += (z > DISAGREE_Z) as u64;
     }
+    seen
+}
+
+/// How many texels a view saw in a pass, and at how many it disagreed with the estimate by
+/// more than [`DISAGREE_Z`] of its noise and the expected spread.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Agreement {
+    pub texels: u64,
+    pub disagreeing: u64,
 }
 
 /// The variance of a fused luminance from one pass's [`Residual`] and the total weight:

@@ -49,6 +49,8 @@ const STREAM_TAG: u64 = 0x70_726f_6265;
 pub struct ViewNoise {
     pub sigma: f32,
     pub level: Vec<f32>,
+    /// The view against its re-render, in the last pass (see `diagnose`).
+    pub check: Option<crate::report::ViewCheck>,
 }
 
 /// `image` with relative noise `PROBE_SCALE * level` (`sigma` where the level is 0) added to every valid pixel
@@ -192,7 +194,11 @@ mod tests {
         let img = image(n, v);
         let level: Vec<f32> = (0..n).map(|i| if i < n / 2 { 0.08 } else { 0.0 }).collect();
         // the level where there is one, even below the view's; the view's where there is none
-        let noise = ViewNoise { sigma: 0.02, level };
+        let noise = ViewNoise {
+            sigma: 0.02,
+            level,
+            check: None,
+        };
         let a = perturbed(&img, &noise, 1, 0);
         assert_eq!(a.pixels[3], Vec3::ZERO, "masked");
         assert_eq!(a.masked, 1);

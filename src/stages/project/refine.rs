@@ -2,6 +2,7 @@
 //! current maps, back-project the residuals `photo - render` with the projection's own lookups
 //! and weights, add their weighted mean (see the module notes of [`super`]).
 
+use super::diagnose;
 use super::noise_probe::ViewNoise;
 use super::shrinkage::relative;
 use super::total_variation::tv_luminance;
@@ -20,7 +21,7 @@ use crate::base::error::{Error, Result};
 use crate::base::progress::{Mode, Stage};
 use crate::physics::render::{apply_pixel_filter, render_view_with, Film, Plan, Texture};
 use glam::Vec3;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Mutex;
 
 /// Sub-pixel rays per side when a view is re-rendered for refinement (pixel means, then the
@@ -175,6 +176,7 @@ impl Refine<'_> {
     /// rays only for clean pixels that straddle a chart seam. Returns each view's noise as
     /// the last pass estimated it (none without passes), and per pass each view's
     /// [`mean_relative_residual`] before the pass's update.
+    #[inline(never)] // a stage entry tools/icount.py measures
     pub fn run(
         &self,
         state: &mut TileStore<TexelState>,
@@ -319,6 +321,7 @@ impl Refine<'_> {
         };
         let err: Mutex<Option<Error>> = Mutex::new(None);
         let touched = &delta.touched;
+        let (texels, disagreeing) = (AtomicU64::new(0), AtomicU64::new(0));
         delta.store.for_each_tile_mut(self.window, |t, d| {
             if !(self.shard.owns)(t)
                 || !self.bounds[t].is_some_and(|(lo, hi)| view.camera.may_see(lo, hi))
@@ -334,7 +337,9 @@ impl Refine<'_> {
             };
             touched[t].store(true, Ordering::Relaxed);
             let slot = p.layout.slot_of_tile(t as u32);
-            backproject_tile(&rv, &p.shape_ref(slot), &g, &st, d);
+            let a = backproject_tile(&rv, &p.shape_ref(slot), &g, &st, d);
+            texels.fetch_add(a.texels, Ordering::Relaxed);
+            disagreeing.fetch_add(a.disagreeing, Ordering::Relaxed);
         })?;
         match err.into_inner().unwrap_or_else(|e| e.into_inner()) {
             Some(e) => Err(e),
@@ -342,6 +347,11 @@ impl Refine<'_> {
                 ViewNoise {
                     sigma,
                     level: rough,
+                    check: last.then(|| {
+                        let sum = self.shard.sum;
+                        let seen = (sum(texels.into_inner()), sum(disagreeing.into_inner()));
+                        diagnose::check(photo, &render, &view.pixels, seen)
+                    }),
                 },
                 mean,
             )),

@@ -170,6 +170,7 @@ pub struct Filled {
 /// and the `FILLED` flag, a texture whole if it fits in `scratch`'s budget, else tile by tile
 /// (the same values), then the harmonic relaxation. `tick` gets every tile read and every
 /// tile written back (two per tile in all; the waves between are not counted).
+#[inline(never)] // a stage entry tools/icount.py measures
 pub fn fill_unobserved_all(
     layout: &Layout,
     charts: &Charts,

@@ -253,6 +253,7 @@ pub struct Update {
 /// Steps 7 and 9 over every tile for iteration `n`, after `accum` holds the estimated `E_i`:
 /// compare and update `E_i` by `rule` (with `cfg`'s step sizes). `prev` is the previous
 /// iteration's `(sum_e_i, sum_traced)` (the secant rule steps from it).
+#[inline(never)] // a stage entry tools/icount.py measures
 pub fn update_step(
     cfg: &Config,
     rule: UpdateRule,
