@@ -236,7 +236,11 @@ impl PoseCorrection {
             self.shift_px,
             100.0 * self.residual_before,
             100.0 * self.residual_after,
-            if self.converged { "" } else { " (not converged)" }
+            if self.converged {
+                ""
+            } else {
+                " (not converged)"
+            }
         )
     }
 }

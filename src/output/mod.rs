@@ -76,13 +76,15 @@ pub fn output_units(p: &RunContext) -> u64 {
 /// applied refinement of a sensor's pose, that pose.
 pub fn posed_sensors(scene: &Scene, poses: &[PoseCorrection]) -> Vec<Sensor> {
     (scene.sensors.iter())
-        .map(|s| match poses.iter().find(|c| c.view == s.id && c.applied) {
-            Some(c) => Sensor {
-                to_world: c.matrix(),
-                ..s.clone()
+        .map(
+            |s| match poses.iter().find(|c| c.view == s.id && c.applied) {
+                Some(c) => Sensor {
+                    to_world: c.matrix(),
+                    ..s.clone()
+                },
+                None => s.clone(),
             },
-            None => s.clone(),
-        })
+        )
         .collect()
 }
 

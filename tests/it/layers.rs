@@ -125,6 +125,7 @@ const FOLDERS: &[(&str, &[Layer])] = &[
                 "noise_probe",
                 "diagnose",
                 "refine",
+                "pose",
             ],
             Listed,
         )],

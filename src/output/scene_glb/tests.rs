@@ -111,7 +111,14 @@ fn scene() -> (Scene, Vec<Option<ShapeAtlas>>) {
 fn glb_round_trips_through_the_gltf_crate_and_kdmap() {
     let (scene, atlases) = scene();
     let png = b"\x89PNG fake bytes".to_vec();
-    let bytes = scene_glb(&scene, &scene.sensors, &atlases, &[Some(png.clone()), None], 0.5).unwrap();
+    let bytes = scene_glb(
+        &scene,
+        &scene.sensors,
+        &atlases,
+        &[Some(png.clone()), None],
+        0.5,
+    )
+    .unwrap();
     // the gltf crate validates the document
     let g = ::gltf::Gltf::from_slice(&bytes).unwrap();
     let blob = g.blob.clone().unwrap();

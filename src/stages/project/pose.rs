@@ -35,6 +35,13 @@
 //! not refined (a seventh geometric parameter nearly interchangeable with a translation along
 //! the axis over a room-sized scene).
 //!
+//! **What the photos leave free.** Moving every camera by one rigid motion changes no
+//! residual between photos on a diffuse, textured scene except at depth edges, so the
+//! common part of the cameras' errors is barely observable. A weak prior on each correction
+//! ([`PRIOR`]: a 1 px move costs a sample what a residual of a tenth of a robust standard
+//! deviation costs) settles that part at the smallest corrections: with independent pose
+//! errors the common error left is about their mean, shrinking with the number of views.
+//!
 //! **Bounds.** The correction (relative to the scene's pose) may reach [`MAX_ROTATION_DEG`]
 //! and [`MAX_TRANSLATION`] of the viewing distance (the median distance of the view's clean
 //! pixels' surface points); a step beyond either ends the view's alignment, which is then
@@ -87,10 +94,7 @@ const MIN_WEIGHT: f32 = 0.5;
 /// Pixels kept clear of what the reference cannot predict, beyond three blurs.
 const GUARD_PX: f32 = 2.0;
 /// Huber's threshold in robust standard deviations (95% efficiency for Gaussian noise).
-const HUBER_DEFAULT: f64 = 1.345;
-fn huber_k() -> f64 {
-    std::env::var("KDMAP_POSE_HUBER").map_or(HUBER_DEFAULT, |v| v.parse().unwrap())
-}
+const HUBER_K: f64 = 1.345;
 /// Samples per chunk of a parallel sum (chunks are added in order).
 const CHUNK: usize = 1024;
 /// The parameters: rotation (3, radians), translation (3, viewing distances), gain.
@@ -246,7 +250,7 @@ pub fn refine<'a>(ctx: &Refine<'a>, mode: Mode) -> Result<(Vec<View<'a>>, Vec<Po
     if n < 2 {
         poses.iter_mut().for_each(|p| p.refuse(Status::Alone));
     }
-    let rounds: u32 = std::env::var("KDMAP_POSE_ROUNDS").map_or(ROUNDS, |v| v.parse().unwrap());
+    let rounds = ROUNDS;
     let stage = Stage::new(mode, "pose refinement", rounds as u64 * n as u64, "views");
     let mut built: Vec<View<'a>>;
     for round in 0..rounds {
@@ -258,7 +262,13 @@ pub fn refine<'a>(ctx: &Refine<'a>, mode: Mode) -> Result<(Vec<View<'a>>, Vec<Po
             }
         };
         if poses.iter().any(Pose::active) {
-            refine_round(ctx, views, &mut poses, (round == 0, round + 1 == rounds), &stage)?;
+            refine_round(
+                ctx,
+                views,
+                &mut poses,
+                (round == 0, round + 1 == rounds),
+                &stage,
+            )?;
         }
     }
     stage.finish();
@@ -300,13 +310,7 @@ fn refine_round(
     drop(sums);
     std::fs::remove_file(&path).map_err(|e| Error::io(&path, e))?;
     let start = poses.to_vec();
-    if first && std::env::var("KDMAP_POSE_CHECK").is_ok() {
-        check_cross(ctx, views, &refs, &start)?;
-    }
     for (i, &sigma) in LEVELS.iter().enumerate() {
-        if !first && std::env::var("KDMAP_POSE_FINE").is_ok() && i + 1 < LEVELS.len() {
-            continue;
-        }
         let levels = levels(views, &refs, &start, sigma);
         let joint = Joint {
             levels: &levels,
@@ -328,11 +332,7 @@ fn refine_round(
 }
 
 /// Every view projected into a fresh store at `path`: per texel `sum w L` and `sum w`.
-fn project_sums(
-    ctx: &Refine,
-    views: &[View],
-    path: &Path,
-) -> Result<TileStore<TexelState>> {
+fn project_sums(ctx: &Refine, views: &[View], path: &Path) -> Result<TileStore<TexelState>> {
     let (p, shard, bounds) = (ctx.p, ctx.shard, ctx.bounds);
     let mut sums = p.create_store(path, TexelState::default())?;
     for view in views {
@@ -415,9 +415,9 @@ impl Reference {
             masked: view.image.pixels.len(),
         };
         let scene = &ctx.p.scene;
-        let film = match std::env::var("KDMAP_POSE_NOEMIT").is_ok() {
-            true => Film::HitsOnly,
-            false => Film::Box { scene, photo: &blank },
+        let film = Film::Box {
+            scene,
+            photo: &blank,
         };
         let rendered = render(ctx, view, &maps, film)?;
         let observed = render(ctx, view, &seen, Film::HitsOnly)?;
@@ -437,11 +437,7 @@ impl Reference {
     ) -> Reference {
         let (w, h) = (view.camera.width() as usize, view.camera.height() as usize);
         let shapes = &ctx.p.scene.shapes;
-        let noemit = std::env::var("KDMAP_POSE_NOEMIT").is_ok();
-        let known = |s: u32| match shapes.get(s as usize) {
-            Some(s) => s.known().is_some() || (noemit && s.emission.is_some()),
-            None => noemit,
-        };
+        let known = |s: u32| shapes.get(s as usize).is_some_and(|s| s.known().is_some());
         let usable = (render.iter().zip(&observed))
             .map(|(r, o)| r.is_some() && o.is_none_or(|o| o.x >= 0.999))
             .collect();
@@ -449,7 +445,10 @@ impl Reference {
         Reference {
             width: w,
             height: h,
-            render: render.into_iter().map(|r| r.unwrap_or(Vec3::ZERO)).collect(),
+            render: render
+                .into_iter()
+                .map(|r| r.unwrap_or(Vec3::ZERO))
+                .collect(),
             usable,
             foreign: summed_area(&foreign, w, h),
         }
@@ -552,7 +551,10 @@ fn clean_points(view: &View) -> Vec<Vec3> {
 /// The median distance from the camera of the view's clean pixels' surface points.
 fn viewing_distance(view: &View) -> Option<f64> {
     let c = view.camera.position();
-    let mut d: Vec<f32> = clean_points(view).iter().map(|p| (*p - c).length()).collect();
+    let mut d: Vec<f32> = clean_points(view)
+        .iter()
+        .map(|p| (*p - c).length())
+        .collect();
     if d.is_empty() {
         return None;
     }
@@ -591,6 +593,9 @@ struct Level {
     samples: Vec<Sample>,
     /// The samples' [`Cross`] terms, `cross[s.cross.0..s.cross.1]` for sample `s`.
     cross: Vec<Cross>,
+    /// The mean over the samples of `J^T J`, `J` how the sample's pixel moves with the six
+    /// pose parameters: a move `d` shifts the pixels by `sqrt(d^T M d)` px (RMS).
+    motion: [[f64; 6]; 6],
 }
 
 /// A pixel aligned on: its index, its surface point, the blurred reference there, and the
@@ -633,7 +638,7 @@ impl Level {
         let (refb, rweight) = blur(&reference.render, &mask, w, h, sigma);
         let (dx, dy) = gradients(&photo, w, h);
         let stride = ((sigma / 2.0) as usize).max(1);
-        let samples = (0..h)
+        let samples: Vec<Sample> = (0..h)
             .step_by(stride)
             .flat_map(|y| (0..w).step_by(stride).map(move |x| (x, y)))
             .filter(|&(x, y)| mask[y * w + x] && rweight[y * w + x] >= MIN_WEIGHT)
@@ -653,6 +658,7 @@ impl Level {
             dx,
             dy,
             weight,
+            motion: motion(view, &samples),
             samples,
             cross: Vec::new(),
         }
@@ -672,11 +678,40 @@ impl Level {
         let (tx, ty) = (fx - x0 as f32, fy - y0 as f32);
         let i = y0 * self.width + x0;
         let idx = [i, i + 1, i + self.width, i + self.width + 1];
-        let wts = [(1.0 - tx) * (1.0 - ty), tx * (1.0 - ty), (1.0 - tx) * ty, tx * ty];
+        let wts = [
+            (1.0 - tx) * (1.0 - ty),
+            tx * (1.0 - ty),
+            (1.0 - tx) * ty,
+            tx * ty,
+        ];
         let mix = |v: &[Vec3]| idx.iter().zip(&wts).map(|(&j, &k)| v[j] * k).sum::<Vec3>();
-        let weight: f32 = idx.iter().zip(&wts).map(|(&j, &k)| self.weight[j] * k).sum();
+        let weight: f32 = idx
+            .iter()
+            .zip(&wts)
+            .map(|(&j, &k)| self.weight[j] * k)
+            .sum();
         (weight >= MIN_WEIGHT).then(|| (mix(&self.photo), mix(&self.dx), mix(&self.dy)))
     }
+}
+
+/// [`Level::motion`] of `samples` (up to 512 of them) seen through `view`'s camera.
+fn motion(view: &View, samples: &[Sample]) -> [[f64; 6]; 6] {
+    let distance = viewing_distance(view).unwrap_or(1.0);
+    let step = (samples.len() / 512).max(1);
+    let mut m = [[0.0f64; 6]; 6];
+    let mut n = 0u32;
+    for s in samples.iter().step_by(step) {
+        let Some(dq) = pose_jacobian(&view.camera, s.point, distance) else {
+            continue;
+        };
+        for (a, row) in m.iter_mut().enumerate() {
+            for (b, x) in row.iter_mut().enumerate() {
+                *x += dq[a].dot(dq[b]) as f64;
+            }
+        }
+        n += 1;
+    }
+    m.map(|row| row.map(|x| x / n.max(1) as f64))
 }
 
 /// Box radius whose threefold pass has standard deviation `sigma` (nearest integer):
@@ -768,7 +803,10 @@ fn levels(views: &[View], refs: &[Reference], start: &[Pose], sigma: f32) -> Vec
         .collect();
     for (level, terms) in levels.iter_mut().zip(terms) {
         for (s, t) in level.samples.iter_mut().zip(terms) {
-            s.cross = (level.cross.len() as u32, (level.cross.len() + t.len()) as u32);
+            s.cross = (
+                level.cross.len() as u32,
+                (level.cross.len() + t.len()) as u32,
+            );
             level.cross.extend(t);
         }
     }
@@ -778,7 +816,13 @@ fn levels(views: &[View], refs: &[Reference], start: &[Pose], sigma: f32) -> Vec
 /// The [`Cross`] terms of sample `s` of view `v`: every other view whose clean pixels see
 /// its surface point, with its share of the point's weight (pixels' worth, as the
 /// projection weighs: the inverse of its pixel's footprint there).
-fn cross_terms(views: &[View], levels: &[Level], start: &[Pose], v: usize, s: &Sample) -> Vec<Cross> {
+fn cross_terms(
+    views: &[View],
+    levels: &[Level],
+    start: &[Pose],
+    v: usize,
+    s: &Sample,
+) -> Vec<Cross> {
     let px = &views[v].pixels[s.pixel as usize];
     let mut seen = Vec::new();
     let mut total = 0.0f32;
@@ -824,7 +868,7 @@ struct Normal {
     blocks: BTreeMap<(usize, usize), Block>,
     g: Vec<[f64; PARAMS]>,
     /// The Huber cost of the residuals in robust standard deviations, samples that left the
-    /// usable pixels at `huber(3 huber_k())` each.
+    /// usable pixels at `huber(3 HUBER_K)` each.
     cost: f64,
     n: Vec<u64>,
     /// Per view, sums of `|Y(r)|` and of the reference's luminance.
@@ -852,8 +896,11 @@ impl Normal {
         }
         for v in 0..self.g.len() {
             self.g[v].iter_mut().zip(&o.g[v]).for_each(|(x, y)| *x += y);
-            (self.n[v], self.abs[v], self.lum[v]) =
-                (self.n[v] + o.n[v], self.abs[v] + o.abs[v], self.lum[v] + o.lum[v]);
+            (self.n[v], self.abs[v], self.lum[v]) = (
+                self.n[v] + o.n[v],
+                self.abs[v] + o.abs[v],
+                self.lum[v] + o.lum[v],
+            );
         }
         self.cost += o.cost;
     }
@@ -867,9 +914,15 @@ impl Normal {
     /// residual's Jacobian `row` (per view, its part).
     fn add_row(&mut self, row: &[(usize, [f64; PARAMS])], w: f64, r: f64) {
         for (a, ja) in row {
-            self.g[*a].iter_mut().zip(ja).for_each(|(g, j)| *g += w * j * r);
+            self.g[*a]
+                .iter_mut()
+                .zip(ja)
+                .for_each(|(g, j)| *g += w * j * r);
             for (b, jb) in row {
-                let blk = self.blocks.entry((*a, *b)).or_insert([[0.0; PARAMS]; PARAMS]);
+                let blk = self
+                    .blocks
+                    .entry((*a, *b))
+                    .or_insert([[0.0; PARAMS]; PARAMS]);
                 for (ra, x) in blk.iter_mut().zip(ja) {
                     ra.iter_mut().zip(jb).for_each(|(h, y)| *h += w * x * y);
                 }
@@ -896,7 +949,11 @@ fn look(
     let q = pose.camera.project(s.point)?;
     let (value, dx, dy) = level.sample(q)?;
     let cross = &level.cross[s.cross.0 as usize..s.cross.1 as usize];
-    let reference = s.reference + cross.iter().map(|c| c.apply(&deltas[c.view as usize])).sum::<Vec3>();
+    let reference = s.reference
+        + cross
+            .iter()
+            .map(|c| c.apply(&deltas[c.view as usize]))
+            .sum::<Vec3>();
     Some((value - reference * pose.gain as f32, reference, dx, dy))
 }
 
@@ -942,16 +999,55 @@ fn evaluate(joint: &Joint, poses: &[Pose], scale: &[f64], jacobian: bool) -> Nor
             .map(|chunk| {
                 let mut s = Normal::new(n);
                 for smp in chunk {
-                    add_sample(&mut s, (level, v), poses, (&deltas, scale[v]), smp, jacobian);
+                    add_sample(
+                        &mut s,
+                        (level, v),
+                        poses,
+                        (&deltas, scale[v]),
+                        smp,
+                        jacobian,
+                    );
                 }
                 s
             })
             .collect();
         parts.iter().for_each(|p| total.add(p));
+        prior(&mut total, level, &poses[v], v, jacobian);
         let lost = level.samples.len() as u64 - total.n[v];
-        total.cost += lost as f64 * huber(3.0 * huber_k(), huber_k());
+        total.cost += lost as f64 * huber(3.0 * HUBER_K, HUBER_K);
     }
     total
+}
+
+/// The weight of the prior on a view's correction: a correction that moves the pixels by
+/// 1 px (RMS) costs each sample `PRIOR / 2`, as a residual of `sqrt(PRIOR)` robust standard
+/// deviations would. It settles what the photos leave free (moving every view together along
+/// a plane changes no residual) at the smallest correction, and biases the rest by about
+/// `PRIOR` times the correction over the residuals' curvature (thousandths of a pixel).
+const PRIOR: f64 = 0.01;
+
+/// The prior's part of [`evaluate`] for view `v` at `pose`: `PRIOR n / 2 d^T M d` for `n`
+/// samples, `d` the correction from the scene's pose, `M` the level's [`Level::motion`].
+fn prior(total: &mut Normal, level: &Level, pose: &Pose, v: usize, jacobian: bool) {
+    let w = pose.rot.to_scaled_axis();
+    let t = pose.shift / pose.distance;
+    let d = [w.x, w.y, w.z, t.x, t.y, t.z];
+    let k = PRIOR * level.samples.len() as f64;
+    let md: Vec<f64> = (level.motion.iter())
+        .map(|row| row.iter().zip(&d).map(|(m, x)| m * x).sum())
+        .collect();
+    total.cost += 0.5 * k * md.iter().zip(&d).map(|(a, b)| a * b).sum::<f64>();
+    if !jacobian {
+        return;
+    }
+    let blk = total
+        .blocks
+        .entry((v, v))
+        .or_insert([[0.0; PARAMS]; PARAMS]);
+    for (a, (row, m)) in blk.iter_mut().zip(&level.motion).enumerate() {
+        total.g[v][a] += k * md[a];
+        row.iter_mut().zip(m).for_each(|(h, x)| *h += k * x);
+    }
 }
 
 /// One sample's part of [`evaluate`]: per channel, its Huber-weighted Gauss-Newton terms over
@@ -972,7 +1068,7 @@ fn add_sample(
     s.abs[v] += luminance(r).abs() as f64;
     s.lum[v] += luminance(reference * pose.gain as f32) as f64;
     let r = r.to_array().map(|x| x as f64 / scale);
-    s.cost += r.iter().map(|&x| huber(x, huber_k())).sum::<f64>();
+    s.cost += r.iter().map(|&x| huber(x, HUBER_K)).sum::<f64>();
     let dq = pose_jacobian(&pose.camera, smp.point, pose.distance);
     let (Some(dq), true) = (dq, jacobian) else {
         return;
@@ -990,12 +1086,16 @@ fn add_sample(
         row.push((v, own));
         for x in cross.iter().filter(|x| poses[x.view as usize].active()) {
             let mut j = [0.0; PARAMS];
-            for p in 0..6 {
-                j[p] = -pose.gain * x.l[c][p] as f64 / scale;
+            for (jp, l) in j.iter_mut().zip(&x.l[c]) {
+                *jp = -pose.gain * *l as f64 / scale;
             }
             row.push((x.view as usize, j));
         }
-        let w = if r[c].abs() <= huber_k() { 1.0 } else { huber_k() / r[c].abs() };
+        let w = if r[c].abs() <= HUBER_K {
+            1.0
+        } else {
+            HUBER_K / r[c].abs()
+        };
         s.add_row(&row, w, r[c]);
     }
 }
@@ -1005,8 +1105,7 @@ fn add_sample(
 /// that keeps too few usable pixels, is refused and goes back to the scene's pose.
 fn iterate(joint: &Joint, poses: &mut [Pose], tol: f64) -> bool {
     let mut lambda = 1e-3;
-    let max_it: u32 = std::env::var("KDMAP_POSE_ITER").map_or(MAX_ITERATIONS, |v| v.parse().unwrap());
-    for _ in 0..max_it {
+    for _ in 0..MAX_ITERATIONS {
         let scale = scales(joint, poses);
         let s = evaluate(joint, poses, &scale, true);
         let few: Vec<usize> = (0..poses.len())
@@ -1027,7 +1126,6 @@ fn iterate(joint: &Joint, poses: &mut [Pose], tol: f64) -> bool {
         let moved = (active.iter())
             .map(|&v| mean_shift(&joint.levels[v].samples, &poses[v].camera, &next[v].camera))
             .fold(0.0, f64::max);
-        debug_line(poses, &next, &s, moved);
         poses.clone_from_slice(&next);
         for &v in &active {
             if poses[v].beyond_bound() {
@@ -1039,24 +1137,6 @@ fn iterate(joint: &Joint, poses: &mut [Pose], tol: f64) -> bool {
         }
     }
     false
-}
-
-fn debug_line(poses: &[Pose], next: &[Pose], s: &Normal, moved: f64) {
-    if std::env::var("KDMAP_POSE_DEBUG").is_err() {
-        return;
-    }
-    let _ = poses;
-    let views: Vec<String> = (next.iter())
-        .map(|p| {
-            format!(
-                "{:.3}deg {:.4}d g{:.4}",
-                p.rot.angle_between(DQuat::IDENTITY).to_degrees(),
-                p.shift.length() / p.distance,
-                p.gain
-            )
-        })
-        .collect();
-    eprintln!("  cost {:.5e} n {:?} moved {moved:.4}: {}", s.cost, s.n, views.join(", "));
 }
 
 /// A damped Gauss-Newton step of every view in `active` that lowers the cost of `s` (at the
@@ -1136,30 +1216,6 @@ fn solve(mut a: Vec<f64>, mut b: Vec<f64>, m: usize) -> Option<Vec<f64>> {
 /// others where they are) and at the refined one; a pose that does not lower it is refused.
 fn judge(joint: &Joint, poses: &mut [Pose], settled: bool) {
     let ones = vec![1.0; poses.len()];
-    if let Ok(f) = std::env::var("KDMAP_POSE_TRUTH") {
-        let text = std::fs::read_to_string(f).unwrap();
-        let ms: Vec<[[f32; 4]; 4]> = serde_json::from_str(&text).unwrap();
-        let truth: Vec<Pose> = (poses.iter().zip(&ms))
-            .map(|(p, m)| {
-                let m = glam::Mat4::from_cols_array_2d(m).transpose().as_dmat4();
-                let n = p.nominal.to_world().as_dmat4();
-                let t = m * n.inverse();
-                let rot = DQuat::from_mat4(&t).normalize();
-                let shift = m.transform_point3(DVec3::ZERO) - n.transform_point3(DVec3::ZERO);
-                Pose { camera: p.at(rot, shift), rot, shift, ..p.clone() }
-            })
-            .collect();
-        let scale = scales(joint, poses);
-        let a = evaluate(joint, poses, &scale, false);
-        let b = evaluate(joint, &truth, &scale, false);
-        eprintln!(
-            "judge: cost found {:.6e} truth {:.6e}; rel found {:?} truth {:?}",
-            a.cost,
-            b.cost,
-            (0..poses.len()).map(|v| a.relative(v)).collect::<Vec<_>>(),
-            (0..poses.len()).map(|v| b.relative(v)).collect::<Vec<_>>()
-        );
-    }
     let after = evaluate(joint, poses, &ones, false);
     for v in 0..poses.len() {
         if !poses[v].active() {
@@ -1216,30 +1272,4 @@ fn pose_jacobian(cam: &Camera, p: Vec3, distance: f64) -> Option<[Vec2; 6]> {
         along(-Vec3::Y * d),
         along(-Vec3::Z * d),
     ])
-}
-
-fn check_cross(ctx: &Refine, views: &[View], refs: &[Reference], start: &[Pose]) -> Result<()> {
-    for sigma in [4.0f32, 1.0] {
-        let levels = levels(views, refs, start, sigma);
-        let d = [0.0, 0.001, 0.0005, 0.0, 0.0, 0.0, 0.0];
-        let moved: Vec<Pose> = start.iter().enumerate().map(|(j, p)| if j == 1 { p.moved(&d) } else { p.clone() }).collect();
-        let views2: Vec<View> = views.iter().zip(&moved).map(|(v, p)| View::new(&ctx.p.scene, &ctx.p.accel, p.camera.clone(), v.image)).collect();
-        let path = ctx.scratch.dir.join("pose-sums2.tiles");
-        let sums = project_sums(ctx, &views2, &path)?;
-        let r2 = Reference::of(ctx, &sums, &views[0])?;
-        drop(sums);
-        let l2 = Level::new(&views[0], &r2, sigma);
-        let by: std::collections::HashMap<u32, Vec3> = l2.samples.iter().map(|s| (s.pixel, s.reference)).collect();
-        let dj = moved[1].delta_from(&start[1]);
-        let (mut sxy, mut sxx, mut syy, mut n) = (0.0f64, 0.0f64, 0.0f64, 0);
-        for smp in &levels[0].samples {
-            let Some(r) = by.get(&smp.pixel) else { continue };
-            let actual = luminance(*r - smp.reference) as f64;
-            let cross = &levels[0].cross[smp.cross.0 as usize..smp.cross.1 as usize];
-            let pred = luminance(cross.iter().filter(|c| c.view == 1).map(|c| c.apply(&dj)).sum::<Vec3>()) as f64;
-            sxy += actual * pred; sxx += pred * pred; syy += actual * actual; n += 1;
-        }
-        eprintln!("check sigma {sigma}: n {n} slope actual/pred {:.3} corr {:.3} rms actual {:.3e} pred {:.3e}", sxy / sxx, sxy / (sxx * syy).sqrt(), (syy / n as f64).sqrt(), (sxx / n as f64).sqrt());
-    }
-    Ok(())
 }

@@ -248,7 +248,10 @@ impl Refine<'_> {
     }
 
     /// The maps as textures by shape.
-    pub(super) fn textures<'m>(&'m self, maps: &'m [Option<SlotTexture<Vec3>>]) -> Vec<Option<Texture<'m>>> {
+    pub(super) fn textures<'m>(
+        &'m self,
+        maps: &'m [Option<SlotTexture<Vec3>>],
+    ) -> Vec<Option<Texture<'m>>> {
         let p = self.p;
         maps.iter()
             .enumerate()
