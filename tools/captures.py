@@ -49,8 +49,9 @@ def ensure(variant, fixtures, cache=DEFAULT_CACHE, log_path=None):
 
 def run_config(scene_dir):
     """Write `<scene_dir>/run.toml`: the scene, its COLMAP model (with the similarity into the
-    scene's frame) where the capture has one, and for 8-bit photos the first view's gain
-    pinned to the capture's recorded factor. Returns its path and the pinned view (or None)."""
+    scene's frame) where the capture has one, pose refinement where its poses were moved, and
+    for 8-bit photos the first view's gain pinned to the capture's recorded factor. Returns its
+    path and the pinned view (or None)."""
     scene_dir = os.path.abspath(scene_dir)
     with open(os.path.join(scene_dir, "capture.json")) as f:
         cap = json.load(f)
@@ -61,6 +62,9 @@ def run_config(scene_dir):
                          for r in cap["colmap"]["to_world"])
         views += [f"colmap = {json.dumps(os.path.join(scene_dir, cap['colmap']['dir']))}",
                   f"to_world = [{rows}]"]
+    opts = cap.get("options") or {}
+    if opts.get("pose_deg") or opts.get("pose_dist"):
+        views.append("refine_pose = true")
     pinned = None
     if cap.get("ldr"):
         views.append('exposure = "estimate"')

@@ -1,6 +1,7 @@
 #!/usr/bin/env python3
 """Unit test of tools/captures.py: variant names, and the run config written for a capture
-(8-bit: the first view's recorded gain pinned, the others listed; HDR: the scene alone).
+(8-bit: the first view's recorded gain pinned, the others listed; moved poses: refined; HDR:
+the scene alone).
 Standard library only; no rendering.
 
     .venv/bin/python tools/test_captures.py
@@ -21,10 +22,11 @@ TO_WORLD = [[0.0, -2.0, 0.0, 1.5], [2.0, 0.0, 0.0, -0.25], [0.0, 0.0, 2.0, 3.0],
             [0.0, 0.0, 0.0, 1.0]]
 
 
-def write_capture(d, ldr, colmap=False):
+def write_capture(d, ldr, colmap=False, pose=False):
     views = {f"cam_train_{i}": {"index": i, "image": f"images/cam_train_{i}.jpg",
                                 "factor": [2.0 + i, 2.5, 3.0]} for i in (2, 0, 1)}
-    cap = {"ldr": {"format": "jpg"} if ldr else None, "views": views}
+    cap = {"ldr": {"format": "jpg"} if ldr else None, "views": views,
+           "options": {"pose_deg": 0.3 if pose else 0.0, "pose_dist": 0.005 if pose else 0.0}}
     if colmap:
         cap["colmap"] = {"dir": "sparse", "to_world": TO_WORLD}
     with open(os.path.join(d, "capture.json"), "w") as f:
@@ -64,6 +66,13 @@ class Captures(unittest.TestCase):
             self.assertEqual(v["colmap"], os.path.join(d, "sparse"))
             self.assertEqual(v["to_world"], TO_WORLD)
             self.assertEqual(pinned, "cam_train_0")
+
+    def test_moved_poses_are_refined(self):
+        with tempfile.TemporaryDirectory() as d:
+            write_capture(d, ldr=False, pose=True)
+            path, _ = captures.run_config(d)
+            with open(path, "rb") as f:
+                self.assertIs(tomllib.load(f)["views"]["refine_pose"], True)
 
     def test_hdr_capture_is_the_scene_alone(self):
         with tempfile.TemporaryDirectory() as d:
