@@ -17,11 +17,13 @@ const OUTPUT_DIRS: &[&str] = &[
     "checkpoint",
     "accuracy",
     "heldout",
+    "report",
 ];
 const OUTPUT_FILES: &[&str] = &[
     "scene.xml",
     "scene.glb",
     "report.json",
+    "report.html",
     "report_convergence.svg",
     "report_convergence.png",
     "heldout_original.xml",

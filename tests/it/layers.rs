@@ -141,6 +141,7 @@ const FOLDERS: &[(&str, &[Layer])] = &[
             (
                 &[
                     "plot",
+                    "page",
                     "convergence",
                     "maps",
                     "renders",
@@ -148,6 +149,16 @@ const FOLDERS: &[(&str, &[Layer])] = &[
                     "scene_xml",
                     "uv_fold",
                 ],
+                Listed,
+            ),
+        ],
+    ),
+    (
+        "output::page",
+        &[
+            (&["html", "facts", "assets"], Independent),
+            (
+                &["svg", "summary", "views", "shapes", "figures", "tables"],
                 Listed,
             ),
         ],
