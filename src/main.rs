@@ -264,7 +264,10 @@ fn run(command: Command, mode: Mode) -> Result<()> {
         Command::Accuracy { out, truth, json } => accuracy(&out, &truth, json),
         Command::Report { out } => {
             kdmap::output::page::rebuild(&out)?;
-            emit(&format!("{}\n", out.join(kdmap::output::page::PAGE).display()))
+            emit(&format!(
+                "{}\n",
+                out.join(kdmap::output::page::PAGE).display()
+            ))
         }
         Command::Config { markdown, .. } => emit(&if markdown {
             kdmap::config::keys::markdown()

@@ -248,8 +248,17 @@ pub fn run_projection(
             g.covered() as u8
         })?;
         let mut f = shape_facts(&p, slot, None, (&cov, &obs));
-        f.maps.push(write_map(&maps, id, "luminance", &lum, &obs, true, &scratch)?);
-        f.maps.push(write_map(&maps, id, "coverage", &wt, &cov, true, &scratch)?);
+        f.maps.push(write_map(
+            &maps,
+            id,
+            "luminance",
+            &lum,
+            &obs,
+            true,
+            &scratch,
+        )?);
+        f.maps
+            .push(write_map(&maps, id, "coverage", &wt, &cov, true, &scratch)?);
         facts.shapes.push(f);
     }
     page::write_page(out, None, &facts)?;

@@ -71,10 +71,32 @@
     });
   }
 
+  function script(src, done) {
+    var s = document.createElement("script");
+    s.src = src;
+    s.onload = done;
+    document.body.appendChild(s);
+  }
+
+  // The viewer and the scene (megabytes on a large scene) load only when the 3D view is
+  // scrolled near, so the rest of the page opens at once.
   function setupViewer() {
     var mv = document.getElementById("viewer3d");
-    if (!mv || !window.KDMAP_GLB) return;
-    mv.src = "data:model/gltf-binary;base64," + window.KDMAP_GLB;
+    if (!mv) return;
+    var started = false;
+    var start = function () {
+      if (started) return;
+      started = true;
+      script("report/model-viewer-umd.min.js", function () {
+        script("report/scene_glb.js", function () {
+          mv.src = "data:model/gltf-binary;base64," + window.KDMAP_GLB;
+        });
+      });
+    };
+    if (!("IntersectionObserver" in window)) return start();
+    new IntersectionObserver(function (es) {
+      if (es.some(function (e) { return e.isIntersecting; })) start();
+    }, { rootMargin: "400px" }).observe(mv);
   }
 
   document.querySelectorAll("figure.view").forEach(setupView);

@@ -167,7 +167,8 @@ pub fn shape_facts(
         area: p.scene.shapes[st.shape].mesh.area(),
         covered,
         observed,
-        mean_kd: albedo.map(|a| (0..3).map(|k| mean_observed(a, obs, k)).collect::<Vec<_>>())
+        mean_kd: albedo
+            .map(|a| (0..3).map(|k| mean_observed(a, obs, k)).collect::<Vec<_>>())
             .map(|v| [v[0], v[1], v[2]]),
         mean_error: None,
         maps: Vec::new(),
@@ -266,9 +267,15 @@ pub fn write_slot(
         ("disagreement", &|s| Vec3::splat(s.disagree), &obs),
     ];
     for (name, f, mask) in each {
-        facts
-            .maps
-            .push(write_map(&maps, id, name, &tex(name, f)?, mask, true, scratch)?);
+        facts.maps.push(write_map(
+            &maps,
+            id,
+            name,
+            &tex(name, f)?,
+            mask,
+            true,
+            scratch,
+        )?);
     }
     let radiance = SlotTexture::read(l, slot, state, geom, scratch, "l_render", |s, _| {
         l_render(s)

@@ -217,14 +217,15 @@ pub fn write_view(
         write_pixmap_png(&dir.join(format!("{}_mask.png", sensor.id)), &mask)?;
         write_masks_json(dir, &p.scene)?;
     }
-    let facts = page_files(p, (&view, &sensor.id), (&photo, &render), exposure, scale, page_dir)?;
-    let rows = table_rows(
-        &sensor.id,
-        &p.scene,
-        &view.pixels,
-        &photo.pixels,
-        &render,
-    );
+    let facts = page_files(
+        p,
+        (&view, &sensor.id),
+        (&photo, &render),
+        exposure,
+        scale,
+        page_dir,
+    )?;
+    let rows = table_rows(&sensor.id, &p.scene, &view.pixels, &photo.pixels, &render);
     Ok((rows, facts))
 }
 
@@ -240,7 +241,13 @@ fn page_files(
 ) -> Result<ViewFacts> {
     let (w, h) = (photo.width, photo.height);
     fsio::create_dir(page_dir)?;
-    write_png_srgb(page_dir.join(format!("{id}_photo.png")), w, h, &photo.pixels, exposure)?;
+    write_png_srgb(
+        page_dir.join(format!("{id}_photo.png")),
+        w,
+        h,
+        &photo.pixels,
+        exposure,
+    )?;
     let errors: Vec<Option<f32>> = (0..(w * h) as usize)
         .map(|i| error_value(p, view, photo, render, i))
         .collect();
@@ -335,7 +342,13 @@ fn error_color(
 
 /// The relative luminance error of pixel `i`, where the error panel shows one: on a
 /// reconstructed shape, where the photo is valid and not black.
-fn error_value(p: &RunContext, view: &View, photo: &Image, render: &[Vec3], i: usize) -> Option<f32> {
+fn error_value(
+    p: &RunContext,
+    view: &View,
+    photo: &Image,
+    render: &[Vec3],
+    i: usize,
+) -> Option<f32> {
     let s = view.pixels[i].shape;
     let recon = p
         .scene

@@ -10,7 +10,10 @@ use std::path::Path;
 
 /// The vendored and own files, written as they are: (name under `report/`, bytes).
 pub const STATIC: &[(&str, &[u8])] = &[
-    ("kdmap.css", include_bytes!("../../../assets/page/kdmap.css")),
+    (
+        "kdmap.css",
+        include_bytes!("../../../assets/page/kdmap.css"),
+    ),
     ("kdmap.js", include_bytes!("../../../assets/page/kdmap.js")),
     (
         "model-viewer-umd.min.js",

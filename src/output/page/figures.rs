@@ -9,12 +9,21 @@ use crate::report::Report;
 pub fn figures(r: &Report) -> String {
     let mut s = String::new();
     let it = |f: fn(&crate::report::IterationStats) -> f64| -> Vec<(f64, f64)> {
-        r.iterations.iter().map(|i| (i.iteration as f64 + 1.0, f(i))).collect()
+        r.iterations
+            .iter()
+            .map(|i| (i.iteration as f64 + 1.0, f(i)))
+            .collect()
     };
     if !r.iterations.is_empty() {
         let series = [
-            Series { name: "RMS".into(), points: it(|i| i.rms_rel_error) },
-            Series { name: "mean".into(), points: it(|i| i.mean_rel_error) },
+            Series {
+                name: "RMS".into(),
+                points: it(|i| i.rms_rel_error),
+            },
+            Series {
+                name: "mean".into(),
+                points: it(|i| i.mean_rel_error),
+            },
         ];
         s += &fig(
             line_chart("relative error per iteration", "iteration", "relative error", &series, true),
@@ -29,7 +38,13 @@ pub fn figures(r: &Report) -> String {
             .enumerate()
             .map(|(k, v)| Series {
                 name: v.clone(),
-                points: r.refinement.residual.iter().enumerate().map(|(p, res)| (p as f64, res.get(k).copied().unwrap_or(f64::NAN))).collect(),
+                points: r
+                    .refinement
+                    .residual
+                    .iter()
+                    .enumerate()
+                    .map(|(p, res)| (p as f64, res.get(k).copied().unwrap_or(f64::NAN)))
+                    .collect(),
             })
             .collect();
         s += &fig(
@@ -37,10 +52,16 @@ pub fn figures(r: &Report) -> String {
             "How far each view's render of the projected maps was from its photo before each refinement pass (pass 0: the weighted mean).",
         );
     }
-    s += &fig(bar_chart("time per stage", "s", &stage_times(r)), "Wall time per stage (the projection includes its noise probe and the calibration).");
+    s += &fig(
+        bar_chart("time per stage", "s", &stage_times(r)),
+        "Wall time per stage (the projection includes its noise probe and the calibration).",
+    );
     let mem: Vec<(String, f64)> = r.resources.peak_rss_mib.clone();
     if !mem.is_empty() {
-        s += &fig(bar_chart("peak memory after each stage", "MiB", &mem), "The process's peak resident memory so far, after each stage.");
+        s += &fig(
+            bar_chart("peak memory after each stage", "MiB", &mem),
+            "The process's peak resident memory so far, after each stage.",
+        );
     }
     s
 }
@@ -70,5 +91,8 @@ fn stage_times(r: &Report) -> Vec<(String, f64)> {
 
 /// A figure around an inline SVG.
 fn fig(svg: String, caption: &str) -> String {
-    format!("<figure class=\"plot\">{svg}<figcaption>{}</figcaption></figure>\n", esc(caption))
+    format!(
+        "<figure class=\"plot\">{svg}<figcaption>{}</figcaption></figure>\n",
+        esc(caption)
+    )
 }

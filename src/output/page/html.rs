@@ -98,9 +98,18 @@ mod tests {
 
     #[test]
     fn text_is_escaped_and_numbers_align_right() {
-        assert_eq!(esc("<a href=\"x\">&'"), "&lt;a href=&quot;x&quot;&gt;&amp;&#39;");
-        let t = table(&["shape", "texels"], &[vec!["floor".into(), "1,024".into()]]);
-        assert!(t.contains("<td>floor</td><td class=\"n\">1,024</td>"), "{t}");
+        assert_eq!(
+            esc("<a href=\"x\">&'"),
+            "&lt;a href=&quot;x&quot;&gt;&amp;&#39;"
+        );
+        let t = table(
+            &["shape", "texels"],
+            &[vec!["floor".into(), "1,024".into()]],
+        );
+        assert!(
+            t.contains("<td>floor</td><td class=\"n\">1,024</td>"),
+            "{t}"
+        );
         assert!(is_number("12.5%") && is_number("3.0 s") && !is_number("cam_0"));
         assert!(!is_number("-") && !is_number("e"));
     }

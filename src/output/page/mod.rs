@@ -116,16 +116,24 @@ pub fn document(src: &Sources, glb: bool) -> String {
     if let Some(r) = &src.report {
         parts.push(("plots", "Convergence, time and memory", figures::figures(r)));
         if !r.table.is_empty() {
-            parts.push(("table", "Photo against re-render, per view and shape", tables::paper_table(r)));
+            parts.push((
+                "table",
+                "Photo against re-render, per view and shape",
+                tables::paper_table(r),
+            ));
         }
         if !r.capture.is_empty() {
-            parts.push(("capture", "Capture calibration", tables::capture_table(&r.capture)));
+            parts.push((
+                "capture",
+                "Capture calibration",
+                tables::capture_table(&r.capture),
+            ));
         }
     }
     if glb {
         parts.push(("scene3d", "3D view of scene.glb", scene_3d()));
     }
-    page(src, &parts, glb)
+    page(src, &parts)
 }
 
 /// The 3D view: `<model-viewer>` on `scene.glb`, given to it by `kdmap.js`.
@@ -138,7 +146,7 @@ fn scene_3d() -> String {
 }
 
 /// The page around its sections: head, table of contents, scripts.
-fn page(src: &Sources, parts: &[(&str, &str, String)], glb: bool) -> String {
+fn page(src: &Sources, parts: &[(&str, &str, String)]) -> String {
     let title = match &src.report {
         Some(r) => format!("kdmap: {}", r.settings.scene.display()),
         None => format!("kdmap {}: {}", src.facts.command, src.out.display()),
@@ -157,19 +165,18 @@ fn page(src: &Sources, parts: &[(&str, &str, String)], glb: bool) -> String {
     for (id, name, body) in parts {
         s += &section(id, name, body);
     }
+    let from = match src.report {
+        Some(_) => "<a href=\"report.json\">report.json</a> and report/facts.json",
+        None => "report/facts.json",
+    };
+    s.push_str(&format!("</main><footer>Written by kdmap from {from}; "));
     s.push_str(
-        "</main><footer>Written by kdmap from <a href=\"report.json\">report.json</a>; \
-         <code>kdmap report &lt;dir&gt;</code> makes it again. 3D view: &lt;model-viewer&gt; \
+        "<code>kdmap report &lt;dir&gt;</code> makes it again. 3D view: &lt;model-viewer&gt; \
          (<a href=\"report/LICENSE.model-viewer\">Apache-2.0</a>) with three.js \
          (<a href=\"report/LICENSE.three\">MIT</a>) and Lit \
          (<a href=\"report/LICENSE.lit\">BSD-3-Clause</a>).</footer>\n",
     );
-    if glb {
-        s.push_str(&format!(
-            "<script src=\"report/model-viewer-umd.min.js\"></script><script src=\"report/{}\"></script>",
-            assets::GLB_JS
-        ));
-    }
+    // kdmap.js loads the viewer and the scene script when the 3D view comes near
     s.push_str("<script src=\"report/kdmap.js\"></script></body></html>\n");
     s
 }

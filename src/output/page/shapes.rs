@@ -9,10 +9,22 @@ use std::fmt::Write as _;
 /// What a map shows, and in which unit.
 pub fn map_meaning(name: &str) -> (&'static str, &'static str) {
     match name {
-        "luminance" => ("L_orig: the photos projected onto the surface", "scene radiance units"),
-        "coverage" => ("coverage: the views' observation weight (0: no view saw it)", "weight"),
-        "direct" => ("E_d: direct irradiance from the lights", "scene irradiance units"),
-        "indirect" => ("E_i: irradiance by way of other surfaces", "scene irradiance units"),
+        "luminance" => (
+            "L_orig: the photos projected onto the surface",
+            "scene radiance units",
+        ),
+        "coverage" => (
+            "coverage: the views' observation weight (0: no view saw it)",
+            "weight",
+        ),
+        "direct" => (
+            "E_d: direct irradiance from the lights",
+            "scene irradiance units",
+        ),
+        "indirect" => (
+            "E_i: irradiance by way of other surfaces",
+            "scene irradiance units",
+        ),
         "colorless" => ("colorless luminance, eq. (10)", "scene radiance units"),
         "kd_stderr" => ("standard error of K_d", "albedo (0-1)"),
         "disagreement" => ("views down-weighted as disagreeing", "views"),
@@ -40,7 +52,16 @@ pub fn shape_table(shapes: &[ShapeFacts], atlas: &[ShapeTexels]) -> String {
         })
         .collect();
     table(
-        &["shape", "area (units²)", "texture", "texels per unit", "surface texels", "observed", "mean K_d (observed)", "mean rel. error"],
+        &[
+            "shape",
+            "area (units²)",
+            "texture",
+            "texels per unit",
+            "surface texels",
+            "observed",
+            "mean K_d (observed)",
+            "mean rel. error",
+        ],
         &rows,
     )
 }
@@ -53,7 +74,11 @@ pub fn galleries(shapes: &[ShapeFacts], exists: &dyn Fn(&str) -> bool) -> String
         let _ = write!(s, "<h3 id=\"shape-{id}\">{id}</h3><div class=\"gallery\">");
         let albedo = format!("textures/{}_albedo.png", sh.shape);
         if exists(&albedo) {
-            s += &tile(&albedo, "K_d: the recovered albedo (sRGB)", &grey_scale(1.0, "albedo"));
+            s += &tile(
+                &albedo,
+                "K_d: the recovered albedo (sRGB)",
+                &grey_scale(1.0, "albedo"),
+            );
         }
         for m in &sh.maps {
             let file = format!("maps/{}_{}.png", sh.shape, m.name);
@@ -70,7 +95,9 @@ pub fn galleries(shapes: &[ShapeFacts], exists: &dyn Fn(&str) -> bool) -> String
 fn map_tile(file: &str, m: &MapScale) -> String {
     let (what, unit) = map_meaning(&m.name);
     let scale = match m.name.as_str() {
-        "error" => "<span class=\"scale\">colour scale in the image; grey: not observed</span>".to_string(),
+        "error" => {
+            "<span class=\"scale\">colour scale in the image; grey: not observed</span>".to_string()
+        }
         _ => grey_scale(m.white, unit),
     };
     tile(file, if what.is_empty() { &m.name } else { what }, &scale)
@@ -104,14 +131,26 @@ mod tests {
         let sh = ShapeFacts {
             shape: "floor".into(),
             maps: vec![
-                MapScale { name: "direct".into(), white: 2.5 },
-                MapScale { name: "indirect".into(), white: 1.0 },
+                MapScale {
+                    name: "direct".into(),
+                    white: 2.5,
+                },
+                MapScale {
+                    name: "indirect".into(),
+                    white: 1.0,
+                },
             ],
             ..Default::default()
         };
         let g = galleries(&[sh], &|f: &str| f != "maps/floor_indirect.png");
-        assert!(g.contains("textures/floor_albedo.png") && g.contains("0 to 1 albedo"), "{g}");
-        assert!(g.contains("maps/floor_direct.png") && g.contains("0 to 2.500 scene irradiance"), "{g}");
+        assert!(
+            g.contains("textures/floor_albedo.png") && g.contains("0 to 1 albedo"),
+            "{g}"
+        );
+        assert!(
+            g.contains("maps/floor_direct.png") && g.contains("0 to 2.500 scene irradiance"),
+            "{g}"
+        );
         assert!(!g.contains("floor_indirect"));
     }
 }

@@ -43,16 +43,53 @@ pub fn summary(src: &Sources) -> String {
 fn facts_list(r: &Report) -> String {
     let c = &r.counts;
     let st = &r.settings;
-    let peak = r.resources.peak_rss_mib.iter().map(|p| p.1).fold(0.0, f64::max);
-    let method = serde_json::to_value(st.method).ok().and_then(|v| v.as_str().map(String::from));
+    let peak = r
+        .resources
+        .peak_rss_mib
+        .iter()
+        .map(|p| p.1)
+        .fold(0.0, f64::max);
+    let method = serde_json::to_value(st.method)
+        .ok()
+        .and_then(|v| v.as_str().map(String::from));
     let rows: Vec<(&str, String)> = vec![
         ("Scene", st.scene.display().to_string()),
-        ("Shapes", format!("{} ({} reconstructed), {} triangles, {} emitters", c.shapes, c.reconstructed_shapes, c.triangles, c.emitters)),
+        (
+            "Shapes",
+            format!(
+                "{} ({} reconstructed), {} triangles, {} emitters",
+                c.shapes, c.reconstructed_shapes, c.triangles, c.emitters
+            ),
+        ),
         ("Views", c.views.to_string()),
-        ("Texels", format!("{} on surfaces, {} seen by a view ({}), {} filled from neighbours", c.covered_texels, c.observed_texels, pct(ratio(c.observed_texels, c.covered_texels), 1), c.filled_texels)),
-        ("Method", format!("{} for the secondary light, {} iterations (stopped by {}), seed {}", method.unwrap_or_default(), r.iterations.len(), r.stopped_by.replace('_', " "), st.seed)),
+        (
+            "Texels",
+            format!(
+                "{} on surfaces, {} seen by a view ({}), {} filled from neighbours",
+                c.covered_texels,
+                c.observed_texels,
+                pct(ratio(c.observed_texels, c.covered_texels), 1),
+                c.filled_texels
+            ),
+        ),
+        (
+            "Method",
+            format!(
+                "{} for the secondary light, {} iterations (stopped by {}), seed {}",
+                method.unwrap_or_default(),
+                r.iterations.len(),
+                r.stopped_by.replace('_', " "),
+                st.seed
+            ),
+        ),
         ("Time", secs(r.timings.total)),
-        ("Peak memory", format!("{peak:.0} MiB (budget {} MiB for per-texel data)", r.resources.memory_budget_mib)),
+        (
+            "Peak memory",
+            format!(
+                "{peak:.0} MiB (budget {} MiB for per-texel data)",
+                r.resources.memory_budget_mib
+            ),
+        ),
     ];
     let mut s = String::from("<dl class=\"facts\">");
     for (k, v) in rows {
@@ -75,10 +112,16 @@ fn fit(r: &Report) -> String {
     };
     let k = &r.confidence;
     let rows = vec![
-        vec!["relative error of the re-rendered luminance, RMS over observed texels".into(), pct(last.rms_rel_error, 3)],
+        vec![
+            "relative error of the re-rendered luminance, RMS over observed texels".into(),
+            pct(last.rms_rel_error, 3),
+        ],
         vec!["... mean".into(), pct(last.mean_rel_error, 3)],
         vec!["... largest".into(), pct(last.max_rel_error, 2)],
-        vec!["standard error of K_d, median (relative)".into(), pct(k.kd_rel_stderr_median, 2)],
+        vec![
+            "standard error of K_d, median (relative)".into(),
+            pct(k.kd_rel_stderr_median, 2),
+        ],
         vec!["... 90th percentile".into(), pct(k.kd_rel_stderr_p90, 2)],
     ];
     s + &table(&["figure", "value"], &rows)
@@ -95,7 +138,12 @@ fn truth_scores(a: &Value) -> String {
         pct(f(a, "rel_l1_error"), 2)
     );
     let triple = |v: &Value| {
-        let t: Vec<String> = v.as_array().into_iter().flatten().map(|x| num(x.as_f64().unwrap_or(f64::NAN))).collect();
+        let t: Vec<String> = v
+            .as_array()
+            .into_iter()
+            .flatten()
+            .map(|x| num(x.as_f64().unwrap_or(f64::NAN)))
+            .collect();
         format!("[{}]", t.join(", "))
     };
     let rows: Vec<Vec<String>> = a["shapes"]
@@ -113,7 +161,17 @@ fn truth_scores(a: &Value) -> String {
             ]
         })
         .collect();
-    s + &table(&["shape", "texels", "mean rel. error", "rel. L1", "mean K_d", "true K_d"], &rows)
+    s + &table(
+        &[
+            "shape",
+            "texels",
+            "mean rel. error",
+            "rel. L1",
+            "mean K_d",
+            "true K_d",
+        ],
+        &rows,
+    )
 }
 
 /// The run's warnings (`true`) and notes in plain words.
@@ -127,8 +185,19 @@ pub fn notes(r: &Report) -> Vec<(bool, String)> {
     if filled > 0.0 {
         n.push((filled > 0.5, format!("{} of the surface texels ({}) were seen by no view; their albedo is filled in from their neighbours and is a guess.", c.filled_texels, pct(filled, 1))));
     }
-    for a in r.atlas.iter().filter_map(|a| a.limited_by.as_ref().map(|l| (a, l))) {
-        n.push((false, format!("The texture of '{}' is coarser than the photos allow, held down by {}.", a.0.shape, a.1.replace('_', " "))));
+    for a in r
+        .atlas
+        .iter()
+        .filter_map(|a| a.limited_by.as_ref().map(|l| (a, l)))
+    {
+        n.push((
+            false,
+            format!(
+                "The texture of '{}' is coarser than the photos allow, held down by {}.",
+                a.0.shape,
+                a.1.replace('_', " ")
+            ),
+        ));
     }
     for v in &r.capture {
         if v.source == GainSource::Alone {

@@ -8,7 +8,7 @@ use std::fmt::Write as _;
 const W: f64 = 560.0;
 const H: f64 = 260.0;
 /// Plot area margins: left, right, top, bottom.
-const M: [f64; 4] = [64.0, 150.0, 16.0, 40.0];
+const M: [f64; 4] = [76.0, 150.0, 16.0, 40.0];
 /// Series colours (colour-blind safe, Okabe-Ito).
 const COLOURS: [&str; 6] = [
     "#0072b2", "#e69f00", "#009e73", "#d55e00", "#cc79a7", "#56b4e9",
@@ -21,7 +21,13 @@ pub struct Series {
 }
 
 /// A line chart of `series` with axis titles; `y_pct` labels the y axis in percent.
-pub fn line_chart(title: &str, x_title: &str, y_title: &str, series: &[Series], y_pct: bool) -> String {
+pub fn line_chart(
+    title: &str,
+    x_title: &str,
+    y_title: &str,
+    series: &[Series],
+    y_pct: bool,
+) -> String {
     let pts = series.iter().flat_map(|s| s.points.iter());
     let (x0, x1) = bounds(pts.clone().map(|p| p.0), false);
     let (_, y1) = bounds(pts.map(|p| p.1), true);
@@ -31,18 +37,41 @@ pub fn line_chart(title: &str, x_title: &str, y_title: &str, series: &[Series], 
     axes(&mut s, x_title, y_title);
     for i in 0..=4 {
         let y = y1 * i as f64 / 4.0;
-        let label = if y_pct { format!("{:.2}%", 100.0 * y) } else { num(y) };
+        let label = match y_pct {
+            true if y1 >= 0.04 => format!("{:.1}%", 100.0 * y),
+            true => format!("{:.2}%", 100.0 * y),
+            false => num(y),
+        };
         tick_y(&mut s, sy(y), &label);
     }
     for x in x_ticks(x0, x1) {
-        let _ = write!(s, "<text x=\"{:.1}\" y=\"{:.1}\" text-anchor=\"middle\">{}</text>", sx(x), H - M[3] + 16.0, num(x));
+        let _ = write!(
+            s,
+            "<text x=\"{:.1}\" y=\"{:.1}\" text-anchor=\"middle\">{}</text>",
+            sx(x),
+            H - M[3] + 16.0,
+            x as i64
+        );
     }
     for (k, se) in series.iter().enumerate() {
         let c = COLOURS[k % COLOURS.len()];
-        let path: Vec<String> = se.points.iter().map(|&(x, y)| format!("{:.1},{:.1}", sx(x), sy(y))).collect();
-        let _ = write!(s, "<polyline fill=\"none\" stroke=\"{c}\" stroke-width=\"2\" points=\"{}\"/>", path.join(" "));
+        let path: Vec<String> = se
+            .points
+            .iter()
+            .map(|&(x, y)| format!("{:.1},{:.1}", sx(x), sy(y)))
+            .collect();
+        let _ = write!(
+            s,
+            "<polyline fill=\"none\" stroke=\"{c}\" stroke-width=\"2\" points=\"{}\"/>",
+            path.join(" ")
+        );
         for &(x, y) in &se.points {
-            let _ = write!(s, "<circle cx=\"{:.1}\" cy=\"{:.1}\" r=\"3\" fill=\"{c}\"/>", sx(x), sy(y));
+            let _ = write!(
+                s,
+                "<circle cx=\"{:.1}\" cy=\"{:.1}\" r=\"3\" fill=\"{c}\"/>",
+                sx(x),
+                sy(y)
+            );
         }
         key(&mut s, k, c, &se.name);
     }

@@ -11,7 +11,8 @@ pub fn paper_table(r: &Report) -> String {
         .table
         .iter()
         .map(|t| {
-            let dy = (t.mean_luminance[1] - t.mean_luminance[0]) / t.mean_luminance[0].abs().max(1e-30);
+            let dy =
+                (t.mean_luminance[1] - t.mean_luminance[0]) / t.mean_luminance[0].abs().max(1e-30);
             vec![
                 esc(&t.view),
                 esc(&t.shape),
@@ -26,7 +27,18 @@ pub fn paper_table(r: &Report) -> String {
             ]
         })
         .collect();
-    let head = ["view", "shape", "pixels", "mean Y photo", "mean Y render", "difference", "std Y photo", "std Y render", "xy photo", "xy render"];
+    let head = [
+        "view",
+        "shape",
+        "pixels",
+        "mean Y photo",
+        "mean Y render",
+        "difference",
+        "std Y photo",
+        "std Y render",
+        "xy photo",
+        "xy render",
+    ];
     format!(
         "<p>Over the pixels where a view sees a shape cleanly (no silhouette or depth edge): the \
          photo's and the re-render's mean and spread of luminance Y (scene radiance units) and \
@@ -42,7 +54,10 @@ pub fn capture_table(capture: &[ViewCapture]) -> String {
         .map(|c| {
             let e = c.exposure();
             let wb = c.gain.map(|g| g / e.max(1e-30));
-            let source = serde_json::to_value(c.source).ok().and_then(|v| v.as_str().map(String::from)).unwrap_or_default();
+            let source = serde_json::to_value(c.source)
+                .ok()
+                .and_then(|v| v.as_str().map(String::from))
+                .unwrap_or_default();
             let check = c.check.as_ref();
             vec![
                 esc(&c.view),
@@ -51,13 +66,27 @@ pub fn capture_table(capture: &[ViewCapture]) -> String {
                 format!("[{:.3}, {:.3}, {:.3}]", wb[0], wb[1], wb[2]),
                 esc(&source),
                 c.anchor_pixels.to_string(),
-                check.map_or("-".into(), |k| format!("[{:.3}, {:.3}, {:.3}]", k.ratio[0], k.ratio[1], k.ratio[2])),
+                check.map_or("-".into(), |k| {
+                    format!("[{:.3}, {:.3}, {:.3}]", k.ratio[0], k.ratio[1], k.ratio[2])
+                }),
                 check.map_or("-".into(), |k| pct(k.disagreeing as f64, 2)),
-                check.and_then(|k| k.shift).map_or("-".into(), |s| format!("({:.2}, {:.2}) px", s[0], s[1])),
+                check
+                    .and_then(|k| k.shift)
+                    .map_or("-".into(), |s| format!("({:.2}, {:.2}) px", s[0], s[1])),
             ]
         })
         .collect();
-    let head = ["view", "exposure (gain)", "exposure", "white balance (R, G, B)", "fixed by", "light pixels", "photo / re-render after", "disagreeing", "pose shift"];
+    let head = [
+        "view",
+        "exposure (gain)",
+        "exposure",
+        "white balance (R, G, B)",
+        "fixed by",
+        "light pixels",
+        "photo / re-render after",
+        "disagreeing",
+        "pose shift",
+    ];
     format!(
         "<p>Each photo's gain (photo = gain x radiance): its exposure (the luminance-weighted \
          mean) and white balance (the channels over it), what fixed it, and how the view agrees \

@@ -36,19 +36,30 @@ pub fn write_view_data(
         for x in (0..w).step_by(s) {
             let i = y * w + x;
             let e = error[i].unwrap_or(f32::NAN);
-            let vals = photo[i].to_array().into_iter().chain(render[i].to_array()).chain([e]);
+            let vals = photo[i]
+                .to_array()
+                .into_iter()
+                .chain(render[i].to_array())
+                .chain([e]);
             for v in vals {
                 bytes.extend_from_slice(&half::f16::from_f32(v).to_le_bytes());
             }
         }
     }
     let b64 = base64::engine::general_purpose::STANDARD.encode(&bytes);
-    let js = format!("kdmapViewData({},\"{b64}\");\n", serde_json::json!(facts.view));
+    let js = format!(
+        "kdmapViewData({},\"{b64}\");\n",
+        serde_json::json!(facts.view)
+    );
     fsio::write_atomic(&dir.join(format!("{}.js", facts.view)), js.as_bytes())
 }
 
 /// The views section: one figure per view.
-pub fn views(views: &[ViewFacts], error_max: Option<f32>, render_exists: &dyn Fn(&str) -> bool) -> String {
+pub fn views(
+    views: &[ViewFacts],
+    error_max: Option<f32>,
+    render_exists: &dyn Fn(&str) -> bool,
+) -> String {
     let mut s = String::from(
         "<p>Drag the slider to wipe between the photo (left of the line) and the re-render from \
          the recovered albedo (right); the zoom buttons enlarge both panels, which then scroll. \
@@ -94,7 +105,11 @@ pub fn error_legend(max: f32) -> String {
     let mut stops = String::new();
     for i in 0..=10 {
         let [r, g, b] = viridis(i as f32 / 10.0);
-        let _ = write!(stops, "<stop offset=\"{}%\" stop-color=\"rgb({r},{g},{b})\"/>", i * 10);
+        let _ = write!(
+            stops,
+            "<stop offset=\"{}%\" stop-color=\"rgb({r},{g},{b})\"/>",
+            i * 10
+        );
     }
     let mut ticks = String::new();
     for i in 0..=5 {
@@ -133,7 +148,9 @@ mod tests {
         write_view_data(tmp.path(), &f, (&photo, &render, &[Some(0.125), None])).unwrap();
         let js = std::fs::read_to_string(tmp.path().join("cam.js")).unwrap();
         let b64 = js.split('"').nth(3).unwrap();
-        let bytes = base64::engine::general_purpose::STANDARD.decode(b64).unwrap();
+        let bytes = base64::engine::general_purpose::STANDARD
+            .decode(b64)
+            .unwrap();
         let h: Vec<f32> = bytes
             .chunks(2)
             .map(|c| half::f16::from_le_bytes([c[0], c[1]]).to_f32())
