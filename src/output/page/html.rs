@@ -74,7 +74,11 @@ pub fn num(v: f64) -> String {
         format!("{v:.3e}")
     } else {
         let d = (3 - a.log10().floor() as i32).clamp(0, 4) as usize;
-        format!("{v:.d$}")
+        let t = format!("{v:.d$}");
+        match t.contains('.') {
+            true => t.trim_end_matches('0').trim_end_matches('.').to_string(),
+            false => t,
+        }
     }
 }
 
@@ -120,6 +124,9 @@ mod tests {
         assert_eq!(num(0.7251), "0.7251");
         assert_eq!(num(12.345), "12.35");
         assert_eq!(num(123456.0), "1.235e5");
+        assert_eq!(num(1.0), "1");
+        assert_eq!(num(2.5), "2.5");
+        assert_eq!(num(1200.0), "1200");
         assert_eq!(pct(0.01649, 2), "1.65%");
         assert_eq!(secs(33.69), "33.7 s");
         assert_eq!(secs(125.0), "2 min 5 s");

@@ -148,7 +148,7 @@ mod tests {
             "{g}"
         );
         assert!(
-            g.contains("maps/floor_direct.png") && g.contains("0 to 2.500 scene irradiance"),
+            g.contains("maps/floor_direct.png") && g.contains("0 to 2.5 scene irradiance"),
             "{g}"
         );
         assert!(!g.contains("floor_indirect"));

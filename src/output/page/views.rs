@@ -79,9 +79,7 @@ pub fn views(
 fn figure(v: &ViewFacts) -> String {
     let id = esc(&v.view);
     let size = format!("width=\"{}\" height=\"{}\"", v.width, v.height);
-    let mut s = String::new();
-    let _ = write!(
-        s,
+    format!(
         "<figure class=\"view\" data-view=\"{id}\" data-w=\"{w}\" data-h=\"{h}\" data-stride=\"{st}\">\
          <figcaption>{id} <small>({w} x {h})</small></figcaption>\
          <div class=\"panels\"><div class=\"pane\"><div class=\"stack\">\
@@ -96,8 +94,7 @@ fn figure(v: &ViewFacts) -> String {
         w = v.width,
         h = v.height,
         st = v.stride
-    );
-    s
+    )
 }
 
 /// The error colour scale as a gradient bar from 0 to `max` (a fraction).
