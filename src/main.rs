@@ -123,6 +123,13 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Write `<out>/report.html` again from an output directory (after `kdmap accuracy`, or
+    /// to restore it): the page a user opens in a browser, offline, with the run's summary,
+    /// views, maps, plots and a 3D view.
+    Report {
+        /// The run's output directory.
+        out: PathBuf,
+    },
     /// Print the run-config keys: `--defaults` as an annotated TOML file holding every default
     /// (a config to start from), `--markdown` as the reference page `docs/config.md`.
     Config {
@@ -255,6 +262,13 @@ fn run(command: Command, mode: Mode) -> Result<()> {
         Command::Inspect { scene, json } => inspect(&scene, json),
         Command::InspectCheckpoint { out, json } => inspect_checkpoint(&out, json, mode),
         Command::Accuracy { out, truth, json } => accuracy(&out, &truth, json),
+        Command::Report { out } => {
+            kdmap::output::page::rebuild(&out)?;
+            emit(&format!(
+                "{}\n",
+                out.join(kdmap::output::page::PAGE).display()
+            ))
+        }
         Command::Config { markdown, .. } => emit(&if markdown {
             kdmap::config::keys::markdown()
         } else {
@@ -302,6 +316,10 @@ fn reconstruct(input: &Path, out: &Path, ov: &Overrides, resume: bool, mode: Mod
 
 fn accuracy(out: &Path, truth: &Path, json: bool) -> Result<()> {
     let rep = kdmap::accuracy::score_run(out, truth)?;
+    // the page shows the scores: made again where a run wrote one
+    if out.join(kdmap::output::page::PAGE).is_file() {
+        kdmap::output::page::rebuild(out)?;
+    }
     if json {
         return emit(&json_text(&rep)?);
     }

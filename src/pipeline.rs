@@ -43,7 +43,8 @@ use crate::base::interrupt;
 use crate::base::progress::{self, note, Mode, Stage};
 use crate::checkpoint::{self as ck, Manifest, Writer};
 use crate::config::{Config, Method, UpdateRule};
-use crate::output::{check_out_dir, output_units, uv_fold, write_map, write_outputs};
+use crate::output::maps::shape_facts;
+use crate::output::{check_out_dir, output_units, page, uv_fold, write_map, write_outputs};
 use crate::physics::light::EmitterSampler;
 use crate::report::{Counts, IterationStats, Refinement, Report};
 use crate::stages::indirect::gather::{
@@ -232,6 +233,7 @@ pub fn run_projection(
         return Ok((p, stats));
     }
     let maps = out.join("maps");
+    let mut facts = projection_facts(cfg, &stats);
     for slot in 0..p.layout.slots.len() {
         let (l, id) = (&p.layout, p.slot_id(slot));
         let g = |name: &str, f: &(dyn Fn(&TexelState) -> glam::Vec3 + Sync)| {
@@ -245,10 +247,46 @@ pub fn run_projection(
         let cov = SlotTexture::read(l, slot, &state, &geom, &scratch, "cov", |_, g| {
             g.covered() as u8
         })?;
-        write_map(&maps, id, "luminance", &lum, &obs, true, &scratch)?;
-        write_map(&maps, id, "coverage", &wt, &cov, true, &scratch)?;
+        let mut f = shape_facts(&p, slot, None, (&cov, &obs));
+        f.maps.push(write_map(
+            &maps,
+            id,
+            "luminance",
+            &lum,
+            &obs,
+            true,
+            &scratch,
+        )?);
+        f.maps
+            .push(write_map(&maps, id, "coverage", &wt, &cov, true, &scratch)?);
+        facts.shapes.push(f);
     }
+    page::write_page(out, None, &facts)?;
     Ok((p, stats))
+}
+
+/// The report page's summary of a projection on its own.
+fn projection_facts(cfg: &Config, stats: &ProjectionStats) -> page::Facts {
+    let share = stats.observed_texels as f64 / stats.covered_texels.max(1) as f64;
+    page::Facts {
+        command: "project".into(),
+        summary: vec![
+            format!("Scene: {}", cfg.scene.display()),
+            format!(
+                "The photos of {} views projected onto the surfaces (steps 1-2 of the method); no albedo was solved for.",
+                stats.views
+            ),
+            format!(
+                "{} of {} surface texels seen by a view ({:.1}%); {} pixels masked.",
+                stats.observed_texels,
+                stats.covered_texels,
+                100.0 * share,
+                stats.masked_pixels
+            ),
+            format!("Time: {:.1} s", stats.seconds),
+        ],
+        ..Default::default()
+    }
 }
 
 /// The projected luminance's noise reduced (`denoise`), after the projection. Every rank runs

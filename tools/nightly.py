@@ -28,7 +28,10 @@ tools/requirements.txt, and re-runs itself in it. Then:
    git-ignored; --history or $KDMAP_BENCH_HISTORY to keep it elsewhere) and redraws the
    PNG plots beside it (tools/plot_history.py);
 6. rewrites docs/accuracy.md and docs/performance.md from the whole history (per scene its
-   newest full run; tools/docs_pages.py). `--pages-only` does only this, running nothing.
+   newest full run; tools/docs_pages.py). `--pages-only` does only this, running nothing;
+7. opens cbox's report.html in headless Chromium (tools/test_report_browser.py: no console
+   error, every image loads, the 3D view draws, every section non-blank), installing Debian's
+   `chromium` when missing; a failure fails the run (`--no-browser` skips it).
 
 Exit code 0 when every scene ran and its table checked out; 1 otherwise (the reasons are
 printed at the end and stored in the history line's `failures`).
@@ -66,7 +69,7 @@ def ensure_venv():
     if not os.path.exists(VENV_PY):
         log(f"creating {VENV}")
         subprocess.check_call([sys.executable, "-m", "venv", VENV])
-    probe = "import mitsuba, numpy, colour, matplotlib"
+    probe = "import mitsuba, numpy, colour, matplotlib, playwright"
     if subprocess.call([VENV_PY, "-c", probe], stderr=subprocess.DEVNULL) != 0:
         log(f"installing {REQUIREMENTS} into {VENV}")
         subprocess.check_call([VENV_PY, "-m", "pip", "install", "-q", "-r", REQUIREMENTS])
@@ -494,6 +497,8 @@ def main():
                     help="degraded captures to score, <scene>-<preset> comma-separated "
                          "(default: tools/captures.py's list; '' for none)")
     ap.add_argument("--no-build", action="store_true", help="use the existing release binary")
+    ap.add_argument("--no-browser", action="store_true",
+                    help="skip the check of cbox's report.html in headless Chromium")
     ap.add_argument("--kdmap", help="kdmap binary to measure (default: target/release/kdmap; "
                     "implies --no-build)")
     ap.add_argument("--fixtures", default=os.path.join(REPO, "tests", "fixtures"))
@@ -587,6 +592,11 @@ def main():
         with open(args.history, "a") as f:
             f.write(json.dumps(rec, separators=(",", ":")) + "\n")
 
+    if "cbox" in scenes and not args.no_browser:
+        err = check_report_page(os.path.join(args.out, "cbox"), logs)
+        if err:
+            failures.append(err)
+
     import plot_history
 
     plots = args.plots or os.path.join(os.path.dirname(os.path.abspath(args.history)), "plots")
@@ -606,6 +616,21 @@ def main():
             print(f"  {f}", file=sys.stderr)
         return 1
     return 0
+
+
+def check_report_page(out, logs):
+    """tools/test_report_browser.py on a finished run's page; a failure line, or None."""
+    if shutil.which("chromium") is None:
+        log("installing chromium (apt-get)")
+        env = dict(os.environ, DEBIAN_FRONTEND="noninteractive")
+        for cmd in (["apt-get", "update", "-qq"], ["apt-get", "install", "-y", "-qq", "chromium"]):
+            if subprocess.call(cmd, env=env, stdout=subprocess.DEVNULL) != 0:
+                return "report page: chromium is missing and apt-get could not install it"
+    log_path = os.path.join(logs, "report-browser.log")
+    cmd = [sys.executable, os.path.join(TOOLS, "test_report_browser.py"), "--out", out]
+    code, wall, _ = run_measured(cmd, log_path)
+    log(f"report page in Chromium: {tail(log_path, 2)} ({wall:.0f} s)")
+    return None if code == 0 else f"report page in Chromium failed: {tail(log_path)}"
 
 
 def write_pages(args):

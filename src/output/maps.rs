@@ -3,6 +3,7 @@
 //! and written a row at a time, so no texture needs to fit in memory. Also builds each shape's
 //! re-render texture `L_render = K_d / pi (E_d + E_i)`.
 
+use super::page::{white_of, MapScale, ShapeFacts};
 use super::plot::{legend_canvas, ErrorScale, LegendStyle, NO_DATA};
 use crate::atlas::store::TileStore;
 use crate::atlas::store::{flags, TexelGeom, TexelState};
@@ -123,7 +124,7 @@ fn exposure_of(vals: &SlotTexture<Vec3>, mask: &SlotTexture<u8>) -> f32 {
 }
 
 /// Write a per-shape map `<dir>/<id>_<name>.exr` (gutter dilated) and, if asked, a PNG
-/// preview at the automatic exposure over `cov`.
+/// preview at the automatic exposure over `cov`; returns the preview's scale.
 pub fn write_map(
     dir: &Path,
     id: &str,
@@ -132,7 +133,7 @@ pub fn write_map(
     cov: &SlotTexture<u8>,
     png: bool,
     scratch: &Scratch,
-) -> Result<()> {
+) -> Result<MapScale> {
     fsio::create_dir(dir)?;
     let exposure = exposure_of(vals, cov);
     let vals = vals.dilated(cov, 4, scratch)?;
@@ -140,13 +141,58 @@ pub fn write_map(
     if png {
         write_png(&dir.join(format!("{id}_{name}.png")), &vals, exposure)?;
     }
-    Ok(())
+    Ok(MapScale {
+        name: name.to_string(),
+        white: white_of(exposure),
+    })
+}
+
+/// A shape's figures for the report page: area and texel counts, and the mean of `albedo`
+/// over its observed texels (the mean error is added by [`mean_observed`]).
+pub fn shape_facts(
+    p: &RunContext,
+    slot: usize,
+    albedo: Option<&SlotTexture<Vec3>>,
+    (cov, obs): (&SlotTexture<u8>, &SlotTexture<u8>),
+) -> ShapeFacts {
+    let covered: u64 = (0..cov.grid.height)
+        .map(|y| cov.row(y).iter().filter(|&&c| c != 0).count() as u64)
+        .sum();
+    let observed: u64 = (0..obs.grid.height)
+        .map(|y| obs.row(y).iter().filter(|&&o| o != 0).count() as u64)
+        .sum();
+    let st = &p.layout.slots[slot];
+    ShapeFacts {
+        shape: p.slot_id(slot).to_string(),
+        area: p.scene.shapes[st.shape].mesh.area(),
+        covered,
+        observed,
+        mean_kd: albedo
+            .map(|a| (0..3).map(|k| mean_observed(a, obs, k)).collect::<Vec<_>>())
+            .map(|v| [v[0], v[1], v[2]]),
+        mean_error: None,
+        maps: Vec::new(),
+    }
+}
+
+/// The mean of channel `k` of `vals` over the texels of `obs`.
+pub fn mean_observed(vals: &SlotTexture<Vec3>, obs: &SlotTexture<u8>, k: usize) -> f64 {
+    let (mut sum, mut n) = (0f64, 0u64);
+    for y in 0..vals.grid.height {
+        for (v, o) in vals.row(y).into_iter().zip(obs.row(y)) {
+            if o != 0 {
+                sum += v[k] as f64;
+                n += 1;
+            }
+        }
+    }
+    sum / n.max(1) as f64
 }
 
 /// Everything for one slot: albedo texture, the error / colorless / coverage / direct /
 /// indirect / luminance / K_d standard error / disagreeing views maps, each made from the stores (whole or in tiles, within
 /// `scratch`'s budget). Returns the slot's dilated `L_render` texture for re-rendering, made
-/// within `keep` (it is kept while every view is re-rendered).
+/// within `keep` (it is kept while every view is re-rendered), and its figures for the page.
 pub fn write_slot(
     p: &RunContext,
     geom: &TileStore<TexelGeom>,
@@ -155,7 +201,7 @@ pub fn write_slot(
     out: &Path,
     scale: &ErrorScale,
     (scratch, keep): (&Scratch, &Scratch),
-) -> Result<SlotTexture<Vec3>> {
+) -> Result<(SlotTexture<Vec3>, ShapeFacts)> {
     let id = p.slot_id(slot);
     let textures = out.join("textures");
     let maps = out.join("maps");
@@ -182,6 +228,7 @@ pub fn write_slot(
         0.0,
         scratch,
     )?;
+    let mut facts = shape_facts(p, slot, Some(&albedo), (&cov, &obs));
     drop(albedo);
 
     // Relative error: defined on observed texels only; 0 elsewhere (see the coverage map).
@@ -203,6 +250,11 @@ pub fn write_slot(
         &maps.join(format!("{id}_error.exr")),
         &err.dilated(&cov, 4, scratch)?,
     )?;
+    facts.mean_error = Some(mean_observed(&err, &obs, 0));
+    facts.maps.push(MapScale {
+        name: "error".into(),
+        white: scale.max,
+    });
     drop(err);
 
     let each: [(&str, &TexelFn, &SlotTexture<u8>); 7] = [
@@ -215,12 +267,21 @@ pub fn write_slot(
         ("disagreement", &|s| Vec3::splat(s.disagree), &obs),
     ];
     for (name, f, mask) in each {
-        write_map(&maps, id, name, &tex(name, f)?, mask, true, scratch)?;
+        facts.maps.push(write_map(
+            &maps,
+            id,
+            name,
+            &tex(name, f)?,
+            mask,
+            true,
+            scratch,
+        )?);
     }
-    SlotTexture::read(l, slot, state, geom, scratch, "l_render", |s, _| {
+    let radiance = SlotTexture::read(l, slot, state, geom, scratch, "l_render", |s, _| {
         l_render(s)
     })?
-    .dilated(&cov, TEXTURE_DILATE_PASSES, keep)
+    .dilated(&cov, TEXTURE_DILATE_PASSES, keep)?;
+    Ok((radiance, facts))
 }
 
 /// The error map preview: observed texels coloured by `scale`, covered but unobserved ones

@@ -19,6 +19,7 @@
 //!                                        their input UVs)
 //! <out>/scene.glb                        the recovered scene as binary glTF 2.0 (albedo PNGs inside)
 //! <out>/report_convergence.svg|png       RMS, mean and max relative error per iteration
+//! <out>/report.html, report/             the page a user opens (`page`), before report.json
 //! <out>/report.json                      the run's report, with the paper's table; written last
 //! ```
 //!
@@ -32,6 +33,7 @@ pub mod convergence;
 pub mod maps;
 pub mod obj;
 pub mod out_dir;
+pub mod page;
 pub mod plot;
 pub mod renders;
 pub mod scene_glb;
@@ -96,7 +98,8 @@ fn view_pixels(p: &RunContext, si: usize) -> u64 {
 
 /// Write the whole output directory for a finished run (see the module doc): textures and
 /// maps per reconstructed shape, meshes, `scene.xml`, the re-rendered views, the convergence
-/// plot; then fill `report.table` and `report.timings.output` and write `report.json` last.
+/// plot; then fill `report.table` and `report.timings.output`, write the report page and
+/// `report.json` last.
 /// The caller sets the other report fields (including `timings.total`) before calling.
 /// `tick` gets each shape's texels once its textures and maps are written, and each view's
 /// pixels once it is re-rendered ([`output_units`] in all).
@@ -127,9 +130,15 @@ pub fn write_outputs(
         .sum();
     let mut radiance: Vec<Option<SlotTexture<Vec3>>> =
         (0..p.scene.shapes.len()).map(|_| None).collect();
+    let mut facts = page::Facts {
+        command: "reconstruct".into(),
+        error_max: Some(scale.max),
+        ..Default::default()
+    };
     for (slot, st) in p.layout.slots.iter().enumerate() {
         let keep = scratch.share(st.width as u64 * st.height as u64, total);
-        let lr = maps::write_slot(p, geom, state, slot, out, &scale, (scratch, &keep))?;
+        let (lr, f) = maps::write_slot(p, geom, state, slot, out, &scale, (scratch, &keep))?;
+        facts.shapes.push(f);
         radiance[st.shape] = Some(lr);
         tick(st.width as u64 * st.height as u64);
     }
@@ -172,16 +181,19 @@ pub fn write_outputs(
         .collect();
     let mut table = Vec::new();
     let renders = out.join("renders");
+    let page_views = page::page_dir(out).join("views");
     for (i, (si, path)) in p.views.iter().enumerate() {
         let gain = report.capture.get(i).map_or([1.0; 3], |c| c.gain);
-        table.extend(renders::write_view(
+        let (rows, f) = renders::write_view(
             p,
             hits,
             &textures,
             (&sensors[*si], path, gain),
-            &renders,
+            (&renders, &page_views),
             &scale,
-        )?);
+        )?;
+        table.extend(rows);
+        facts.views.push(f);
         tick(view_pixels(p, *si));
     }
     report.table = table;
@@ -194,6 +206,7 @@ pub fn write_outputs(
     report.timings.output = t0.elapsed().as_secs_f64();
     report.resources.after("output");
     report.timings.total += report.timings.output;
+    page::write_page(out, Some(report), &facts)?;
     let json_path = out.join("report.json");
     let json = serde_json::to_string_pretty(report)
         .map_err(|e| Error::internal(format!("cannot serialize the report: {e}")))?;

@@ -17,11 +17,13 @@ const OUTPUT_DIRS: &[&str] = &[
     "checkpoint",
     "accuracy",
     "heldout",
+    "report",
 ];
 const OUTPUT_FILES: &[&str] = &[
     "scene.xml",
     "scene.glb",
     "report.json",
+    "report.html",
     "report_convergence.svg",
     "report_convergence.png",
     "heldout_original.xml",
@@ -109,10 +111,10 @@ mod tests {
         check_out_dir(&new).unwrap();
         assert!(new.is_dir());
         assert_eq!(std::fs::read_dir(&new).unwrap().count(), 0, "probe left");
-        for d in ["textures", "checkpoint", "accuracy"] {
+        for d in ["textures", "checkpoint", "accuracy", "report"] {
             std::fs::create_dir(new.join(d)).unwrap();
         }
-        for f in ["report.json", "scene.xml.tmp", PROBE] {
+        for f in ["report.json", "report.html", "scene.xml.tmp", PROBE] {
             std::fs::write(new.join(f), "x").unwrap();
         }
         check_out_dir(&new).unwrap();

@@ -19,6 +19,7 @@
 //! 0 for pixels outside the table) with `renders/masks.json` = `{"shapes": [id, ...]}` in the
 //! scene's shape order, so the table can be recomputed from the EXRs by other tools.
 
+use super::page::{views as page_views, ViewFacts};
 use super::plot::{draw_legend, legend_height, Canvas, ErrorScale, LegendStyle};
 use crate::atlas::context::HitTable;
 use crate::atlas::RunContext;
@@ -183,16 +184,17 @@ fn write_masks_json(dir: &Path, scene: &Scene) -> Result<()> {
 }
 
 /// Re-render view `(sensor, photo path, gain)` (the sensor at the pose the run used), write
-/// its EXR, PNG and comparison PNG into `dir`, and return its table rows; the photo is divided
-/// by its gain (exposure and white balance) as the projection divided it.
+/// its EXR, PNG and comparison PNG into `dir` and the report page's photo, error panel and
+/// values into `page_dir`, and return its table rows and page figures; the photo is divided by
+/// its gain (exposure and white balance) as the projection divided it.
 pub fn write_view(
     p: &RunContext,
     hits: &HitTable,
     textures: &[Option<Texture>],
     (sensor, photo_path, gain): (&Sensor, &Path, [f32; 3]),
-    dir: &Path,
+    (dir, page_dir): (&Path, &Path),
     scale: &ErrorScale,
-) -> Result<Vec<ViewShapeRow>> {
+) -> Result<(Vec<ViewShapeRow>, ViewFacts)> {
     fsio::create_dir(dir)?;
     let photo = exposure::apply(&read_photo(photo_path, sensor, &p.response)?, gain);
     let camera = Camera::from_sensor(sensor);
@@ -214,13 +216,54 @@ pub fn write_view(
         write_pixmap_png(&dir.join(format!("{}_mask.png", sensor.id)), &mask)?;
         write_masks_json(dir, &p.scene)?;
     }
-    Ok(table_rows(
-        &sensor.id,
-        &p.scene,
-        &view.pixels,
+    let facts = page_files(
+        p,
+        (&view, &sensor.id),
+        (&photo, &render),
+        exposure,
+        scale,
+        page_dir,
+    )?;
+    let rows = table_rows(&sensor.id, &p.scene, &view.pixels, &photo.pixels, &render);
+    Ok((rows, facts))
+}
+
+/// The report page's files of a view: the photo at the re-render's exposure, the error panel
+/// and the values under the pointer (`page::views`).
+fn page_files(
+    p: &RunContext,
+    (view, id): (&View, &str),
+    (photo, render): (&Image, &[Vec3]),
+    exposure: f32,
+    scale: &ErrorScale,
+    page_dir: &Path,
+) -> Result<ViewFacts> {
+    let (w, h) = (photo.width, photo.height);
+    fsio::create_dir(page_dir)?;
+    write_png_srgb(
+        page_dir.join(format!("{id}_photo.png")),
+        w,
+        h,
         &photo.pixels,
-        &render,
-    ))
+        exposure,
+    )?;
+    let errors: Vec<Option<f32>> = (0..(w * h) as usize)
+        .map(|i| error_value(p, view, photo, render, i))
+        .collect();
+    let mut pm = Pixmap::new(w, h).ok_or_else(|| Error::internal("an empty view"))?;
+    for (o, e) in pm.data_mut().chunks_exact_mut(4).zip(&errors) {
+        let [r, g, b] = e.map_or([0, 0, 0], |e| scale.color(e));
+        o.copy_from_slice(&[r, g, b, 255]);
+    }
+    write_pixmap_png(&page_dir.join(format!("{id}_error.png")), &pm)?;
+    let facts = ViewFacts {
+        view: id.to_string(),
+        width: w,
+        height: h,
+        stride: page_views::stride_for(w, h),
+    };
+    page_views::write_view_data(page_dir, &facts, (&photo.pixels, render, &errors))?;
+    Ok(facts)
 }
 
 fn srgb8(v: f32) -> u8 {
@@ -293,6 +336,18 @@ fn error_color(
     scale: &ErrorScale,
     i: usize,
 ) -> [u8; 3] {
+    error_value(p, view, photo, render, i).map_or([0, 0, 0], |e| scale.color(e))
+}
+
+/// The relative luminance error of pixel `i`, where the error panel shows one: on a
+/// reconstructed shape, where the photo is valid and not black.
+fn error_value(
+    p: &RunContext,
+    view: &View,
+    photo: &Image,
+    render: &[Vec3],
+    i: usize,
+) -> Option<f32> {
     let s = view.pixels[i].shape;
     let recon = p
         .scene
@@ -301,9 +356,9 @@ fn error_color(
         .is_some_and(|sh| sh.is_reconstructed());
     let yo = luminance(photo.pixels[i]);
     if !recon || !photo.valid[i] || yo <= 0.0 {
-        return [0, 0, 0];
+        return None;
     }
-    scale.color((luminance(render[i]) - yo).abs() / yo)
+    Some((luminance(render[i]) - yo).abs() / yo)
 }
 
 #[cfg(test)]

@@ -142,6 +142,7 @@ const FOLDERS: &[(&str, &[Layer])] = &[
             (
                 &[
                     "plot",
+                    "page",
                     "convergence",
                     "maps",
                     "renders",
@@ -149,6 +150,16 @@ const FOLDERS: &[(&str, &[Layer])] = &[
                     "scene_xml",
                     "uv_fold",
                 ],
+                Listed,
+            ),
+        ],
+    ),
+    (
+        "output::page",
+        &[
+            (&["html", "facts", "assets"], Independent),
+            (
+                &["svg", "summary", "views", "shapes", "figures", "tables"],
                 Listed,
             ),
         ],

@@ -737,3 +737,111 @@ fn scene_glb_holds_the_geometry_uvs_and_recovered_albedo() {
     assert_eq!(textured, recon_ids(&r.p).len());
     assert_eq!(g.cameras().count(), r.p.scene.sensors.len());
 }
+
+/// The `src` and `href` values of an HTML page, in order.
+fn page_links(html: &str) -> Vec<String> {
+    let mut v = Vec::new();
+    for attr in ["src=\"", "href=\""] {
+        for part in html.split(attr).skip(1) {
+            v.push(part.split('"').next().unwrap().replace("&amp;", "&"));
+        }
+    }
+    v
+}
+
+/// Every file a page links to exists beside it, none is on the network, and every image a
+/// user would look for (albedo, map previews, re-renders, comparisons) is on the page.
+fn assert_page_links_files(out: &Path, want: &[String]) {
+    let html = std::fs::read_to_string(out.join("report.html")).unwrap();
+    let links = page_links(&html);
+    for l in &links {
+        assert!(!l.contains("://"), "a link off the machine: {l}");
+        let file = l.split('#').next().unwrap();
+        if !file.is_empty() {
+            assert!(
+                out.join(file).is_file(),
+                "the page links to a missing {file}"
+            );
+        }
+    }
+    for w in want {
+        assert!(links.contains(w), "the page does not show {w}");
+    }
+}
+
+/// Image files under `out/sub` whose names end in `suffix`, as page links.
+fn pngs(out: &Path, sub: &str, suffix: &str) -> Vec<String> {
+    std::fs::read_dir(out.join(sub))
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.ends_with(suffix) && !n.ends_with("_mask.png"))
+        .map(|n| format!("{sub}/{n}"))
+        .collect()
+}
+
+#[test]
+fn the_report_page_shows_every_image_and_links_only_files_that_exist() {
+    let r = run();
+    let mut want = pngs(&r.out, "textures", ".png");
+    want.extend(pngs(&r.out, "maps", ".png"));
+    want.extend(pngs(&r.out, "renders", ".png"));
+    assert!(want.len() > 20, "{want:?}");
+    assert_page_links_files(&r.out, &want);
+    // each view's photo, error panel and values; the 3D view holds exactly scene.glb
+    for (si, _) in &r.p.views {
+        let id = &r.p.scene.sensors[*si].id;
+        for f in [
+            format!("{id}_photo.png"),
+            format!("{id}_error.png"),
+            format!("{id}.js"),
+        ] {
+            assert!(r.out.join("report/views").join(&f).is_file(), "{f}");
+        }
+    }
+    let js = std::fs::read_to_string(r.out.join("report/scene_glb.js")).unwrap();
+    let b64 = js.split('"').nth(1).unwrap();
+    use base64::Engine as _;
+    let glb = base64::engine::general_purpose::STANDARD
+        .decode(b64)
+        .unwrap();
+    assert!(glb == std::fs::read(r.out.join("scene.glb")).unwrap());
+    // the project run's page: its two maps per shape, no views
+    let proj = r._dir.path().join("proj");
+    let mut want = pngs(&proj, "maps", "_luminance.png");
+    want.extend(pngs(&proj, "maps", "_coverage.png"));
+    assert_eq!(want.len(), 2 * recon_ids(&r.p).len());
+    assert_page_links_files(&proj, &want);
+}
+
+#[test]
+fn kdmap_report_rebuilds_the_page_from_the_directory() {
+    let r = run();
+    let tmp = tempfile::tempdir().unwrap();
+    let copy = tmp.path().join("out");
+    for sub in ["", "textures", "maps", "renders", "report", "report/views"] {
+        std::fs::create_dir_all(copy.join(sub)).unwrap();
+        for e in std::fs::read_dir(r.out.join(sub)).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_file() && p.file_name().unwrap() != "report.html" {
+                std::fs::copy(&p, copy.join(sub).join(p.file_name().unwrap())).unwrap();
+            }
+        }
+    }
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_kdmap"))
+        .args(["report", copy.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let a = page_links(&std::fs::read_to_string(r.out.join("report.html")).unwrap());
+    let b = page_links(&std::fs::read_to_string(copy.join("report.html")).unwrap());
+    assert_eq!(a, b);
+    // a directory without a run is one clear error naming report.json
+    let empty = tmp.path().join("empty");
+    std::fs::create_dir(&empty).unwrap();
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_kdmap"))
+        .args(["report", empty.to_str().unwrap()])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("report.json"), "{err}");
+}

@@ -1,0 +1,96 @@
+//! The page's tables from `report.json`: the paper's per-view comparison (mean luminance,
+//! spread and chromaticity, photo against re-render, per shape) and each view's capture
+//! calibration (exposure, white balance, what fixed them, the pose's residual shift).
+
+use super::html::{esc, num, pct, table};
+use crate::report::{Report, ViewCapture};
+
+/// The paper's table: one row per view and shape.
+pub fn paper_table(r: &Report) -> String {
+    let rows: Vec<Vec<String>> = r
+        .table
+        .iter()
+        .map(|t| {
+            let dy =
+                (t.mean_luminance[1] - t.mean_luminance[0]) / t.mean_luminance[0].abs().max(1e-30);
+            vec![
+                esc(&t.view),
+                esc(&t.shape),
+                t.pixels.to_string(),
+                num(t.mean_luminance[0]),
+                num(t.mean_luminance[1]),
+                pct(dy, 2),
+                num(t.std_luminance[0]),
+                num(t.std_luminance[1]),
+                format!("({:.4}, {:.4})", t.xy[0][0], t.xy[0][1]),
+                format!("({:.4}, {:.4})", t.xy[1][0], t.xy[1][1]),
+            ]
+        })
+        .collect();
+    let head = [
+        "view",
+        "shape",
+        "pixels",
+        "mean Y photo",
+        "mean Y render",
+        "difference",
+        "std Y photo",
+        "std Y render",
+        "xy photo",
+        "xy render",
+    ];
+    format!(
+        "<p>Over the pixels where a view sees a shape cleanly (no silhouette or depth edge): the \
+         photo's and the re-render's mean and spread of luminance Y (scene radiance units) and \
+         CIE xy chromaticity of the mean colour.</p>{}",
+        table(&head, &rows)
+    )
+}
+
+/// Each view's gain and how it agrees after calibration.
+pub fn capture_table(capture: &[ViewCapture]) -> String {
+    let rows: Vec<Vec<String>> = capture
+        .iter()
+        .map(|c| {
+            let e = c.exposure();
+            let wb = c.gain.map(|g| g / e.max(1e-30));
+            let source = serde_json::to_value(c.source)
+                .ok()
+                .and_then(|v| v.as_str().map(String::from))
+                .unwrap_or_default();
+            let check = c.check.as_ref();
+            vec![
+                esc(&c.view),
+                num(e as f64),
+                format!("{:+.2} EV", e.log2()),
+                format!("[{:.3}, {:.3}, {:.3}]", wb[0], wb[1], wb[2]),
+                esc(&source),
+                c.anchor_pixels.to_string(),
+                check.map_or("-".into(), |k| {
+                    format!("[{:.3}, {:.3}, {:.3}]", k.ratio[0], k.ratio[1], k.ratio[2])
+                }),
+                check.map_or("-".into(), |k| pct(k.disagreeing as f64, 2)),
+                check
+                    .and_then(|k| k.shift)
+                    .map_or("-".into(), |s| format!("({:.2}, {:.2}) px", s[0], s[1])),
+            ]
+        })
+        .collect();
+    let head = [
+        "view",
+        "exposure (gain)",
+        "exposure",
+        "white balance (R, G, B)",
+        "fixed by",
+        "light pixels",
+        "photo / re-render after",
+        "disagreeing",
+        "pose shift",
+    ];
+    format!(
+        "<p>Each photo's gain (photo = gain x radiance): its exposure (the luminance-weighted \
+         mean) and white balance (the channels over it), what fixed it, and how the view agrees \
+         with the others afterwards.</p>{}",
+        table(&head, &rows)
+    )
+}
