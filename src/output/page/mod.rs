@@ -129,6 +129,9 @@ pub fn document(src: &Sources, glb: bool) -> String {
                 tables::capture_table(&r.capture),
             ));
         }
+        if !r.poses.is_empty() {
+            parts.push(("poses", "Camera poses", tables::pose_table(&r.poses)));
+        }
     }
     if glb {
         parts.push(("scene3d", "3D view of scene.glb", scene_3d()));

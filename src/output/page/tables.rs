@@ -1,9 +1,10 @@
 //! The page's tables from `report.json`: the paper's per-view comparison (mean luminance,
 //! spread and chromaticity, photo against re-render, per shape) and each view's capture
-//! calibration (exposure, white balance, what fixed them, the pose's residual shift).
+//! calibration (exposure, white balance, what fixed them, the pose's residual shift) and pose
+//! correction.
 
 use super::html::{esc, num, pct, table};
-use crate::report::{Report, ViewCapture};
+use crate::report::{PoseCorrection, Report, ViewCapture};
 
 /// The paper's table: one row per view and shape.
 pub fn paper_table(r: &Report) -> String {
@@ -93,4 +94,73 @@ pub fn capture_table(capture: &[ViewCapture]) -> String {
          with the others afterwards.</p>{}",
         table(&head, &rows)
     )
+}
+
+/// Each view's pose correction (`[views] refine_pose`): what was found, whether it was used.
+pub fn pose_table(poses: &[PoseCorrection]) -> String {
+    let rows: Vec<Vec<String>> = poses
+        .iter()
+        .map(|c| {
+            vec![
+                esc(&c.view),
+                match c.applied {
+                    true => "moved".into(),
+                    false => format!("kept the scene's ({})", esc(&c.status)),
+                },
+                format!("{:.3} deg", c.rotation_deg),
+                pct(c.translation_rel, 2),
+                format!("{:.2} px", c.shift_px),
+                format!(
+                    "{} &rarr; {}",
+                    pct(c.residual_before, 2),
+                    pct(c.residual_after, 2)
+                ),
+                c.iterations.to_string(),
+            ]
+        })
+        .collect();
+    let head = [
+        "view",
+        "pose",
+        "rotation",
+        "translation (of the distance)",
+        "mean pixel shift",
+        "residual against the others",
+        "iterations",
+    ];
+    format!(
+        "<p>Each camera's pose as refined against the other views (at most 2 degrees and 2% of \
+         the viewing distance): the correction found, and the photo's mean relative difference \
+         from the others' re-render before and after.</p>{}",
+        table(&head, &rows)
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_pose_table_says_which_views_moved_and_by_how_much() {
+        let moved = PoseCorrection {
+            view: "cam_a".into(),
+            applied: true,
+            status: "aligned".into(),
+            rotation_deg: 0.2134,
+            translation_rel: 0.004,
+            shift_px: 1.38,
+            ..Default::default()
+        };
+        let kept = PoseCorrection {
+            view: "cam_b".into(),
+            status: "beyond the bound".into(),
+            applied: false,
+            ..moved.clone()
+        };
+        let html = pose_table(&[moved, kept]);
+        let a = "<td>cam_a</td><td>moved</td><td class=\"n\">0.213 deg</td>";
+        assert!(html.contains(a), "{html}");
+        assert!(html.contains("<td>cam_b</td><td>kept the scene's (beyond the bound)</td>"));
+        assert!(html.contains("1.38 px"), "{html}");
+    }
 }
