@@ -1129,6 +1129,15 @@ impl<'a> Run<'a> {
         r.state.flush()?;
         debug_check(&self.geom, &r.state)?;
         r.report.counts = self.counts(&r, &filled, &uniform);
+        let c = &r.report.counts;
+        r.report.warnings = crate::report::summary::coverage_warning(
+            c.covered_texels,
+            c.observed_texels,
+            Some(c.filled_texels),
+            self.cfg.min_observed_share,
+        )
+        .into_iter()
+        .collect();
         r.report.timings.total = r.elapsed();
         let res = &mut r.report.resources;
         res.memory_budget_mib = self.cfg.memory_budget_mib;
@@ -1190,7 +1199,7 @@ impl<'a> Run<'a> {
         }
     }
 
-    /// Every output file, with its progress stage and the fold's notes.
+    /// Every output file, with its progress stage and the fold's notes (one per kind).
     fn write_outputs(&self, r: &mut Running) -> Result<()> {
         let p = &self.p;
         let stage = Stage::after(
@@ -1210,8 +1219,8 @@ impl<'a> Run<'a> {
             &|k| stage.inc(k),
         )?;
         stage.finish();
-        for f in &r.report.uv_fold {
-            note(self.mode, &f.summary());
+        for line in crate::report::summary::fold_lines(&r.report.uv_fold) {
+            note(self.mode, &line);
         }
         Ok(())
     }

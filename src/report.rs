@@ -4,6 +4,8 @@
 use crate::config::Config;
 use serde::{Deserialize, Serialize};
 
+pub mod summary;
+
 /// Statistics of one solver iteration (one photon pass and one update).
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct IterationStats {
@@ -171,6 +173,10 @@ pub struct Report {
     /// (`stages::project::exposure`); 1 and "known" unless estimated or pinned.
     #[serde(default)]
     pub capture: Vec<ViewCapture>,
+    /// What the run's end warned of (`summary::coverage_warning`): photos that observed under
+    /// `run.min_observed_share` of the covered texels; empty when nothing.
+    #[serde(default)]
+    pub warnings: Vec<String>,
 }
 
 impl UvFold {
@@ -345,6 +351,7 @@ impl Report {
             refinement: Default::default(),
             uv_fold: Vec::new(),
             capture: Vec::new(),
+            warnings: Vec::new(),
         }
     }
 }

@@ -452,6 +452,14 @@ pub const KEYS: &[Key] = &[
         texture buffers (at least 16).",
         |c| c.memory_budget_mib.to_string(),
     ),
+    key(
+        "run",
+        "min_observed_share",
+        "share",
+        "A run whose photos observe under this share of the covered texels, or whose textures \
+        are more than the rest fill, ends with a warning (with --strict, exit code 3); 0 = never.",
+        |c| float(c.min_observed_share),
+    ),
 ];
 
 /// The sections in file order.

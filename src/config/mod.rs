@@ -300,6 +300,10 @@ pub struct Config {
     pub checkpoint_every_seconds: f64,
     /// Budget for memory-mapped working sets, MiB.
     pub memory_budget_mib: u64,
+    /// A run whose photos observe under this share of the covered texels (or whose textures
+    /// are more than `1 -` this share fill) ends with a warning; 0 = never.
+    #[serde(default)]
+    pub min_observed_share: f64,
     /// Shapes not reconstructed, by id, with the diffuse reflectance the user gives them
     /// (linear RGB): they keep that albedo and take part in the light transport.
     #[serde(default)]
@@ -379,6 +383,7 @@ impl Config {
             checkpoint_every_batches: 32,
             checkpoint_every_seconds: 60.0,
             memory_budget_mib: 1024,
+            min_observed_share: 0.5,
             known_shapes: BTreeMap::new(),
             uv_fold: true,
             uniform_radius: UNIFORM_RADIUS,

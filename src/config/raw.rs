@@ -146,6 +146,7 @@ pub struct RawRun {
     pub checkpoint_every_batches: Option<u32>,
     pub checkpoint_every_seconds: Option<f64>,
     pub memory_budget_mib: Option<u64>,
+    pub min_observed_share: Option<f64>,
 }
 
 /// `texels_per_unit` as written in a run config: a number or `"auto"`.
@@ -370,6 +371,7 @@ impl RawRun {
             self.checkpoint_every_seconds,
         );
         set(&mut c.memory_budget_mib, self.memory_budget_mib);
+        set(&mut c.min_observed_share, self.min_observed_share);
     }
 }
 

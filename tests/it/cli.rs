@@ -322,3 +322,87 @@ fn a_read_only_output_directory_is_refused_unless_root() {
     }
     refused_out(&o, &ro, "the output directory is not writable");
 }
+
+/// The Cornell box with a large cube under its floor that no photo sees, written to `dir`
+/// (meshes and photos from the fixture): most of its covered texels are unobserved.
+fn cbox_with_a_hidden_cube(dir: &Path) -> PathBuf {
+    let src = fixture("cbox");
+    let xml = std::fs::read_to_string(src.join("input.xml")).unwrap();
+    let xml = xml.replace(
+        "value=\"meshes/",
+        &format!("value=\"{}/meshes/", src.display()),
+    );
+    let cube = "<shape type=\"cube\" id=\"hidden\"><transform name=\"to_world\">\
+        <scale value=\"3\"/><translate y=\"-10\"/></transform><bsdf type=\"diffuse\"/></shape>\n\
+        </scene>";
+    let scene = dir.join("scene.xml");
+    std::fs::write(&scene, xml.replace("</scene>", cube)).unwrap();
+    std::fs::create_dir_all(dir.join("images")).unwrap();
+    for v in 0..3 {
+        let f = format!("cam_train_{v}.exr");
+        std::fs::copy(src.join("images").join(&f), dir.join("images").join(&f)).unwrap();
+    }
+    scene
+}
+
+/// `kdmap <command> <scene> --out <out> --strict` with few photons and one iteration.
+fn strict_run(command: &str, scene: &Path, out: &Path) -> std::process::Output {
+    let (scene, out) = (scene.to_str().unwrap(), out.to_str().unwrap());
+    let mut args = vec![command, scene, "--out", out, "--strict"];
+    if command == "reconstruct" {
+        args.extend(["--preset", "fast", "--iterations", "1"]);
+    }
+    kdmap(&args)
+}
+
+#[test]
+fn a_run_whose_photos_see_little_warns_and_fails_only_when_strict() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = cbox_with_a_hidden_cube(tmp.path());
+    let out = tmp.path().join("out");
+    let o = strict_run("reconstruct", &scene, &out);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(3), "--strict with a warning: {err}");
+    let warning = err
+        .lines()
+        .find(|l| l.starts_with("warning: only "))
+        .unwrap_or("");
+    assert!(
+        warning.contains("covered texels (") && warning.contains("of the texture is fill"),
+        "{err}"
+    );
+    assert!(
+        err.contains("error: --strict: the run ended with 1 warning(s)"),
+        "{err}"
+    );
+    // the outputs are all there, the warning in the report too
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
+    assert_eq!(
+        report["warnings"][0].as_str(),
+        warning.strip_prefix("warning: ")
+    );
+    assert!(out.join("textures/hidden_albedo.exr").is_file());
+    // the same run without --strict: the warning, exit code 0; as JSON with --progress json
+    let o = kdmap(&[
+        "project",
+        scene.to_str().unwrap(),
+        "--out",
+        tmp.path().join("p").to_str().unwrap(),
+        "--progress",
+        "json",
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(err.contains("{\"warning\":\"only "), "{err}");
+}
+
+#[test]
+fn a_well_observed_run_has_no_warning_even_when_strict() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = fixture("cbox").join("input.xml");
+    let o = strict_run("project", &scene, &tmp.path().join("out"));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(!err.contains("warning"), "{err}");
+}

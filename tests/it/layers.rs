@@ -30,6 +30,7 @@ const FOLDERS: &[(&str, &[Layer])] = &[
             (&["pipeline"], Listed),
         ],
     ),
+    ("report", &[(&["summary"], Listed)]),
     (
         "config",
         &[
