@@ -718,7 +718,7 @@ mod tests {
         let mut want: Vec<&str> = "scene views exposure pinned_gains refine_pose response colmap \
             colmap_to_world atlas atlas.texels_per_unit atlas.max_texels \
             atlas.padding atlas.use_mesh_uvs atlas.tile_size atlas.max_texture_size \
-            refine_passes refine_step refine_gate refine_gated_from denoise_radius denoise_z \
+            refine_passes fine_geometry refine_step refine_gate refine_gated_from denoise_radius denoise_z \
             tv_weight noise_probe area_samples env_samples method gather_rays gather_spacing \
             photons photons_per_texel batch_size max_depth smoothing_radius iterations \
             tolerance alpha0 update relaxation initial_indirect_share seed threads \

@@ -29,7 +29,7 @@ use std::process::ExitCode;
     about = "Recover diffuse albedo (Kd) textures from HDR photos of a known scene"
 )]
 struct Cli {
-    /// No progress and no notes on stderr (errors are still printed).
+    /// No progress and no notes on stderr (errors and warnings are still printed).
     #[arg(long, global = true, conflicts_with = "progress")]
     quiet: bool,
     /// How progress goes to stderr: auto (bars on a terminal, plain lines otherwise),
@@ -496,12 +496,13 @@ fn project(
         return Ok(Vec::new());
     }
     emit(&format!(
-        "projected {} views onto {} shapes: {} of {} surface texels observed ({:.1}%), {} pixels masked, {:.2} s\nmaps: {}\n",
+        "projected {} views onto {} shapes: {} of {} surface texels observed ({:.1}%; {} visible from a camera), {} pixels masked, {:.2} s\nmaps: {}\n",
         stats.views,
         p.layout.slots.len(),
         stats.observed_texels,
         stats.covered_texels,
         100.0 * stats.observed_texels as f64 / stats.covered_texels.max(1) as f64,
+        stats.visible_texels,
         stats.masked_pixels,
         stats.seconds,
         out.join("maps").display()

@@ -124,6 +124,8 @@ pub struct ProjCounts {
     pub masked_pixels: usize,
     pub covered_texels: u64,
     pub observed_texels: u64,
+    /// Covered texels some view could see (see [`Counts::visible_texels`]).
+    pub visible_texels: u64,
     /// What `denoise` did (see [`Counts::denoised_texels`]).
     pub denoised_texels: u64,
     pub denoise_sigma_ratio: f64,
@@ -536,6 +538,7 @@ impl<'a> Run<'a> {
             masked_pixels: ps.masked_pixels,
             covered_texels: ps.covered_texels,
             observed_texels: ps.observed_texels,
+            visible_texels: ps.visible_texels,
             denoised_texels: dn.averaged,
             denoise_sigma_ratio: dn.sigma_ratio,
         };
@@ -1186,6 +1189,7 @@ impl<'a> Run<'a> {
             tiles: p.layout.tile_count,
             covered_texels: proj.covered_texels,
             observed_texels: proj.observed_texels,
+            visible_texels: proj.visible_texels,
             denoised_texels: proj.denoised_texels,
             denoise_sigma_ratio: proj.denoise_sigma_ratio,
             uniform_shapes: uniform.shapes,

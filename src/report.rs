@@ -91,6 +91,10 @@ pub struct Counts {
     pub covered_texels: u64,
     /// Covered texels seen by at least one view.
     pub observed_texels: u64,
+    /// Covered texels some view could see: inside its frame, facing it, nothing in between
+    /// (what `observed_texels` is out of, for the photos taken).
+    #[serde(default)]
+    pub visible_texels: u64,
     /// Photons of the caustic pass (0: no mirror or glass in the scene).
     #[serde(default)]
     pub caustic_photons: u64,

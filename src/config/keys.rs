@@ -183,6 +183,15 @@ pub const KEYS: &[Key] = &[
     ),
     key(
         "projection",
+        "fine_geometry",
+        "bool",
+        "Texels no clean (planar) pixel sees are read from pixels that see one surface of \
+        their shape (weight x0.1), else from the pixel their center falls in when visible \
+        (x0.01): for scenes of small, bevelled or curved parts, where clean pixels are few.",
+        |c| c.fine_geometry.to_string(),
+    ),
+    key(
+        "projection",
         "refine_step",
         "factor",
         "Step of the passes after the first (the \

@@ -224,6 +224,10 @@ pub struct Config {
     pub atlas: AtlasConfig,
     /// Iterative back-projection passes after the weighted-mean projection (0 = off).
     pub refine_passes: u32,
+    /// Texels no clean pixel sees read from pixels that see one surface of their shape, else
+    /// from the pixel their center falls in (`stages::project::one_surface`).
+    #[serde(default)]
+    pub fine_geometry: bool,
     /// The passes' step, in `(0, 2)` ([`REFINE_STEP`]).
     pub refine_step: f32,
     /// The passes' gate, in `[0, 1)` ([`REFINE_GATE`]; 0 = none). Reports written before it
@@ -355,6 +359,7 @@ impl Config {
                 max_texture_size: 8192,
             },
             refine_passes: REFINE_PASSES,
+            fine_geometry: false,
             refine_step: REFINE_STEP,
             refine_gate: REFINE_GATE,
             refine_gated_from: REFINE_GATED_FROM,

@@ -93,6 +93,7 @@ pub struct RawAtlas {
 #[serde(deny_unknown_fields)]
 pub struct RawProjection {
     pub refine_passes: Option<u32>,
+    pub fine_geometry: Option<bool>,
     pub refine_step: Option<f32>,
     pub refine_gate: Option<f32>,
     pub refine_gated_from: Option<u32>,
@@ -284,6 +285,7 @@ impl RawAtlas {
 impl RawProjection {
     fn apply(self, c: &mut Config) {
         set(&mut c.refine_passes, self.refine_passes);
+        set(&mut c.fine_geometry, self.fine_geometry);
         set(&mut c.refine_step, self.refine_step);
         set(&mut c.refine_gate, self.refine_gate);
         set(&mut c.refine_gated_from, self.refine_gated_from);

@@ -406,3 +406,60 @@ fn a_well_observed_run_has_no_warning_even_when_strict() {
     assert!(o.status.success(), "{err}");
     assert!(!err.contains("warning"), "{err}");
 }
+
+/// A finely tessellated sphere (Mitsuba's built-in, 64 x 128 quads) seen by one 64 x 64 camera:
+/// its triangles are a few pixels wide, so one pixel in eight straddles two planes: read
+/// too (every visible texel observed), where clean pixels alone leave 87.5%.
+fn sphere_scene(dir: &Path) -> PathBuf {
+    let scene = dir.join("scene.xml");
+    std::fs::write(
+        &scene,
+        "<scene version=\"3.0.0\">\n\
+         <sensor type=\"perspective\" id=\"cam\"><float name=\"fov\" value=\"40\"/>\
+         <transform name=\"to_world\"><lookat origin=\"0, 0, 4\" target=\"0, 0, 0\" \
+         up=\"0, 1, 0\"/></transform><film type=\"hdrfilm\"><integer name=\"width\" \
+         value=\"64\"/><integer name=\"height\" value=\"64\"/><rfilter type=\"box\"/></film>\
+         </sensor>\n\
+         <emitter type=\"point\"><point name=\"position\" x=\"0\" y=\"2\" z=\"4\"/>\
+         <rgb name=\"intensity\" value=\"10, 10, 10\"/></emitter>\n\
+         <shape type=\"sphere\" id=\"ball\"><bsdf type=\"diffuse\"/></shape>\n</scene>\n",
+    )
+    .unwrap();
+    std::fs::create_dir_all(dir.join("images")).unwrap();
+    let px = vec![glam::Vec3::splat(0.3); 64 * 64];
+    kdmap::image::write_exr_rgb(dir.join("images/cam.exr"), 64, 64, &px, false).unwrap();
+    scene
+}
+
+#[test]
+fn with_fine_geometry_every_texel_a_camera_sees_is_observed() {
+    let tmp = tempfile::tempdir().unwrap();
+    sphere_scene(tmp.path());
+    let run = tmp.path().join("run.toml");
+    let toml = "scene = \"scene.xml\"\n[projection]\nfine_geometry = true\n";
+    std::fs::write(&run, toml).unwrap();
+    let out = tmp.path().join("out");
+    let o = kdmap(&[
+        "project",
+        run.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    // "projected 1 views onto 1 shapes: O of C surface texels observed (x%; V visible ..."
+    let num = |after: &str| -> u64 {
+        let rest = &text[text.find(after).unwrap() + after.len()..];
+        rest.split(|c: char| !c.is_ascii_digit())
+            .next()
+            .unwrap()
+            .parse()
+            .unwrap()
+    };
+    let (observed, visible) = (num("shapes: "), num("%; "));
+    assert!(visible > 100, "{text}");
+    assert!(
+        observed as f64 >= 0.97 * visible as f64,
+        "of {visible} visible texels only {observed} observed: {text}"
+    );
+}

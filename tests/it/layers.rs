@@ -118,7 +118,9 @@ const FOLDERS: &[(&str, &[Layer])] = &[
         "stages::project",
         &[(
             &[
+                "one_surface",
                 "view",
+                "visible",
                 "exposure",
                 "noise",
                 "shrinkage",
