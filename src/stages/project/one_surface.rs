@@ -120,17 +120,17 @@ fn widen_to_filter(spans: Vec<Option<Span>>, w: u32, h: u32, n: u32) -> Vec<Opti
         return spans;
     }
     let (w, h, n) = (w as i64, h as i64, n as i64);
-    let at = |x: i64, y: i64| -> Option<Span> {
-        (x >= 0 && y >= 0 && x < w && y < h)
-            .then(|| spans[(y * w + x) as usize])
-            .flatten()
-    };
+    let inside = |x: i64, y: i64| x >= 0 && y >= 0 && x < w && y < h;
     (0..h)
         .flat_map(|y| (0..w).map(move |x| (x, y)))
         .map(|(x, y)| {
-            let mut out = at(x, y)?;
+            let mut out = spans[(y * w + x) as usize]?;
             for (dx, dy) in (-n..=n).flat_map(|dy| (-n..=n).map(move |dx| (dx, dy))) {
-                let s = at(x + dx, y + dy).filter(|s| s.shape == out.shape)?;
+                let (nx, ny) = (x + dx, y + dy);
+                if !inside(nx, ny) {
+                    continue;
+                }
+                let s = spans[(ny * w + nx) as usize].filter(|s| s.shape == out.shape)?;
                 out.near = out.near.min(s.near);
                 out.far = out.far.max(s.far);
             }
