@@ -29,7 +29,7 @@ use std::process::ExitCode;
     about = "Recover diffuse albedo (Kd) textures from HDR photos of a known scene"
 )]
 struct Cli {
-    /// No progress and no notes on stderr (errors are still printed).
+    /// No progress and no notes on stderr (errors and warnings are still printed).
     #[arg(long, global = true, conflicts_with = "progress")]
     quiet: bool,
     /// How progress goes to stderr: auto (bars on a terminal, plain lines otherwise),
@@ -102,6 +102,9 @@ enum Command {
         /// Continue from `<out>/checkpoint`.
         #[arg(long)]
         resume: bool,
+        /// Exit with code 3 when the run ends with a warning (its outputs are still written).
+        #[arg(long)]
+        strict: bool,
     },
     /// Print where a run's checkpoint stands: stage, iteration, batch, errors so far, time.
     InspectCheckpoint {
@@ -154,6 +157,10 @@ enum Command {
         /// Worker threads (0 = all cores); never changes the result.
         #[arg(long)]
         threads: Option<usize>,
+        /// Exit with code 3 when the projection ends with a warning (its maps are still
+        /// written).
+        #[arg(long)]
+        strict: bool,
     },
 }
 
@@ -236,6 +243,7 @@ fn run(command: Command, mode: Mode) -> Result<()> {
             seed,
             threads,
             resume,
+            strict,
         } => {
             let ov = Overrides {
                 preset,
@@ -246,16 +254,17 @@ fn run(command: Command, mode: Mode) -> Result<()> {
                 threads,
             };
             kdmap::base::interrupt::install()?;
-            reconstruct(&input, &out, &ov, resume, mode)
+            reconstruct(&input, &out, &ov, resume, mode).and_then(|w| close(&w, strict, &out, mode))
         }
         Command::Project {
             input,
             out,
             preset,
             threads,
+            strict,
         } => {
             kdmap::base::interrupt::install()?;
-            project(&input, &out, preset, threads, mode)
+            project(&input, &out, preset, threads, mode).and_then(|w| close(&w, strict, &out, mode))
         }
         // the read-only commands answer once, on rank 0
         _ if !root => Ok(()),
@@ -285,20 +294,43 @@ fn pool(threads: usize) -> Result<rayon::ThreadPool> {
         .map_err(|e| Error::internal(format!("starting worker threads: {e}")))
 }
 
-fn reconstruct(input: &Path, out: &Path, ov: &Overrides, resume: bool, mode: Mode) -> Result<()> {
+/// The end of a run that wrote its outputs: its warnings on stderr, then, with `strict` and a
+/// warning, the error of exit code 3.
+fn close(warnings: &[String], strict: bool, out: &Path, mode: Mode) -> Result<()> {
+    for w in warnings {
+        kdmap::base::progress::warning(mode, w);
+    }
+    match (strict, warnings.len()) {
+        (false, _) | (true, 0) => Ok(()),
+        (true, n) => Err(Error::Strict(format!(
+            "the run ended with {n} warning(s); its outputs are in {}",
+            out.display()
+        ))),
+    }
+}
+
+/// Runs the method; returns the run's warnings (none on ranks other than 0).
+fn reconstruct(
+    input: &Path,
+    out: &Path,
+    ov: &Overrides,
+    resume: bool,
+    mode: Mode,
+) -> Result<Vec<String>> {
     let cfg = kdmap::base::comm::world().agree(Config::load(input, ov))?;
     let (report, start) =
         pool(cfg.threads)?.install(|| pipeline::reconstruct_resumable(&cfg, out, mode, resume))?;
     if !kdmap::base::comm::world().is_root() {
-        return Ok(());
+        return Ok(Vec::new());
     }
     if start == Start::AlreadyFinished {
-        return emit(&format!(
+        emit(&format!(
             "already finished ({} iterations, {}): nothing to do; results: {}\n",
             report.iterations.len(),
             report.stopped_by,
             out.display()
-        ));
+        ))?;
+        return Ok(report.warnings);
     }
     let last = report.iterations.last();
     emit(&format!(
@@ -311,7 +343,8 @@ fn reconstruct(input: &Path, out: &Path, ov: &Overrides, resume: bool, mode: Mod
         100.0 * last.map_or(0.0, |i| i.max_rel_error),
         report.timings.total,
         out.display()
-    ))
+    ))?;
+    Ok(report.warnings)
 }
 
 fn accuracy(out: &Path, truth: &Path, json: bool) -> Result<()> {
@@ -461,13 +494,14 @@ fn stage_text(progress: &pipeline::Progress) -> String {
     }
 }
 
+/// Steps 1-2; returns the projection's warnings (none on ranks other than 0).
 fn project(
     input: &Path,
     out: &Path,
     preset: Option<Preset>,
     threads: Option<usize>,
     mode: Mode,
-) -> Result<()> {
+) -> Result<Vec<String>> {
     let ov = Overrides {
         preset,
         threads,
@@ -477,19 +511,24 @@ fn project(
     let cfg = world.agree(Config::load(input, &ov))?;
     let (p, stats) = pool(cfg.threads)?.install(|| pipeline::run_projection(&cfg, out, mode))?;
     if !world.is_root() {
-        return Ok(());
+        return Ok(Vec::new());
     }
     emit(&format!(
-        "projected {} views onto {} shapes: {} of {} surface texels observed ({:.1}%), {} pixels masked, {:.2} s\nmaps: {}\n",
+        "projected {} views onto {} shapes: {} of {} surface texels observed ({:.1}%; {} visible from a camera), {} pixels masked, {:.2} s\nmaps: {}\n",
         stats.views,
         p.layout.slots.len(),
         stats.observed_texels,
         stats.covered_texels,
         100.0 * stats.observed_texels as f64 / stats.covered_texels.max(1) as f64,
+        stats.visible_texels,
         stats.masked_pixels,
         stats.seconds,
         out.join("maps").display()
-    ))
+    ))?;
+    let (covered, observed) = (stats.covered_texels, stats.observed_texels);
+    let w =
+        kdmap::report::summary::coverage_warning(covered, observed, None, cfg.min_observed_share);
+    Ok(w.into_iter().collect())
 }
 
 fn v3(v: Vec3) -> String {

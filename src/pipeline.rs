@@ -125,6 +125,8 @@ pub struct ProjCounts {
     pub masked_pixels: usize,
     pub covered_texels: u64,
     pub observed_texels: u64,
+    /// Covered texels some view could see (see [`Counts::visible_texels`]).
+    pub visible_texels: u64,
     /// What `denoise` did (see [`Counts::denoised_texels`]).
     pub denoised_texels: u64,
     pub denoise_sigma_ratio: f64,
@@ -575,6 +577,7 @@ impl<'a> Run<'a> {
             masked_pixels: ps.masked_pixels,
             covered_texels: ps.covered_texels,
             observed_texels: ps.observed_texels,
+            visible_texels: ps.visible_texels,
             denoised_texels: dn.averaged,
             denoise_sigma_ratio: dn.sigma_ratio,
         };
@@ -1168,6 +1171,15 @@ impl<'a> Run<'a> {
         r.state.flush()?;
         debug_check(&self.geom, &r.state)?;
         r.report.counts = self.counts(&r, &filled, &uniform);
+        let c = &r.report.counts;
+        r.report.warnings = crate::report::summary::coverage_warning(
+            c.covered_texels,
+            c.observed_texels,
+            Some(c.filled_texels),
+            self.cfg.min_observed_share,
+        )
+        .into_iter()
+        .collect();
         r.report.timings.total = r.elapsed();
         let res = &mut r.report.resources;
         res.memory_budget_mib = self.cfg.memory_budget_mib;
@@ -1216,6 +1228,7 @@ impl<'a> Run<'a> {
             tiles: p.layout.tile_count,
             covered_texels: proj.covered_texels,
             observed_texels: proj.observed_texels,
+            visible_texels: proj.visible_texels,
             denoised_texels: proj.denoised_texels,
             denoise_sigma_ratio: proj.denoise_sigma_ratio,
             uniform_shapes: uniform.shapes,
@@ -1229,7 +1242,7 @@ impl<'a> Run<'a> {
         }
     }
 
-    /// Every output file, with its progress stage and the fold's notes.
+    /// Every output file, with its progress stage and the fold's notes (one per kind).
     fn write_outputs(&self, r: &mut Running) -> Result<()> {
         let p = &self.p;
         let stage = Stage::after(
@@ -1249,8 +1262,8 @@ impl<'a> Run<'a> {
             &|k| stage.inc(k),
         )?;
         stage.finish();
-        for f in &r.report.uv_fold {
-            note(self.mode, &f.summary());
+        for line in crate::report::summary::fold_lines(&r.report.uv_fold) {
+            note(self.mode, &line);
         }
         Ok(())
     }

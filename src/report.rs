@@ -4,6 +4,8 @@
 use crate::config::Config;
 use serde::{Deserialize, Serialize};
 
+pub mod summary;
+
 /// Statistics of one solver iteration (one photon pass and one update).
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct IterationStats {
@@ -89,6 +91,10 @@ pub struct Counts {
     pub covered_texels: u64,
     /// Covered texels seen by at least one view.
     pub observed_texels: u64,
+    /// Covered texels some view could see: inside its frame, facing it, nothing in between
+    /// (what `observed_texels` is out of, for the photos taken).
+    #[serde(default)]
+    pub visible_texels: u64,
     /// Photons of the caustic pass (0: no mirror or glass in the scene).
     #[serde(default)]
     pub caustic_photons: u64,
@@ -175,6 +181,10 @@ pub struct Report {
     /// empty when off). The outputs (re-renders, `scene.xml` sensors) use these poses.
     #[serde(default)]
     pub poses: Vec<PoseCorrection>,
+    /// What the run's end warned of (`summary::coverage_warning`): photos that observed under
+    /// `run.min_observed_share` of the covered texels; empty when nothing.
+    #[serde(default)]
+    pub warnings: Vec<String>,
 }
 
 /// One view's pose refinement (`project::pose`): what was found, and the camera-to-world the
@@ -418,6 +428,7 @@ impl Report {
             uv_fold: Vec::new(),
             poses: Vec::new(),
             capture: Vec::new(),
+            warnings: Vec::new(),
         }
     }
 }

@@ -44,6 +44,9 @@ pub enum Error {
     /// was saved and how to continue.
     #[error("interrupted: {}", .0.replace('\n', " "))]
     Interrupted(String),
+    /// A run asked to be strict (`--strict`) finished, its outputs written, with a warning.
+    #[error("--strict: {}", .0.replace('\n', " "))]
+    Strict(String),
     /// An error another rank of an MPI job met (`comm`), passed on so that every rank ends
     /// with its exit code; rank 0 prints it.
     #[error("rank {rank}: {}", .msg.replace('\n', " "))]
@@ -97,6 +100,8 @@ pub mod exit {
     pub const CONFIG: u8 = 78;
     /// Another rank of an MPI job died (EX_UNAVAILABLE); the launcher ends the job.
     pub const RANK_DIED: u8 = 69;
+    /// A `--strict` run finished with a warning; its outputs are written.
+    pub const STRICT: u8 = 3;
     /// Stopped by SIGINT or SIGTERM (128 + 2).
     pub const INTERRUPTED: u8 = 130;
 }
@@ -169,6 +174,7 @@ impl Error {
             Error::Config { .. } => exit::CONFIG,
             Error::Internal(_) => exit::INTERNAL,
             Error::Interrupted(_) => exit::INTERRUPTED,
+            Error::Strict(_) => exit::STRICT,
             Error::Rank { code, .. } => *code,
         }
     }

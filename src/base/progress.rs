@@ -338,6 +338,15 @@ pub fn note(mode: Mode, msg: &str) {
     }
 }
 
+/// A warning on stderr, in every mode (quiet too: like an error, it says the result may not
+/// be what was asked for): `warning: <msg>`, or `{"warning": msg}` in JSON mode.
+pub fn warning(mode: Mode, msg: &str) {
+    match mode {
+        Mode::Json => line(&serde_json::json!({ "warning": msg }).to_string()),
+        _ => line(&format!("warning: {msg}")),
+    }
+}
+
 /// A result line of a stage on stderr (an iteration's errors), unless quiet: `text` as it
 /// is, or `json` as one line in JSON mode.
 pub fn report(mode: Mode, text: &str, json: serde_json::Value) {

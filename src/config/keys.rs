@@ -183,6 +183,15 @@ pub const KEYS: &[Key] = &[
     ),
     key(
         "projection",
+        "fine_geometry",
+        "bool",
+        "Texels no clean (planar) pixel sees are read from pixels that see one surface of \
+        their shape (weight x0.1), else from the pixel their center falls in when visible \
+        (x0.01): for scenes of small, bevelled or curved parts, where clean pixels are few.",
+        |c| c.fine_geometry.to_string(),
+    ),
+    key(
+        "projection",
         "refine_step",
         "factor",
         "Step of the passes after the first (the \
@@ -451,6 +460,14 @@ pub const KEYS: &[Key] = &[
         "Working set of memory-mapped tiles and \
         texture buffers (at least 16).",
         |c| c.memory_budget_mib.to_string(),
+    ),
+    key(
+        "run",
+        "min_observed_share",
+        "share",
+        "A run whose photos observe under this share of the covered texels, or whose textures \
+        are more than the rest fill, ends with a warning (with --strict, exit code 3); 0 = never.",
+        |c| float(c.min_observed_share),
     ),
 ];
 

@@ -224,6 +224,10 @@ pub struct Config {
     pub atlas: AtlasConfig,
     /// Iterative back-projection passes after the weighted-mean projection (0 = off).
     pub refine_passes: u32,
+    /// Texels no clean pixel sees read from pixels that see one surface of their shape, else
+    /// from the pixel their center falls in (`stages::project::one_surface`).
+    #[serde(default)]
+    pub fine_geometry: bool,
     /// The passes' step, in `(0, 2)` ([`REFINE_STEP`]).
     pub refine_step: f32,
     /// The passes' gate, in `[0, 1)` ([`REFINE_GATE`]; 0 = none). Reports written before it
@@ -300,6 +304,10 @@ pub struct Config {
     pub checkpoint_every_seconds: f64,
     /// Budget for memory-mapped working sets, MiB.
     pub memory_budget_mib: u64,
+    /// A run whose photos observe under this share of the covered texels (or whose textures
+    /// are more than `1 -` this share fill) ends with a warning; 0 = never.
+    #[serde(default)]
+    pub min_observed_share: f64,
     /// Shapes not reconstructed, by id, with the diffuse reflectance the user gives them
     /// (linear RGB): they keep that albedo and take part in the light transport.
     #[serde(default)]
@@ -351,6 +359,7 @@ impl Config {
                 max_texture_size: 8192,
             },
             refine_passes: REFINE_PASSES,
+            fine_geometry: false,
             refine_step: REFINE_STEP,
             refine_gate: REFINE_GATE,
             refine_gated_from: REFINE_GATED_FROM,
@@ -379,6 +388,7 @@ impl Config {
             checkpoint_every_batches: 32,
             checkpoint_every_seconds: 60.0,
             memory_budget_mib: 1024,
+            min_observed_share: 0.5,
             known_shapes: BTreeMap::new(),
             uv_fold: true,
             uniform_radius: UNIFORM_RADIUS,

@@ -93,6 +93,7 @@ pub struct RawAtlas {
 #[serde(deny_unknown_fields)]
 pub struct RawProjection {
     pub refine_passes: Option<u32>,
+    pub fine_geometry: Option<bool>,
     pub refine_step: Option<f32>,
     pub refine_gate: Option<f32>,
     pub refine_gated_from: Option<u32>,
@@ -146,6 +147,7 @@ pub struct RawRun {
     pub checkpoint_every_batches: Option<u32>,
     pub checkpoint_every_seconds: Option<f64>,
     pub memory_budget_mib: Option<u64>,
+    pub min_observed_share: Option<f64>,
 }
 
 /// `texels_per_unit` as written in a run config: a number or `"auto"`.
@@ -283,6 +285,7 @@ impl RawAtlas {
 impl RawProjection {
     fn apply(self, c: &mut Config) {
         set(&mut c.refine_passes, self.refine_passes);
+        set(&mut c.fine_geometry, self.fine_geometry);
         set(&mut c.refine_step, self.refine_step);
         set(&mut c.refine_gate, self.refine_gate);
         set(&mut c.refine_gated_from, self.refine_gated_from);
@@ -370,6 +373,7 @@ impl RawRun {
             self.checkpoint_every_seconds,
         );
         set(&mut c.memory_budget_mib, self.memory_budget_mib);
+        set(&mut c.min_observed_share, self.min_observed_share);
     }
 }
 

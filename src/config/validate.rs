@@ -202,6 +202,12 @@ impl Config {
                 self.memory_budget_mib
             ));
         }
+        if !(0.0..=1.0).contains(&self.min_observed_share) {
+            return Err(format!(
+                "run.min_observed_share = {}: must be a share in [0, 1]",
+                self.min_observed_share
+            ));
+        }
         Ok(())
     }
 }

@@ -322,3 +322,144 @@ fn a_read_only_output_directory_is_refused_unless_root() {
     }
     refused_out(&o, &ro, "the output directory is not writable");
 }
+
+/// The Cornell box with a large cube under its floor that no photo sees, written to `dir`
+/// (meshes and photos from the fixture): most of its covered texels are unobserved.
+fn cbox_with_a_hidden_cube(dir: &Path) -> PathBuf {
+    let src = fixture("cbox");
+    let xml = std::fs::read_to_string(src.join("input.xml")).unwrap();
+    let xml = xml.replace(
+        "value=\"meshes/",
+        &format!("value=\"{}/meshes/", src.display()),
+    );
+    let cube = "<shape type=\"cube\" id=\"hidden\"><transform name=\"to_world\">\
+        <scale value=\"3\"/><translate y=\"-10\"/></transform><bsdf type=\"diffuse\"/></shape>\n\
+        </scene>";
+    let scene = dir.join("scene.xml");
+    std::fs::write(&scene, xml.replace("</scene>", cube)).unwrap();
+    std::fs::create_dir_all(dir.join("images")).unwrap();
+    for v in 0..3 {
+        let f = format!("cam_train_{v}.exr");
+        std::fs::copy(src.join("images").join(&f), dir.join("images").join(&f)).unwrap();
+    }
+    scene
+}
+
+/// `kdmap <command> <scene> --out <out> --strict` with few photons and one iteration.
+fn strict_run(command: &str, scene: &Path, out: &Path) -> std::process::Output {
+    let (scene, out) = (scene.to_str().unwrap(), out.to_str().unwrap());
+    let mut args = vec![command, scene, "--out", out, "--strict"];
+    if command == "reconstruct" {
+        args.extend(["--preset", "fast", "--iterations", "1"]);
+    }
+    kdmap(&args)
+}
+
+#[test]
+fn a_run_whose_photos_see_little_warns_and_fails_only_when_strict() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = cbox_with_a_hidden_cube(tmp.path());
+    let out = tmp.path().join("out");
+    let o = strict_run("reconstruct", &scene, &out);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(3), "--strict with a warning: {err}");
+    let warning = err
+        .lines()
+        .find(|l| l.starts_with("warning: only "))
+        .unwrap_or("");
+    assert!(
+        warning.contains("covered texels (") && warning.contains("of the texture is fill"),
+        "{err}"
+    );
+    assert!(
+        err.contains("error: --strict: the run ended with 1 warning(s)"),
+        "{err}"
+    );
+    // the outputs are all there, the warning in the report too
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
+    assert_eq!(
+        report["warnings"][0].as_str(),
+        warning.strip_prefix("warning: ")
+    );
+    assert!(out.join("textures/hidden_albedo.exr").is_file());
+    // the same run without --strict: the warning, exit code 0; as JSON with --progress json
+    let o = kdmap(&[
+        "project",
+        scene.to_str().unwrap(),
+        "--out",
+        tmp.path().join("p").to_str().unwrap(),
+        "--progress",
+        "json",
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(err.contains("{\"warning\":\"only "), "{err}");
+}
+
+#[test]
+fn a_well_observed_run_has_no_warning_even_when_strict() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = fixture("cbox").join("input.xml");
+    let o = strict_run("project", &scene, &tmp.path().join("out"));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(!err.contains("warning"), "{err}");
+}
+
+/// A finely tessellated sphere (Mitsuba's built-in, 64 x 128 quads) seen by one 64 x 64 camera:
+/// its triangles are a few pixels wide, so one pixel in eight straddles two planes: read
+/// too (every visible texel observed), where clean pixels alone leave 87.5%.
+fn sphere_scene(dir: &Path) -> PathBuf {
+    let scene = dir.join("scene.xml");
+    std::fs::write(
+        &scene,
+        "<scene version=\"3.0.0\">\n\
+         <sensor type=\"perspective\" id=\"cam\"><float name=\"fov\" value=\"40\"/>\
+         <transform name=\"to_world\"><lookat origin=\"0, 0, 4\" target=\"0, 0, 0\" \
+         up=\"0, 1, 0\"/></transform><film type=\"hdrfilm\"><integer name=\"width\" \
+         value=\"64\"/><integer name=\"height\" value=\"64\"/><rfilter type=\"box\"/></film>\
+         </sensor>\n\
+         <emitter type=\"point\"><point name=\"position\" x=\"0\" y=\"2\" z=\"4\"/>\
+         <rgb name=\"intensity\" value=\"10, 10, 10\"/></emitter>\n\
+         <shape type=\"sphere\" id=\"ball\"><bsdf type=\"diffuse\"/></shape>\n</scene>\n",
+    )
+    .unwrap();
+    std::fs::create_dir_all(dir.join("images")).unwrap();
+    let px = vec![glam::Vec3::splat(0.3); 64 * 64];
+    kdmap::image::write_exr_rgb(dir.join("images/cam.exr"), 64, 64, &px, false).unwrap();
+    scene
+}
+
+#[test]
+fn with_fine_geometry_every_texel_a_camera_sees_is_observed() {
+    let tmp = tempfile::tempdir().unwrap();
+    sphere_scene(tmp.path());
+    let run = tmp.path().join("run.toml");
+    let toml = "scene = \"scene.xml\"\n[projection]\nfine_geometry = true\n";
+    std::fs::write(&run, toml).unwrap();
+    let out = tmp.path().join("out");
+    let o = kdmap(&[
+        "project",
+        run.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    // "projected 1 views onto 1 shapes: O of C surface texels observed (x%; V visible ..."
+    let num = |after: &str| -> u64 {
+        let rest = &text[text.find(after).unwrap() + after.len()..];
+        rest.split(|c: char| !c.is_ascii_digit())
+            .next()
+            .unwrap()
+            .parse()
+            .unwrap()
+    };
+    let (observed, visible) = (num("shapes: "), num("%; "));
+    assert!(visible > 100, "{text}");
+    assert!(
+        observed as f64 >= 0.97 * visible as f64,
+        "of {visible} visible texels only {observed} observed: {text}"
+    );
+}

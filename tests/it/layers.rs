@@ -30,6 +30,7 @@ const FOLDERS: &[(&str, &[Layer])] = &[
             (&["pipeline"], Listed),
         ],
     ),
+    ("report", &[(&["summary"], Listed)]),
     (
         "config",
         &[
@@ -117,7 +118,9 @@ const FOLDERS: &[(&str, &[Layer])] = &[
         "stages::project",
         &[(
             &[
+                "one_surface",
                 "view",
+                "visible",
                 "exposure",
                 "noise",
                 "shrinkage",

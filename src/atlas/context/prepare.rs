@@ -535,7 +535,8 @@ impl RunContext {
     }
 
     /// Hash of everything that changes a run's result: the settings without `threads`,
-    /// the checkpoint intervals and `memory_budget_mib` (which never change results), the
+    /// the checkpoint intervals, `memory_budget_mib` and `min_observed_share` (which never
+    /// change results), the
     /// scene file, every file it names (meshes, textures) and the photos. A checkpoint made
     /// with other inputs must not be resumed.
     pub fn fingerprint(&self, cfg: &Config) -> Result<u64> {
@@ -545,6 +546,7 @@ impl RunContext {
         c.checkpoint_every_batches = 1;
         c.checkpoint_every_seconds = 0.0;
         c.memory_budget_mib = 0;
+        c.min_observed_share = 0.0;
         let json = serde_json::to_vec(&c).map_err(|e| Error::internal(format!("settings: {e}")))?;
         h.update(&json);
         let mut hash_file = |p: &Path| -> Result<()> {

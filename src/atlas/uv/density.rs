@@ -344,6 +344,24 @@ fn one_density_as_empty(levels: Vec<u8>) -> Vec<u8> {
     }
 }
 
+/// The note on the shapes whose density `max_size` capped, `(id, cap, what the photos
+/// resolve)` each: in full for one, counted for several (each is in the report's atlas).
+fn size_cap_note(capped: &[(&str, f32, f32)], max_size: u32) -> Option<String> {
+    match capped {
+        [] => None,
+        [(id, cap, want)] => Some(format!(
+            "shape '{id}': texel density capped at {cap:.1}/unit (the photos resolve {want:.1}) \
+             to fit max_texture_size {max_size}"
+        )),
+        _ => Some(format!(
+            "texel density capped below what the photos resolve to fit max_texture_size \
+             {max_size} for {} shapes: {}",
+            capped.len(),
+            crate::report::summary::some_ids(capped.iter().map(|c| c.0))
+        )),
+    }
+}
+
 /// The densities for `fine` (from [`finest_footprints`]): per seen shape `OVERSAMPLE /` the
 /// median footprint of its finest view, with per-triangle levels below it
 /// ([`shape_levels`]); the coarsest seen density for unseen shapes; each capped so its atlas fits `max_size`, then all scaled down together
@@ -378,19 +396,17 @@ pub fn plan(scene: &Scene, fine: &Footprints, max_size: u32, budget: u64) -> Den
             })
         })
         .collect();
+    let mut capped = Vec::new();
     for (s, d) in scene.shapes.iter().zip(shapes.iter_mut()) {
         let Some(d) = d else { continue };
         let cap = size_cap(d.effective_area(&s.mesh), max_size);
         if d.texels_per_unit > cap {
-            notes.push(format!(
-                "shape '{}': texel density capped at {cap:.1}/unit (the photos resolve {:.1}) \
-                 to fit max_texture_size {max_size}",
-                s.id, d.texels_per_unit
-            ));
+            capped.push((s.id.as_str(), cap, d.texels_per_unit));
             d.texels_per_unit = cap;
             d.limited_by = Some("max_texture_size".into());
         }
     }
+    notes.extend(size_cap_note(&capped, max_size));
     cap_levels(scene, &mut shapes);
     let total = estimate(scene, &shapes);
     if total > budget as f64 {

@@ -15,6 +15,9 @@
 //! costs its pixels and the texels in front of it. The weight
 //! `w = (accepted fraction) * A_texel / A_pixel` counts how many pixels' worth of measurement
 //! the texel received, so it accounts for distance, viewing angle and pixel footprint together.
+//! With `fine_geometry`, a texel no view sees cleanly is read from pixels that see one surface of its shape
+//! (`one_surface`, weight x0.1), else from the pixel its center falls in if a ray shows it
+//! visible (`visible`, weight x0.01): fine geometry is observed, not filled.
 //!
 //! **Why refinement.** The weighted mean is a blurred estimate of the surface radiance, and
 //! differently blurred in each view: the bilinear lookup adds a one-pixel tent to each pixel's
@@ -60,11 +63,13 @@ mod diagnose;
 pub mod exposure;
 mod noise;
 pub mod noise_probe;
+mod one_surface;
 pub mod pose;
 mod refine;
 mod shrinkage;
 pub mod total_variation;
 mod view;
+mod visible;
 
 pub use diagnose::notes as capture_notes;
 pub use refine::{Refine, REFINE_SUPERSAMPLE};
@@ -102,6 +107,8 @@ pub struct ProjectionStats {
     pub masked_pixels: usize,
     pub covered_texels: u64,
     pub observed_texels: u64,
+    /// Covered texels some view could see (in its frame, facing it, unoccluded).
+    pub visible_texels: u64,
     /// The whole stage, the noise probe included.
     pub seconds: f64,
     /// The noise probe's part of it (0 when off).
@@ -260,7 +267,7 @@ pub fn run_shard(
         false => ctx,
     };
     let passes = refine::Passes::of(cfg);
-    let (noise, residual) = project_and_refine(&ctx, state, passes, mode)?;
+    let (noise, residual) = project_and_refine(&ctx, state, passes, mode, cfg.fine_geometry)?;
     stats.refine_residual = residual;
     for (g, n) in stats.gains.iter_mut().zip(&noise) {
         g.check = n.check.clone();
@@ -271,14 +278,21 @@ pub fn run_shard(
         stats.probe_seconds = t.elapsed().as_secs_f64();
     }
     stage.finish();
-    let counts = map_tiles(state, geom, window, |_, g, st| {
+    let counts = map_tiles(state, geom, window, |t, g, st| {
+        let shape = p.shape_ref(p.layout.slot_of_tile(t as u32));
+        let seen = |g: &TexelGeom| views.iter().any(|v| visible::sees(v, &p.accel, &shape, g));
         let c = g.iter().filter(|g| g.covered()).count() as u64;
         let o = st.iter().filter(|s| s.flags & flags::OBSERVED != 0).count() as u64;
-        (c, o)
+        let v = match (shard.owns)(t) {
+            true => g.iter().filter(|g| g.covered() && seen(g)).count() as u64,
+            false => 0,
+        };
+        (c, o, v)
     })?;
-    let (c, o) = counts.iter().fold((0, 0), |(a, b), (c, o)| (a + c, b + o));
+    let (c, o, v) = (counts.iter()).fold((0, 0, 0), |(a, b, d), (c, o, v)| (a + c, b + o, d + v));
     stats.covered_texels = c;
     stats.observed_texels = o;
+    stats.visible_texels = (shard.sum)(v);
     stats.seconds = t0.elapsed().as_secs_f64();
     Ok(stats)
 }
@@ -309,7 +323,7 @@ fn probe_noise(
         label: "noise probe",
         ..*ctx
     };
-    project_and_refine(&pctx, &mut probe_state, passes, mode)?;
+    project_and_refine(&pctx, &mut probe_state, passes, mode, cfg.fine_geometry)?;
     noise_probe::apply(
         &p.layout,
         ctx.charts,
@@ -324,26 +338,35 @@ fn probe_noise(
 }
 
 /// The weighted mean of every view of `ctx` into `state` (L_orig, weight, OBSERVED; synced),
-/// then the refinement passes; returns the views' noise as the last pass estimated it and
+/// then (with `fine_geometry`) the texels no clean pixel saw from the others
+/// ([`project_tile`]), then the refinement passes; returns the views' noise as the last pass estimated it and
 /// the passes' residuals (see [`refine::Refine::run`]).
 fn project_and_refine(
     ctx: &refine::Refine,
     state: &mut TileStore<TexelState>,
     passes: refine::Passes,
     mode: Mode,
+    fine_geometry: bool,
 ) -> Result<(Vec<noise_probe::ViewNoise>, Vec<Vec<f64>>)> {
     let (p, shard, bounds) = (ctx.p, ctx.shard, ctx.bounds);
-    for view in ctx.views {
-        map_tiles(state, ctx.geom, ctx.window, |t, g, st| {
-            if !(shard.owns)(t) || !bounds[t].is_some_and(|(lo, hi)| view.camera.may_see(lo, hi)) {
-                return;
-            }
-            let slot = p.layout.slot_of_tile(t as u32);
-            project_tile(view, &p.shape_ref(slot), g, st);
-        })?;
-        interrupt::check(interrupt::NOTHING_SAVED)?;
+    let rounds: &[bool] = match fine_geometry {
+        true => &[false, true],
+        false => &[false],
+    };
+    for &loose in rounds {
+        for view in ctx.views {
+            map_tiles(state, ctx.geom, ctx.window, |t, g, st| {
+                let seen = bounds[t].is_some_and(|(lo, hi)| view.camera.may_see(lo, hi));
+                if !(shard.owns)(t) || !seen {
+                    return;
+                }
+                let slot = p.layout.slot_of_tile(t as u32);
+                project_tile(view, &p.accel, &p.shape_ref(slot), g, st, loose);
+            })?;
+            interrupt::check(interrupt::NOTHING_SAVED)?;
+        }
+        state.for_each_tile_mut(ctx.window, |_, st| finish_tile(st))?;
     }
-    state.for_each_tile_mut(ctx.window, |_, st| finish_tile(st))?;
     (shard.sync)(state)?;
     ctx.run(state, passes, mode)
 }
@@ -394,6 +417,53 @@ pub fn observe_texel_from<T: Value>(
     g: &TexelGeom,
     get: &dyn Fn(u32, u32) -> T,
 ) -> Option<(T, f32)> {
+    let ng = g.ng();
+    observe_with(view, shape, g, &|pix, q| {
+        view.sample_from(pix, q, shape.index, ng, get)
+    })
+}
+
+/// [`observe_texel`] from the pixels that see one surface of the texel's shape, planar or not
+/// ([`View::sample_loose`]), its weight [`one_surface::LOOSE_WEIGHT`] of a clean one's: for a
+/// texel no clean pixel of the view sees.
+pub fn observe_texel_loose(view: &View, shape: &ShapeRef, g: &TexelGeom) -> Option<(Vec3, f32)> {
+    let (l, w) = observe_with(view, shape, g, &|pix, q| {
+        view.sample_loose(pix, q, shape.index)
+    })?;
+    Some((l, w * one_surface::LOOSE_WEIGHT))
+}
+
+/// A texel's center as the pixel it projects into shows it, when the view sees that center
+/// ([`visible::sees`]: a ray), whatever else the pixel holds; weight
+/// [`one_surface::LOOSE_WEIGHT`] squared of a clean pixel's.
+pub fn observe_texel_seen(
+    view: &View,
+    accel: &crate::physics::accel::Accel,
+    shape: &ShapeRef,
+    g: &TexelGeom,
+) -> Option<(Vec3, f32)> {
+    if !visible::sees(view, accel, shape, g) {
+        return None;
+    }
+    let pix = view.camera.project(g.p())?;
+    let (x, y) = (pix.x as u32, pix.y as u32);
+    if !view.usable(x, y) {
+        return None;
+    }
+    let a_pix = view.camera.pixel_footprint_area(g.p(), g.ng());
+    let ratio = (g.area / a_pix).min(1.0);
+    let w = ratio * one_surface::LOOSE_WEIGHT * one_surface::LOOSE_WEIGHT;
+    (w.is_finite() && w > 0.0).then(|| (view.image.get(x, y), w))
+}
+
+/// One texel in one view through `sample` (a projected point's value, if the view sees it):
+/// `(mean value, weight)` of its sub-samples (see [`observe_texel`]).
+fn observe_with<T: Value>(
+    view: &View,
+    shape: &ShapeRef,
+    g: &TexelGeom,
+    sample: &dyn Fn(glam::Vec2, Vec3) -> Option<T>,
+) -> Option<(T, f32)> {
     let cam = view.camera.position();
     let p = g.p();
     let n = g.n();
@@ -430,7 +500,7 @@ pub fn observe_texel_from<T: Value>(
             let Some(pix) = view.camera.project(q) else {
                 continue;
             };
-            if let Some(l) = view.sample_from(pix, q, shape.index, ng, get) {
+            if let Some(l) = sample(pix, q) {
                 sum += l;
                 accepted += 1;
             }
@@ -443,13 +513,29 @@ pub fn observe_texel_from<T: Value>(
     Some((sum / accepted as f32, frac * ratio))
 }
 
-/// Accumulate one view into one tile: `state.l_orig += w L`, `state.weight += w`.
-pub fn project_tile(view: &View, shape: &ShapeRef, geom: &[TexelGeom], state: &mut [TexelState]) {
+/// Accumulate one view into one tile: `state.l_orig += w L`, `state.weight += w`, from clean
+/// pixels; with `loose`, only into texels no view saw cleanly ([`finish_tile`] has not flagged
+/// them), from pixels that see one surface of its shape ([`observe_texel_loose`]), else, if
+/// the view sees its center at all, from the pixel there ([`observe_texel_seen`]): a shape of
+/// a few pixels takes what it gets, at a low weight.
+pub fn project_tile(
+    view: &View,
+    accel: &crate::physics::accel::Accel,
+    shape: &ShapeRef,
+    geom: &[TexelGeom],
+    state: &mut [TexelState],
+    loose: bool,
+) {
     for (g, s) in geom.iter().zip(state.iter_mut()) {
-        if !g.covered() {
+        if !g.covered() || (loose && s.flags & flags::OBSERVED != 0) {
             continue;
         }
-        if let Some((l, w)) = observe_texel(view, shape, g) {
+        let seen = match loose {
+            false => observe_texel(view, shape, g),
+            true => observe_texel_loose(view, shape, g)
+                .or_else(|| observe_texel_seen(view, accel, shape, g)),
+        };
+        if let Some((l, w)) = seen {
             for c in 0..3 {
                 s.l_orig[c] += w * l[c];
             }
@@ -458,9 +544,10 @@ pub fn project_tile(view: &View, shape: &ShapeRef, geom: &[TexelGeom], state: &m
     }
 }
 
-/// After all views: turn the weighted sums into means and flag observed texels.
+/// After all views: turn the weighted sums into means and flag observed texels (those
+/// flagged already are done).
 pub fn finish_tile(state: &mut [TexelState]) {
-    for s in state.iter_mut() {
+    for s in state.iter_mut().filter(|s| s.flags & flags::OBSERVED == 0) {
         if s.weight > 0.0 {
             for c in 0..3 {
                 s.l_orig[c] /= s.weight;

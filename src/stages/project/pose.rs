@@ -339,7 +339,7 @@ fn project_sums(ctx: &Refine, views: &[View], path: &Path) -> Result<TileStore<T
         map_tiles(&mut sums, ctx.geom, ctx.window, |t, g, st| {
             if (shard.owns)(t) && bounds[t].is_some_and(|(lo, hi)| view.camera.may_see(lo, hi)) {
                 let slot = p.layout.slot_of_tile(t as u32);
-                project_tile(view, &p.shape_ref(slot), g, st);
+                project_tile(view, &p.accel, &p.shape_ref(slot), g, st, false);
             }
         })?;
         interrupt::check(interrupt::NOTHING_SAVED)?;

@@ -6,6 +6,7 @@
 //! one plane of one shape, so a surface point that projects into it and lies on that plane is
 //! visible from the camera: the projection needs no occlusion rays of its own.
 
+use super::one_surface::{self, Span};
 use crate::atlas::context::HitTable;
 use crate::atlas::uv::NONE;
 use crate::image::Image;
@@ -45,6 +46,10 @@ pub struct View<'a> {
     pub pixels: Vec<PixelInfo>,
     /// `(w + 1) x (h + 1)` pixel corners, row-major.
     corners: Vec<Corner>,
+    /// Per pixel, the one surface of one shape it sees, planar or not (`one_surface`).
+    spans: Vec<Option<Span>>,
+    /// Per pixel, whether an emitter lies within reach of it.
+    hot: Vec<bool>,
 }
 
 /// Tolerance of "on the same plane" at distance `t` from the camera (relative `1e-3`, as the
@@ -187,6 +192,8 @@ impl<'a> View<'a> {
     pub fn new(scene: &Scene, accel: &Accel, camera: Camera, image: &'a Image) -> View<'a> {
         let hits = trace_corners(accel, &camera);
         let pixels = classify(scene, accel, &camera, image, &hits);
+        let hot = one_surface::near_emitters(scene, &camera, &hits);
+        let spans = one_surface::spans(&camera, image, &hits, &hot);
         let corners = hits
             .iter()
             .map(|h| match h {
@@ -207,6 +214,8 @@ impl<'a> View<'a> {
             image,
             pixels,
             corners,
+            spans,
+            hot,
         }
     }
 
@@ -218,6 +227,8 @@ impl<'a> View<'a> {
             image,
             pixels: self.pixels.clone(),
             corners: self.corners.clone(),
+            spans: self.spans.clone(),
+            hot: self.hot.clone(),
         }
     }
 
@@ -315,6 +326,41 @@ impl<'a> View<'a> {
         }
         let (x, y) = (pix.x.floor() as i64, pix.y.floor() as i64);
         sees(x, y).then(|| get(x as u32, y as u32))
+    }
+}
+
+impl View<'_> {
+    /// Whether the photo's pixel `(x, y)` holds a valid value with no emitter within reach.
+    pub fn usable(&self, x: u32, y: u32) -> bool {
+        self.image.is_valid(x, y) && !self.hot[(y * self.camera.width() + x) as usize]
+    }
+
+    /// The photo's radiance at point `q` of `shape`, projected to `pix`, read from pixels that
+    /// see one surface of the shape at `q`'s distance, planar or not (`one_surface`): bilinear
+    /// when the four nearest do, else the containing pixel if it does, else `None`.
+    pub fn sample_loose(&self, pix: Vec2, q: Vec3, shape: u32) -> Option<Vec3> {
+        let (w, h) = (self.camera.width() as i64, self.camera.height() as i64);
+        let d = (q - self.camera.position()).length();
+        let tol = plane_tol(d);
+        let holds = |x: i64, y: i64| {
+            x >= 0
+                && y >= 0
+                && x < w
+                && y < h
+                && self.spans[(y * w + x) as usize].is_some_and(|s| s.holds(shape, d, tol))
+        };
+        let get = |x: i64, y: i64| self.image.get(x as u32, y as u32);
+        let (fx, fy) = (pix.x - 0.5, pix.y - 0.5);
+        let (x0, y0) = (fx.floor() as i64, fy.floor() as i64);
+        let (tx, ty) = (fx - x0 as f32, fy - y0 as f32);
+        let quad = [(x0, y0), (x0 + 1, y0), (x0, y0 + 1), (x0 + 1, y0 + 1)];
+        if quad.iter().all(|&(x, y)| holds(x, y)) {
+            let top = get(x0, y0) * (1.0 - tx) + get(x0 + 1, y0) * tx;
+            let bot = get(x0, y0 + 1) * (1.0 - tx) + get(x0 + 1, y0 + 1) * tx;
+            return Some(top * (1.0 - ty) + bot * ty);
+        }
+        let (x, y) = (pix.x.floor() as i64, pix.y.floor() as i64);
+        holds(x, y).then(|| get(x, y))
     }
 }
 
