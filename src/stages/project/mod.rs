@@ -213,11 +213,12 @@ pub fn run_shard(
     let bounds = tile_bounds(geom)?;
     let mut nominal = Vec::with_capacity(raw.len());
     for ((si, _), photo) in p.views.iter().zip(&raw) {
-        let view = View::new(
+        let view = View::new_with(
             &p.scene,
             &p.accel,
             Camera::from_sensor(&p.scene.sensors[*si]),
             photo,
+            cfg.fine_geometry,
         );
         nominal.push(view);
         stage.inc(1);
@@ -418,7 +419,7 @@ pub fn observe_texel_from<T: Value>(
     get: &dyn Fn(u32, u32) -> T,
 ) -> Option<(T, f32)> {
     let ng = g.ng();
-    observe_with(view, shape, g, &|pix, q| {
+    observe_with(view, shape, g, |pix, q| {
         view.sample_from(pix, q, shape.index, ng, get)
     })
 }
@@ -427,7 +428,7 @@ pub fn observe_texel_from<T: Value>(
 /// ([`View::sample_loose`]), its weight [`one_surface::LOOSE_WEIGHT`] of a clean one's: for a
 /// texel no clean pixel of the view sees.
 pub fn observe_texel_loose(view: &View, shape: &ShapeRef, g: &TexelGeom) -> Option<(Vec3, f32)> {
-    let (l, w) = observe_with(view, shape, g, &|pix, q| {
+    let (l, w) = observe_with(view, shape, g, |pix, q| {
         view.sample_loose(pix, q, shape.index)
     })?;
     Some((l, w * one_surface::LOOSE_WEIGHT))
@@ -458,11 +459,12 @@ pub fn observe_texel_seen(
 
 /// One texel in one view through `sample` (a projected point's value, if the view sees it):
 /// `(mean value, weight)` of its sub-samples (see [`observe_texel`]).
+#[inline(always)] // generic, not `dyn`: the clean path's sampling inlines as before
 fn observe_with<T: Value>(
     view: &View,
     shape: &ShapeRef,
     g: &TexelGeom,
-    sample: &dyn Fn(glam::Vec2, Vec3) -> Option<T>,
+    sample: impl Fn(glam::Vec2, Vec3) -> Option<T>,
 ) -> Option<(T, f32)> {
     let cam = view.camera.position();
     let p = g.p();

@@ -283,7 +283,10 @@ pub fn refine<'a>(ctx: &Refine<'a>, mode: Mode) -> Result<(Vec<View<'a>>, Vec<Po
 fn at_poses<'a>(ctx: &Refine<'a>, poses: &[Pose]) -> Vec<View<'a>> {
     (ctx.views.iter().zip(poses))
         .map(|(v, pose)| match pose.moved_at_all() {
-            true => View::new(&ctx.p.scene, &ctx.p.accel, pose.camera.clone(), v.image),
+            true => {
+                let (scene, accel) = (&ctx.p.scene, &ctx.p.accel);
+                View::new_with(scene, accel, pose.camera.clone(), v.image, v.is_loose())
+            }
             false => v.with_image(v.image),
         })
         .collect()

@@ -190,10 +190,29 @@ fn erode_to_filter(infos: Vec<PixelInfo>, camera: &Camera) -> Vec<PixelInfo> {
 impl<'a> View<'a> {
     /// Cast the view's corner and center rays and classify its pixels.
     pub fn new(scene: &Scene, accel: &Accel, camera: Camera, image: &'a Image) -> View<'a> {
+        View::new_with(scene, accel, camera, image, false)
+    }
+
+    /// [`View::new`], and with `loose` also what the loose reading of non-planar pixels needs
+    /// ([`View::sample_loose`], [`View::usable`]: `[projection] fine_geometry`); without it
+    /// those two must not be called.
+    pub fn new_with(
+        scene: &Scene,
+        accel: &Accel,
+        camera: Camera,
+        image: &'a Image,
+        loose: bool,
+    ) -> View<'a> {
         let hits = trace_corners(accel, &camera);
         let pixels = classify(scene, accel, &camera, image, &hits);
-        let hot = one_surface::near_emitters(scene, &camera, &hits);
-        let spans = one_surface::spans(&camera, image, &hits, &hot);
+        let (hot, spans) = match loose {
+            true => {
+                let hot = one_surface::near_emitters(scene, &camera, &hits);
+                let spans = one_surface::spans(&camera, image, &hits, &hot);
+                (hot, spans)
+            }
+            false => (Vec::new(), Vec::new()),
+        };
         let corners = hits
             .iter()
             .map(|h| match h {
@@ -330,6 +349,11 @@ impl<'a> View<'a> {
 }
 
 impl View<'_> {
+    /// Whether the view was built for the loose reading ([`View::new_with`]).
+    pub fn is_loose(&self) -> bool {
+        !self.spans.is_empty()
+    }
+
     /// Whether the photo's pixel `(x, y)` holds a valid value with no emitter within reach.
     pub fn usable(&self, x: u32, y: u32) -> bool {
         self.image.is_valid(x, y) && !self.hot[(y * self.camera.width() + x) as usize]
