@@ -696,7 +696,9 @@ fn plan_run(cfg: &Config, scene: &Scene) -> RunPlan {
                 .map(|(s, d)| {
                     kdmap::atlas::uv::density::gather_bytes(s.mesh.area(), d, cfg.gather_rays)
                 })
-                .sum()
+                .sum::<u64>()
+                // the ray cache keeps hits within half the budget (the rest are cast again)
+                .min((cfg.memory_budget_mib << 20) / 2)
         }
         kdmap::config::Method::Photons => 0,
     };

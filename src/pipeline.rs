@@ -48,7 +48,7 @@ use crate::output::{check_out_dir, output_units, page, uv_fold, write_map, write
 use crate::physics::light::EmitterSampler;
 use crate::report::{Counts, IterationStats, Refinement, Report};
 use crate::stages::indirect::gather::{
-    trace_points_where, write_accum, GatherCache, GatherContext, GatherPoints, Radiance,
+    self, trace_points_where, write_accum, GatherCache, GatherContext, GatherPoints, Radiance,
     POINT_FILTER_Z,
 };
 use crate::stages::indirect::photon::{
@@ -944,7 +944,9 @@ impl<'a> Run<'a> {
             }
         };
         // each rank evaluates the chunks of points it traced; then every rank has every value
-        let (mut values, mut variance) = cache.evaluate(&radiance);
+        let points = self.gather_points(&r.state)?;
+        let ctx = self.gather_context(&radiance, points);
+        let (mut values, mut variance) = cache.evaluate(&ctx, points);
         radiance.check()?;
         ranks::share_points(self.world, &mut values)?;
         ranks::share_points(self.world, &mut variance)?;
@@ -984,20 +986,43 @@ impl<'a> Run<'a> {
         state: &TileStore<TexelState>,
     ) -> Result<GatherCache> {
         let points = self.gather_points(state)?;
-        let ctx = GatherContext {
-            accel: &self.p.accel,
-            hits: self.hits(),
-            radiance,
-            seed: self.cfg.seed,
-            rays: self.cfg.gather_rays,
-        };
+        let ctx = self.gather_context(radiance, points);
         let world = self.world;
         let owns = |i: usize| world.owns((i / GATHER_CHUNK) as u64);
         let mine = (0..points.points.len()).filter(|&i| owns(i)).count();
         let stage = Stage::new(self.mode, "gather rays", mine as u64, "points");
-        let cache = trace_points_where(&ctx, points, &owns, &|k| stage.inc(k));
+        // half the budget, beside the radiance cache's half (see `gather_estimate`)
+        let limit = (self.cfg.memory_budget_mib << 20) / 2;
+        let cache = trace_points_where(&ctx, points, (&owns, limit), &|k| stage.inc(k));
         stage.finish();
+        let again = self.world.sum(cache.stats.retraced_points);
+        if again > 0 && self.world.is_root() {
+            note(
+                self.mode,
+                &format!(
+                    "gather: the hits of {again} of {} points left out of the ray cache \
+                     (half of memory_budget_mib = {}): their rays are cast again each iteration",
+                    points.points.len(),
+                    self.cfg.memory_budget_mib
+                ),
+            );
+        }
         Ok(cache)
+    }
+
+    /// What the gather's rays read, with this iteration's `radiance`.
+    fn gather_context<'g>(
+        &'g self,
+        radiance: &'g Radiance,
+        pts: &GatherPoints,
+    ) -> GatherContext<'g> {
+        GatherContext {
+            accel: &self.p.accel,
+            hits: self.hits(),
+            radiance,
+            seed: self.cfg.seed,
+            rays: self.gather_rays(pts),
+        }
     }
 
     /// Steps 3-5 (`solve::kd_step`) with a progress stage `name` over the tiles: `(clamped
@@ -1038,7 +1063,7 @@ impl<'a> Run<'a> {
         if let Some(p) = self.points.get() {
             return Ok(p);
         }
-        let spacing = crate::stages::indirect::gather::shape_spacing(&self.cfg, &self.p.scene);
+        let spacing = gather::shape_spacing(&self.cfg, &self.p.scene);
         let texels = self.p.layout.slots.iter();
         let total = texels.map(|s| s.width as u64 * s.height as u64).sum();
         let stage = Stage::after(
@@ -1049,17 +1074,36 @@ impl<'a> Run<'a> {
             progress::SHOW_AFTER,
         );
         let tick = |k| stage.inc(k);
-        let pts = GatherPoints::new(
-            &self.p,
-            &self.geom,
-            state,
-            &self.charts,
-            &|shape| spacing[shape],
-            &self.scratch,
-            &tick,
-        )?;
+        let covered = self.atlas.iter().map(|a| a.covered_texels).sum();
+        let cap = gather::budget::point_cap(covered);
+        let stores = (&self.geom, state, &self.charts);
+        let (pts, floor) =
+            gather::budget::capped_points(&self.p, stores, &spacing, cap, &self.scratch, &tick)?;
         stage.finish();
+        if floor > 0.0 && self.world.is_root() {
+            let rays = gather::budget::rays_for(self.cfg.gather_rays, pts.points.len(), cap);
+            note(
+                self.mode,
+                &format!(
+                    "gather: {} points for {covered} covered texels (at most one per {} texels): \
+                     spacing raised to at least {floor:.4} scene units on the smallest shapes{}",
+                    pts.points.len(),
+                    gather::budget::TEXELS_PER_POINT,
+                    match rays < self.cfg.gather_rays {
+                        true => format!(", {rays} rays per point (one per chart and cell)"),
+                        false => String::new(),
+                    }
+                ),
+            );
+        }
         Ok(self.points.get_or_init(|| pts))
+    }
+
+    /// Rays per gather point: `[gather] rays`, fewer where the points are over their cap.
+    fn gather_rays(&self, points: &GatherPoints) -> u32 {
+        let covered = self.atlas.iter().map(|a| a.covered_texels).sum();
+        let cap = gather::budget::point_cap(covered);
+        gather::budget::rays_for(self.cfg.gather_rays, points.points.len(), cap)
     }
 
     /// The hit table of this run (made on first use).

@@ -115,6 +115,8 @@ pub fn write_outputs(
 ) -> Result<()> {
     let t0 = Instant::now();
     fsio::create_dir(out)?;
+    // every file but report.json, made durable together before report.json says they are done
+    let unsynced = fsio::Unsynced::begin(out);
 
     // One error scale for every map and comparison image of the run.
     let (scale, confidence) = maps::scan_state(p, state)?;
@@ -207,6 +209,7 @@ pub fn write_outputs(
     report.resources.after("output");
     report.timings.total += report.timings.output;
     page::write_page(out, Some(report), &facts)?;
+    unsynced.commit()?;
     let json_path = out.join("report.json");
     let json = serde_json::to_string_pretty(report)
         .map_err(|e| Error::internal(format!("cannot serialize the report: {e}")))?;

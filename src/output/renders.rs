@@ -109,18 +109,16 @@ pub fn table_rows(
     photo: &[Vec3],
     render: &[Vec3],
 ) -> Vec<ViewShapeRow> {
-    let mut rows = Vec::new();
-    for (si, shape) in scene.shapes.iter().enumerate() {
-        if !shape.is_reconstructed() {
-            continue;
+    // each shape's pixels, in one pass over the view (not one per shape)
+    let mut by_shape: Vec<Vec<usize>> = vec![Vec::new(); scene.shapes.len()];
+    for (i, px) in pixels.iter().enumerate() {
+        if in_table(scene, px) {
+            by_shape[px.shape as usize].push(i);
         }
-        let idx: Vec<usize> = pixels
-            .iter()
-            .enumerate()
-            .filter(|(_, px)| in_table(scene, px) && px.shape == si as u32)
-            .map(|(i, _)| i)
-            .collect();
-        if idx.is_empty() {
+    }
+    let mut rows = Vec::new();
+    for (shape, idx) in scene.shapes.iter().zip(&by_shape) {
+        if !shape.is_reconstructed() || idx.is_empty() {
             continue;
         }
         let a: Vec<Vec3> = idx.iter().map(|&i| photo[i]).collect();

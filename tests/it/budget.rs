@@ -93,3 +93,109 @@ fn a_fill_over_the_memory_budget_is_reported() {
     );
     assert_eq!(default.fill_unrelaxed_texels, 0);
 }
+
+/// `n` cubes of edge `edge` on the Cornell box's floor in a grid, as Mitsuba `cube` shapes
+/// (one shape each) or as one OBJ mesh of them all: the XML with the box's shapes, emitter
+/// and cameras, written beside copies of its meshes and photos in `dir`.
+fn cubes_on_the_floor(dir: &Path, n: usize, edge: f32, merged: bool) -> std::path::PathBuf {
+    let fixture = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/cbox");
+    for sub in ["meshes", "images"] {
+        std::fs::create_dir_all(dir.join(sub)).unwrap();
+        for e in std::fs::read_dir(fixture.join(sub)).unwrap() {
+            let e = e.unwrap();
+            std::fs::copy(e.path(), dir.join(sub).join(e.file_name())).unwrap();
+        }
+    }
+    let cols = (n as f32).sqrt().ceil() as usize;
+    let step = 1.6 / cols as f32;
+    let centre = |i: usize| {
+        let (x, z) = ((i % cols) as f32, (i / cols) as f32);
+        (-0.8 + (x + 0.5) * step, edge / 2.0, -0.8 + (z + 0.5) * step)
+    };
+    let xml = std::fs::read_to_string(fixture.join("input.xml")).unwrap();
+    let mut shapes = String::new();
+    let bsdf = r#"<bsdf type="diffuse"><rgb name="reflectance" value="0.5, 0.5, 0.5"/></bsdf>"#;
+    if merged {
+        let mut obj = String::new();
+        for i in 0..n {
+            let (cx, cy, cz) = centre(i);
+            for k in 0..8 {
+                let h = edge / 2.0;
+                let (sx, sy, sz) = (k & 1, (k >> 1) & 1, (k >> 2) & 1);
+                let (x, y, z) = (
+                    cx + h * (2 * sx) as f32 - h,
+                    cy + h * (2 * sy) as f32 - h,
+                    cz + h * (2 * sz) as f32 - h,
+                );
+                obj.push_str(&format!("v {x} {y} {z}\n"));
+            }
+            let b = i * 8 + 1;
+            for q in [
+                [0, 2, 3, 1],
+                [4, 5, 7, 6],
+                [0, 1, 5, 4],
+                [2, 6, 7, 3],
+                [0, 4, 6, 2],
+                [1, 3, 7, 5],
+            ] {
+                let [a, c, d, e] = q.map(|v| b + v);
+                obj.push_str(&format!("f {a} {c} {d}\nf {a} {d} {e}\n"));
+            }
+        }
+        std::fs::write(dir.join("meshes/cubes.obj"), obj).unwrap();
+        shapes.push_str(&format!(
+            r#"<shape type="obj" id="cubes"><string name="filename" value="meshes/cubes.obj"/>{bsdf}</shape>"#
+        ));
+    } else {
+        for i in 0..n {
+            let (x, y, z) = centre(i);
+            shapes.push_str(&format!(
+                r#"<shape type="cube" id="cube_{i}"><transform name="to_world"><scale value="{}"/><translate x="{x}" y="{y}" z="{z}"/></transform>{bsdf}</shape>
+"#,
+                edge / 2.0
+            ));
+        }
+    }
+    let xml = xml.replace("</scene>", &format!("{shapes}</scene>"));
+    let path = dir.join("input.xml");
+    std::fs::write(&path, xml).unwrap();
+    path
+}
+
+/// Thousands of small shapes cost what one shape of the same texels costs: their textures'
+/// tiles, the gather's rays and its cache follow the texels, not the number of shapes.
+#[test]
+fn five_thousand_small_shapes_cost_what_one_shape_of_their_texels_costs() {
+    let run = |merged: bool| {
+        let dir = tempfile::tempdir().unwrap();
+        let scene = cubes_on_the_floor(dir.path(), 5000, 0.012, merged);
+        let mut cfg = Config::for_scene(scene);
+        cfg.iterations = 1;
+        cfg.refine_passes = 0;
+        cfg.noise_probe = false;
+        cfg.gather_rays = 64;
+        cfg.atlas.texels_per_unit = Density::PerUnit(96.0);
+        let out = dir.path().join("out");
+        let report = reconstruct(&cfg, &out, Mode::Quiet).unwrap();
+        let tiles = std::fs::metadata(out.join("checkpoint/state.tiles")).map_or(0, |m| m.len());
+        (report, tiles)
+    };
+    let ((many, many_bytes), (one, one_bytes)) = (run(false), run(true));
+    let texels = |r: &kdmap::report::Report| r.counts.covered_texels;
+    let rays = |r: &kdmap::report::Report| r.iterations[0].gather_rays;
+    eprintln!(
+        "5000 shapes: {} covered texels, {} tile bytes, {} gather rays; one shape: {}, {}, {}",
+        texels(&many),
+        many_bytes,
+        rays(&many),
+        texels(&one),
+        one_bytes,
+        rays(&one)
+    );
+    assert!(many.atlas.len() >= 5000);
+    assert!(texels(&many) as f64 <= 1.1 * texels(&one) as f64);
+    // whole tiles per texture: 64 x 64 tiles would hold 30x the state of one shape
+    assert!(many_bytes as f64 <= 2.5 * one_bytes.max(1) as f64);
+    // a sixteenth of each cube's radius apart, the points would take every covered texel
+    assert!(rays(&many) as f64 <= 1.5 * rays(&one) as f64);
+}

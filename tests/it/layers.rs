@@ -134,6 +134,7 @@ const FOLDERS: &[(&str, &[Layer])] = &[
         )],
     ),
     ("stages::indirect", &[(&["gather", "photon"], Independent)]),
+    ("stages::indirect::gather", &[(&["budget"], Independent)]),
     (
         "stages::indirect::photon",
         &[(&["smooth", "trace"], Independent)],

@@ -400,7 +400,7 @@ impl RunContext {
                 d.texels_per_unit = a.texel_density;
             }
         }
-        let layout = Layout::new(tile_size, &textures);
+        let layout = Layout::fitted(tile_size, &textures);
         Ok(RunContext {
             scene,
             accel,

@@ -9,6 +9,12 @@
 use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
 
+/// The smallest tile edge [`Layout::fitted`] goes down to.
+pub const MIN_TILE: u32 = 16;
+/// How many times the textures' own texels their tiles may hold before [`Layout::fitted`]
+/// halves the tiles.
+pub const MAX_PADDING: u64 = 2;
+
 /// One shape's texture in the global tiling.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct ShapeTiles {
@@ -54,6 +60,30 @@ impl Layout {
             slots,
             tile_count: next,
         }
+    }
+
+    /// [`Layout::new`] with tiles of `max_tile`, halved (down to [`MIN_TILE`]) while the tiles
+    /// would hold more than [`MAX_PADDING`] times the textures' own texels: a texture is
+    /// rounded up to whole tiles, so a scene of thousands of small textures (8 x 8 texels
+    /// each) would otherwise take 64 times its texels on disk and in every pass over tiles.
+    /// Scenes of large textures keep `max_tile`.
+    pub fn fitted(max_tile: u32, textures: &[(usize, u32, u32)]) -> Layout {
+        let own: u64 = textures
+            .iter()
+            .map(|&(_, w, h)| u64::from(w) * u64::from(h))
+            .sum();
+        let padded = |ts: u32| -> u64 {
+            let t = u64::from(ts);
+            textures
+                .iter()
+                .map(|&(_, w, h)| u64::from(w.div_ceil(ts)) * u64::from(h.div_ceil(ts)) * t * t)
+                .sum()
+        };
+        let mut ts = max_tile;
+        while ts / 2 >= MIN_TILE && padded(ts) > MAX_PADDING * own {
+            ts /= 2;
+        }
+        Layout::new(ts, textures)
     }
 
     pub fn tile_texels(&self) -> usize {
@@ -238,6 +268,26 @@ pub struct TexelState {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn small_textures_get_smaller_tiles_and_large_ones_keep_theirs() {
+        let large = [(0, 512, 300), (1, 256, 256)];
+        assert_eq!(Layout::fitted(64, &large).tile_size, 64);
+        // 5,000 textures of 10 x 10 texels: 64 x 64 tiles would hold 41x their texels
+        let small: Vec<_> = (0..5000).map(|i| (i, 10, 10)).collect();
+        let l = Layout::fitted(64, &small);
+        assert_eq!(l.tile_size, MIN_TILE);
+        assert!(l.tile_count as u64 * 256 <= 3 * 5000 * 100);
+        // a few small ones beside large ones change nothing
+        let mixed: Vec<_> = large
+            .iter()
+            .copied()
+            .chain((2..12).map(|i| (i, 10, 10)))
+            .collect();
+        assert_eq!(Layout::fitted(64, &mixed).tile_size, 64);
+        // never below MIN_TILE, never above what was asked
+        assert_eq!(Layout::fitted(8, &small).tile_size, 8);
+    }
 
     #[test]
     fn locate_and_texel_of_are_inverse_over_every_texel() {

@@ -594,6 +594,8 @@ pub struct GatherStats {
     /// Rays whose radiance depends on the solver's estimates (hits on unobserved texels),
     /// kept for re-evaluation.
     pub cached_hits: u64,
+    /// Points whose hits did not fit the cache's byte limit (cast again at every evaluation).
+    pub retraced_points: u64,
     pub seconds: f64,
 }
 
@@ -639,77 +641,106 @@ pub struct GatherCache {
     /// them would hold every hit twice at the peak, and a `Vec` grown by pushes up to twice
     /// over).
     hits: Vec<Box<[CachedHit]>>,
+    /// Per point, whether its hits were left out of the cache (over its byte limit): its rays
+    /// are cast again at every evaluation, with the same random numbers.
+    retrace: Vec<bool>,
     /// `pi / N`.
     scale: f32,
     pub stats: GatherStats,
 }
 
-/// Cast every point's rays (see [`GatherCache`]). A pure function of the scene, the
-/// observed radiance and `ctx.seed`: a resumed run recomputes it bit for bit.
+/// Cast every point's rays (see [`GatherCache`]), keeping every hit. A pure function of the
+/// scene, the observed radiance and `ctx.seed`: a resumed run recomputes it bit for bit.
 pub fn trace_points(ctx: &GatherContext, points: &GatherPoints, tick: Tick) -> GatherCache {
-    trace_points_where(ctx, points, &|_| true, tick)
+    trace_points_where(ctx, points, (&|_| true, u64::MAX), tick)
 }
 
+/// Points traced between two looks at the cache's size (the limit is overshot by at most one
+/// such chunk's hits while it is traced).
+const TRACE_CHUNK: usize = 1024;
+
 /// [`trace_points`] for the points `owns` accepts (the share of one process when several run
-/// the gather); the others get no rays and evaluate to 0. `tick` gets each traced point.
+/// the gather; the others get no rays and evaluate to 0), keeping hits up to `limit` bytes:
+/// points are taken in index order and a point whose hits would pass the limit keeps none and
+/// is traced again at each evaluation. `tick` gets each traced point.
 pub fn trace_points_where(
     ctx: &GatherContext,
     points: &GatherPoints,
-    owns: &(dyn Fn(usize) -> bool + Sync),
+    (owns, limit): (&(dyn Fn(usize) -> bool + Sync), u64),
     tick: Tick,
 ) -> GatherCache {
     let t0 = Instant::now();
-    let per_point: Vec<(Vec3, f32, Box<[CachedHit]>)> = points
-        .points
-        .par_iter()
-        .enumerate()
-        .map(|(i, pt)| match owns(i) {
-            true => {
-                let (sum, pairs, cached) = trace_point(ctx, i as u64, pt);
-                tick(1);
-                (sum, pairs, cached.into_boxed_slice())
-            }
-            false => (Vec3::ZERO, 0.0, Box::default()),
-        })
-        .collect();
-    let traced = (0..per_point.len()).filter(|&i| owns(i)).count() as u64;
+    let n = points.points.len();
     let k = strata(ctx.rays);
     let scale = PI / (k * k) as f32;
-    let mut hits = Vec::with_capacity(per_point.len());
-    let mut fixed = Vec::with_capacity(per_point.len());
-    let mut known_pairs = Vec::with_capacity(per_point.len());
-    for (f, pairs, h) in per_point {
-        hits.push(h);
-        fixed.push(f * scale);
-        known_pairs.push(pairs);
-    }
-    let stats = GatherStats {
-        points: traced,
-        rays: traced * (k * k) as u64,
-        cached_hits: hits.iter().map(|h| h.len() as u64).sum(),
-        seconds: t0.elapsed().as_secs_f64(),
-    };
-    GatherCache {
-        fixed,
-        known_pairs,
+    let mut c = GatherCache {
+        fixed: Vec::with_capacity(n),
+        known_pairs: Vec::with_capacity(n),
         strata: k,
-        hits,
+        hits: Vec::with_capacity(n),
+        retrace: vec![false; n],
         scale,
-        stats,
+        stats: GatherStats::default(),
+    };
+    let mut used = 0u64;
+    for start in (0..n).step_by(TRACE_CHUNK) {
+        let end = (start + TRACE_CHUNK).min(n);
+        let traced: Vec<(Vec3, f32, Box<[CachedHit]>)> = (start..end)
+            .into_par_iter()
+            .map(|i| match owns(i) {
+                true => {
+                    let (f, pairs, h) = trace_point(ctx, i as u64, &points.points[i]);
+                    tick(1);
+                    (f, pairs, h.into_boxed_slice())
+                }
+                false => (Vec3::ZERO, 0.0, Box::default()),
+            })
+            .collect();
+        for (i, (f, pairs, h)) in (start..).zip(traced) {
+            let bytes = budget::hit_bytes(h.len());
+            if used + bytes <= limit {
+                used += bytes;
+                c.stats.cached_hits += h.len() as u64;
+                c.hits.push(h);
+            } else {
+                c.retrace[i] = true;
+                c.stats.retraced_points += 1;
+                c.hits.push(Box::default());
+            }
+            c.fixed.push(f * scale);
+            c.known_pairs.push(pairs);
+        }
     }
+    let traced = (0..n).filter(|&i| owns(i)).count() as u64;
+    c.stats.points = traced;
+    c.stats.rays = traced * (k * k) as u64;
+    c.stats.seconds = t0.elapsed().as_secs_f64();
+    c
 }
 
 impl GatherCache {
     /// `E_i` at every point with the radiance of this iteration for the cached hits, and the
     /// Monte Carlo variance of its luminance (in `x`; `y`, `z` are 0; [`pair_variance`], the
     /// cached hits at this iteration's radiance too). One lookup per cached hit serves both.
-    pub fn evaluate(&self, radiance: &Radiance) -> (Vec<Vec3>, Vec<Vec3>) {
+    /// The points left out of the cache cast their rays again through `ctx` (whose radiance
+    /// is this iteration's): the hits they find are the ones they found before.
+    pub fn evaluate(&self, ctx: &GatherContext, points: &GatherPoints) -> (Vec<Vec3>, Vec<Vec3>) {
+        let radiance = ctx.radiance;
         self.fixed
             .par_iter()
             .enumerate()
             .map(|(i, f)| {
                 let (mut sum, mut pairs, mut first) = (Vec3::ZERO, self.known_pairs[i], 0.0f32);
-                for h in self.hits[i].iter() {
+                let again = match self.retrace[i] {
+                    true => trace_point(ctx, i as u64, &points.points[i]).2,
+                    false => Vec::new(),
+                };
+                let hits = if self.retrace[i] {
+                    &again[..]
+                } else {
+                    &self.hits[i][..]
+                };
+                for h in hits {
                     let l = radiance.lookup(h.slot as usize, h.uv, h.chart).0 * h.weight;
                     sum += l;
                     let y = luminance(l);
@@ -909,6 +940,8 @@ pub fn write_accum(
     })?;
     Ok(())
 }
+
+pub mod budget;
 
 #[cfg(test)]
 mod tests;

@@ -75,6 +75,17 @@ impl Fixture {
         .unwrap()
     }
 
+    /// What the gather's rays read: this fixture's scene and `radiance`, seed 5.
+    fn context<'a>(&'a self, radiance: &'a Radiance, rays: u32) -> GatherContext<'a> {
+        GatherContext {
+            accel: &self.p.accel,
+            hits: &self.hits,
+            radiance,
+            seed: 5,
+            rays,
+        }
+    }
+
     /// Scratch textures in the fixture's directory, `budget` bytes each.
     fn scratch(&self, budget: u64) -> Scratch {
         Scratch::new(self._dir.path(), budget)
@@ -153,7 +164,7 @@ impl Fixture {
         };
         let cache = trace_points(&ctx, &points, &no_tick);
         assert_eq!(cache.stats.points as usize, points.points.len());
-        let (values, var) = cache.evaluate(&radiance);
+        let (values, var) = cache.evaluate(&ctx, &points);
         (points, values, var.iter().map(|x| x.x).collect())
     }
 
@@ -618,14 +629,8 @@ fn cached_hits_reevaluate_like_a_fresh_trace() {
     let points = fx.points(0.2);
     let trace = |fx: &Fixture| {
         let radiance = fx.radiance(1 << 30);
-        let ctx = GatherContext {
-            accel: &fx.p.accel,
-            hits: &fx.hits,
-            radiance: &radiance,
-            seed: 5,
-            rays: 36,
-        };
-        (trace_points(&ctx, &points, &no_tick), radiance)
+        let cache = trace_points(&fx.context(&radiance, 36), &points, &no_tick);
+        (cache, radiance)
     };
     let (cache, _) = trace(&fx);
     assert!(cache.stats.cached_hits > 0 && cache.stats.cached_hits < cache.stats.rays);
@@ -639,8 +644,9 @@ fn cached_hits_reevaluate_like_a_fresh_trace() {
         s.e_i = [0.5; 3];
     });
     let (fresh, radiance) = trace(&fx);
-    let (a, _) = cache.evaluate(&radiance);
-    let (b, _) = fresh.evaluate(&radiance);
+    let ctx = fx.context(&radiance, 36);
+    let (a, _) = cache.evaluate(&ctx, &points);
+    let (b, _) = fresh.evaluate(&ctx, &points);
     for (a, b) in a.iter().zip(&b) {
         assert!(
             (*a - *b).abs().max_element() <= 1e-5 * b.max_element().max(1e-3),
@@ -935,5 +941,88 @@ fn the_points_filter_averages_noise_and_keeps_slopes_and_steps() {
     assert_eq!(
         pts.filtered(&values, &var, 0.0),
         (values.clone(), var.clone())
+    );
+}
+
+/// A cache held under a byte limit gives the same bits as one that keeps every hit: the
+/// points left out cast the same rays again, at this iteration's radiance.
+#[test]
+fn a_cache_over_its_limit_retraces_to_the_same_bits() {
+    let mut m = mesh::sphere();
+    mesh::flip_normals(&mut m);
+    let mut inner = mesh::sphere();
+    inner.transform(&Mat4::from_scale(Vec3::splat(0.3)));
+    let mut fx = Fixture::new(
+        vec![shape("room", m, None), shape("ball", inner, None)],
+        12.0,
+    );
+    fx.observe("room", Vec3::new(0.3, 0.2, 0.1));
+    fx.set("ball", |s| {
+        s.k_d = [0.4; 3];
+        s.e_d = [1.0, 2.0, 3.0];
+    });
+    let points = fx.points(0.2);
+    let radiance = fx.radiance(1 << 30);
+    let ctx = fx.context(&radiance, 36);
+    let all = trace_points(&ctx, &points, &no_tick);
+    let half = super::budget::hit_bytes(all.stats.cached_hits as usize / 2);
+    let some = trace_points_where(&ctx, &points, (&|_| true, half), &no_tick);
+    let none = trace_points_where(&ctx, &points, (&|_| true, 0), &no_tick);
+    assert_eq!(all.stats.retraced_points, 0);
+    assert!(some.stats.retraced_points > 0 && some.stats.cached_hits <= all.stats.cached_hits / 2);
+    assert!(none.stats.cached_hits == 0 && none.stats.retraced_points > 0);
+    drop(radiance);
+    // the next iteration's estimates on the ball
+    fx.set("ball", |s| {
+        s.k_d = [0.8, 0.5, 0.2];
+        s.e_i = [0.5; 3];
+    });
+    let radiance = fx.radiance(1 << 30);
+    let ctx = fx.context(&radiance, 36);
+    let want = all.evaluate(&ctx, &points);
+    assert!(want.0.iter().any(|v| v.max_element() > 0.0));
+    assert_eq!(some.evaluate(&ctx, &points), want);
+    assert_eq!(none.evaluate(&ctx, &points), want);
+}
+
+/// Many small shapes: their own spacings (a sixteenth of each one's radius) would place far
+/// more points than the cap; the floor brings them under it, and a cap they fit leaves them
+/// exactly as placed without one.
+#[test]
+fn the_points_of_many_small_shapes_are_capped() {
+    let balls: Vec<Shape> = (0..24)
+        .map(|i| {
+            let mut m = mesh::sphere();
+            let at = Vec3::new((i % 6) as f32 * 0.3, (i / 6) as f32 * 0.3, 0.0);
+            m.transform(&(Mat4::from_translation(at) * Mat4::from_scale(Vec3::splat(0.1))));
+            shape(&format!("ball_{i}"), m, None)
+        })
+        .collect();
+    let fx = Fixture::new(balls, 160.0);
+    let spacing: Vec<f32> = fx.p.scene.shapes.iter().map(|_| 0.1 / 16.0).collect();
+    let stores = (&fx.geom, &fx.state, &fx.charts);
+    let scratch = fx.scratch(1 << 30);
+    let free = GatherPoints::new(
+        &fx.p,
+        &fx.geom,
+        &fx.state,
+        &fx.charts,
+        &|s| spacing[s],
+        &scratch,
+        &no_tick,
+    )
+    .unwrap();
+    let n = free.points.len();
+    let (same, floor) =
+        super::budget::capped_points(&fx.p, stores, &spacing, n, &scratch, &no_tick).unwrap();
+    assert_eq!((floor, &same), (0.0, &free));
+    let cap = n / 8;
+    let (few, floor) =
+        super::budget::capped_points(&fx.p, stores, &spacing, cap, &scratch, &no_tick).unwrap();
+    assert!(floor > spacing[0], "floor {floor}");
+    assert!(
+        few.points.len() <= cap && few.points.len() > cap / 4,
+        "{} of {cap}",
+        few.points.len()
     );
 }
