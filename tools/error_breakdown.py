@@ -17,11 +17,13 @@ recovered and of the true scene from every `cam_test_*` view, the pixels whose p
 first hits a non-emitter shape that a training camera sees, with true albedo sum > 1e-6; per
 pixel the relative error e = sum_c |a_c - t_c| / sum_c t_c. Squared error E = sum e^2 over those
 pixels, pooled over the views. A class of pixels is reported by its share of the pixels, its
-share of the summed e (of the judge's mean), its share of E, its rms and mean of e. Classes, per pixel (pixel centre):
+share of the summed e (of the judge's mean), its share of E, its rms and mean of e. Classes,
+per pixel (pixel centre):
 
 - `observed` / `partly observed` / `filled`: the share of the bilinear footprint of the hit's
   texel (the recovered texture's lookup, on the atlas mesh `meshes/<id>.obj`) that is observed,
-  `maps/<id>_coverage.exr` > 0: 1, between, 0;
+  `maps/<id>_coverage.exr` > 0: 1, between, 0; filled ones also by the hit texel's distance to
+  the nearest observed texel of its texture (chessboard, in texels: <= 2, 3-8, > 8);
 - `shape boundary`: within `--edge-px` pixels of a pixel whose first hit is another shape (or
   nothing, or an emitter); `crease/step`: within `--edge-px` of a depth step (the neighbour's
   hit off this pixel's tangent plane by more than 2% of the distance) or of a normal turning by
@@ -51,11 +53,13 @@ And two decompositions of E:
   (normalised within each shape's judged pixels, so shapes do not bleed into each other);
   `high-frequency share` = 1 - E_lowpass / E, the part of the error finer than the filter.
 
-Per shape: its pixels, share of E, rms, the share of its covered texels observed (coverage map >
-0 over report.json `atlas` covered_texels), the share of its judged pixels that are filled or on
-an edge/seam, the E a per-shape colour scale removes, its BSDF kind. Prints a table; `--json`
-writes everything (also per view); `--save DIR` per view the error image and the exclusive class
-of every judged pixel; `--floor` the AOV's own Monte Carlo noise per class (the true scene
+Shapes grouped by their judged pixels (1-99, 100-999, 1000-9999, >= 10000): how much of the
+error sits on small shapes. Per shape: its pixels, share of e and E, mean, the share of its
+covered texels observed (coverage > 0 among the texels inside its charts), the share of its e on
+filled and on edge/seam pixels, its mean after its own colour scale, its BSDF kind.
+
+Prints a table; `--json` writes everything (also per view); `--save DIR` per view the error
+image and the exclusive class of every judged pixel; `--floor` the AOV's own Monte Carlo noise per class (the true scene
 rendered again with seed 1), the part of the error no reconstruction can remove. Its pooled
 mean and rel. L1 are the judge's (same renders, same pixels).
 """
@@ -80,6 +84,9 @@ CREASE_DEG = 30.0
 HEMI_RAYS = 32
 EMITTER_RAYS = 8
 VIA_KNOWN_SHARE = 0.10
+SIZE_BINS = [(1, 100), (100, 1000), (1000, 10000), (10000, 1 << 62)]  # judged pixels per shape
+FILL_NEAR = 2  # a filled texel within 2 texels of an observed one
+FILL_FAR = 8  # ... more than 8 texels from any
 
 
 # ---------------------------------------------------------------------------------------------
@@ -170,6 +177,19 @@ def dilate(m, r):
             src = m[max(0, -dy): h - max(0, dy), max(0, -dx): w - max(0, dx)]
             out[max(0, dy): h - max(0, -dy), max(0, dx): w - max(0, -dx)] |= src
     return out
+
+
+def fill_distance(observed, cap=FILL_FAR):
+    """Per texel the chessboard distance in texels to the nearest observed texel, up to `cap`
+    (cap + 1 beyond; 0 on observed texels)."""
+    d = np.full(observed.shape, cap + 1, dtype=np.int32)
+    d[observed] = 0
+    cur = observed.copy()
+    for k in range(1, cap + 1):
+        nxt = dilate(cur, 1)
+        d[nxt & ~cur] = k
+        cur = nxt
+    return d
 
 
 def border_texels(covered, r):
@@ -579,6 +599,7 @@ def collect(out, scene_dir, spp=64, vectorized=None, log=print, floor=False):
     covered = covered_masks(atlases, caster.vectorized)
     log(f"atlas rasterised: {len(covered)} shapes ({time.perf_counter() - t1:.1f} s)")
     borders = {sid: border_texels(c, BORDER_TEXELS) for sid, c in covered.items()}
+    fill_dist = {sid: fill_distance(o) for sid, o in observed.items()}
     cov_texels = {a["shape"]: a.get("covered_texels") for a in report.get("atlas", [])}
 
     views = {}
@@ -599,6 +620,7 @@ def collect(out, scene_dir, spp=64, vectorized=None, log=print, floor=False):
         # observed share and chart border at the hit's texel (the atlas scene's hit)
         obs = np.full(h * w, np.nan)
         border = np.zeros(h * w, bool)
+        fdist = np.zeros(h * w, np.int32)
         for k in np.unique(ash[flat]):
             if k < 0:
                 continue
@@ -606,6 +628,7 @@ def collect(out, scene_dir, spp=64, vectorized=None, log=print, floor=False):
             m = flat & (ash == k)
             if sid in observed:
                 obs[m] = bilinear_observed(observed[sid], auv[m])
+                fdist[m] = texel_at(fill_dist[sid], auv[m])
             if sid in borders:
                 border[m] = texel_at(borders[sid], auv[m])
         valid = (sh2 >= 0).reshape(h, w)
@@ -623,6 +646,7 @@ def collect(out, scene_dir, spp=64, vectorized=None, log=print, floor=False):
         views[vid] = dict(a=a[judged], t=t[judged], e=e[judged], a_img=a, t_img=t,
                           judged=judged, shape_img=shape,
                           shape=shape[judged], obs=obs[flat], border=border[flat],
+                          fill_dist=fdist[flat],
                           boundary=bnd[judged], crease=crease[judged],
                           via_hemi=vk_h[flat], via_emit=vk_e[flat])
         if true1 is not None:
@@ -651,10 +675,15 @@ def classes_of(v, known):
     edge = v["boundary"] | v["crease"] | v["border"]
     through = ~shape_known & (v["via_emit"] > 0)
     near = ~shape_known & (v["via_hemi"] >= VIA_KNOWN_SHARE)
+    filled = has_tex & (obs <= 1e-9)
+    fd = v["fill_dist"]
     c = {
         "observed": has_tex & (obs >= 1.0 - 1e-9),
         "partly observed": has_tex & (obs > 1e-9) & (obs < 1.0 - 1e-9),
         "filled": has_tex & (obs <= 1e-9),
+        f"filled, <= {FILL_NEAR} tx": filled & (fd <= FILL_NEAR),
+        f"filled, {FILL_NEAR + 1}-{FILL_FAR} tx": filled & (fd > FILL_NEAR) & (fd <= FILL_FAR),
+        f"filled, > {FILL_FAR} tx": filled & (fd > FILL_FAR),
         "no recovered texture": ~has_tex,
         "shape boundary": v["boundary"],
         "crease/step": v["crease"],
@@ -676,7 +705,7 @@ def classes_of(v, known):
 
 def analyse(views, meta, sigma=SIGMA):
     """The breakdown (a dict) of the views' judged pixels."""
-    keys = ["a", "t", "e", "shape", "obs", "border", "boundary", "crease", "via_hemi",
+    keys = ["a", "t", "e", "shape", "obs", "fill_dist", "border", "boundary", "crease", "via_hemi",
             "via_emit"]
     pooled = {k: np.concatenate([v[k] for v in views.values()]) for k in keys}
     known = meta["known"]
@@ -781,6 +810,17 @@ def analyse(views, meta, sigma=SIGMA):
         })
     shapes.sort(key=lambda s: -s["share_of_e"])
     res["shapes"] = shapes
+    # shapes grouped by their judged pixels (small shapes are mostly edges)
+    sizes = {}
+    for lo, hi in SIZE_BINS:
+        grp = [s for s in shapes if lo <= s["pixels"] < hi]
+        name = f"{lo}-{hi - 1} px" if hi < 1 << 62 else f">= {lo} px"
+        sizes[name] = {"shapes": len(grp), "pixels": sum(s["pixels"] for s in grp),
+                       "share_of_e": sum(s["share_of_e"] for s in grp),
+                       "share_of_e2": sum(s["share_of_e2"] for s in grp),
+                       "mean": (sum(s["mean"] * s["pixels"] for s in grp)
+                                / max(1, sum(s["pixels"] for s in grp))) if grp else None}
+    res["shape_sizes"] = sizes
     res["views"] = {}
     for vid, v in views.items():
         c, _ = classes_of(v, known)
@@ -838,6 +878,10 @@ def table(res, nshapes=15):
         lines.append(f"noise floor (the true AOV against itself, seed 1): mean "
                      f"{100 * fl['mean']:.2f}%, rms {100 * fl['rms']:.2f}%, after the low-pass "
                      f"{100 * fl['lowpass_mean']:.2f}%")
+    sz = " | ".join(f"{k}: {v['shapes']} shapes, {v['pixels']} px, e "
+                    f"{_pct(v['share_of_e']).strip()}% (mean {_pct(v['mean']).strip()}%)"
+                    for k, v in res["shape_sizes"].items() if v["shapes"])
+    lines += ["", f"shapes by judged pixels: {sz}"]
     lines += ["", f"{'shape':28s} {'kind':10s} {'pix':>6s} {'e%':>6s} {'E%':>6s} {'mean%':>7s} "
               f"{'obsTx%':>7s} {'fill-e%':>7s} {'edge-e%':>7s} {'scaled%':>7s}"]
     for s in res["shapes"][:nshapes]:

@@ -30,6 +30,7 @@ def synthetic(a_img, t_img, shape_img, obs_img=None, known=None):
     flat = judged.reshape(-1)
     v = dict(a=a_img[judged], t=t_img[judged], e=e[judged], a_img=a_img, t_img=t_img,
              judged=judged, shape_img=shape_img, shape=shape_img[judged], obs=obs[flat],
+             fill_dist=np.where(obs[flat] > 0, 0, 5),
              border=np.zeros(h * w, bool), boundary=np.zeros(h * w, bool),
              crease=np.zeros(h * w, bool), via_hemi=np.zeros(h * w), via_emit=np.zeros(h * w))
     nshape = int(shape_img.max()) + 1
@@ -58,6 +59,7 @@ class Classes(unittest.TestCase):
         self.assertAlmostEqual(res["classes"]["filled"]["share_of_e"], 1.0, places=12)
         self.assertAlmostEqual(res["classes"]["filled"]["mean"], 0.3, places=12)
         self.assertEqual(res["classes"]["observed"]["share_of_e2"], 0.0)
+        self.assertAlmostEqual(res["classes"]["filled, 3-8 tx"]["share_of_e2"], 1.0, places=12)
         self.assertAlmostEqual(res["classes"]["filled"]["share_of_pixels"], 7 * 13 / 1024)
         self.assertAlmostEqual(res["exclusive"]["filled"]["share_of_e2"], 1.0, places=12)
         # the exclusive classes partition the pixels and the error
@@ -160,6 +162,12 @@ class Geometry(unittest.TestCase):
         # texel centres
         uv = np.array([[0.5 / 4, 0.5 / 4], [2.5 / 4, 1.5 / 4], [2.0 / 4, 2.5 / 4]])
         np.testing.assert_allclose(eb.bilinear_observed(obs, uv), [1.0, 0.0, 0.5])
+
+    def test_fill_distance(self):
+        obs = np.zeros((1, 12), bool)
+        obs[0, 2] = True
+        np.testing.assert_array_equal(eb.fill_distance(obs, 8)[0],
+                                      [2, 1, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9])
 
     def test_border_texels(self):
         cov = np.zeros((10, 10), bool)
