@@ -40,18 +40,24 @@ per pixel (pixel centre):
   Only when truth.xml has a known material; point, spot and environment emitters are covered by
   the hemisphere rays only;
 - `exclusive`: every pixel in the first of known material, light via known (either of the two
-  above), edge/seam, filled (observed share < 0.5), observed interior: the shares add up to
+  above), filled (observed share < 0.5), edge/seam, observed interior: the shares add up to
   100%.
 
-And two decompositions of E:
+Besides e, the judge's rel. L1 (sum |a - t| / sum t) weighs pixels by their true albedo, not
+their inverse: where dark truths dominate the mean (a black brick filled grey is off by 50x), the
+share of the summed |a - t| (`L1%`) and each class's own rel. L1 say where the L1 error sits.
+
+And two decompositions of the error:
 - colour bias: the error left after one global per-channel scale of the recovered albedo, and
   after one per shape and channel, each the scale that minimises the judge's mean error on the
   judged pixels themselves (a weighted median of t/a: the most a colour correction of that kind
   could remove); as the mean and as E; the global scale is printed (0.9 = the recovered albedo
-  is ~11% high in that channel) beside mean(recovered) / mean(true) per channel;
+  is ~11% high in that channel) beside mean(recovered) / mean(true) per channel; the same for
+  the rel. L1 (its own best scales, a median of t/a weighted by a);
 - texture detail: e of the two albedo images low-passed by a Gaussian of `--sigma` pixels
   (normalised within each shape's judged pixels, so shapes do not bleed into each other);
-  `high-frequency share` = 1 - E_lowpass / E, the part of the error finer than the filter.
+  `high-frequency share` = 1 - e_lowpass / e (and of E), the part of the error finer than the
+  filter; the rel. L1 after the low-pass.
 
 Shapes grouped by their judged pixels (1-99, 100-999, 1000-9999, >= 10000): how much of the
 error sits on small shapes. Per shape: its pixels, share of e and E, mean, the share of its
@@ -59,15 +65,16 @@ covered texels observed (coverage > 0 among the texels inside its charts), the s
 filled and on edge/seam pixels, its mean after its own colour scale, its BSDF kind.
 
 Prints a table; `--json` writes everything (also per view); `--save DIR` per view the error
-image and the exclusive class of every judged pixel; `--floor` the AOV's own Monte Carlo noise per class (the true scene
-rendered again with seed 1), the part of the error no reconstruction can remove. Its pooled
-mean and rel. L1 are the judge's (same renders, same pixels).
+image and the exclusive class of every judged pixel; `--floor` the AOV's own Monte Carlo noise
+per class (the true scene rendered again with seed 1), the part of the error no reconstruction
+can remove. Its pooled mean and rel. L1 are the judge's (same renders, same pixels).
 """
 
 import argparse
 import json
 import math
 import os
+import pickle
 import sys
 import time
 import xml.etree.ElementTree as ET
@@ -102,8 +109,9 @@ def rel_error(a, t):
     return e, ok
 
 
-def class_stats(e, m, total_e2, total_e):
-    """Figures of the pixels `m` (bool, same shape as e) of errors `e`."""
+def class_stats(e, m, total_e2, total_e, l1=None, ts=None):
+    """Figures of the pixels `m` (bool, same shape as e) of errors `e`; with l1 (sum_c |a - t|
+    per pixel) and ts (sum_c t), also the class's share of the summed l1 and its own rel. L1."""
     n = int(m.sum())
     s2 = float((e[m] ** 2).sum()) if n else 0.0
     s1 = float(e[m].sum()) if n else 0.0
@@ -114,17 +122,21 @@ def class_stats(e, m, total_e2, total_e):
         "share_of_e2": s2 / total_e2 if total_e2 > 0 else float("nan"),
         "rms": math.sqrt(s2 / n) if n else float("nan"),
         "mean": float(e[m].mean()) if n else float("nan"),
-    }
+    } | ({} if l1 is None else {
+        "share_of_l1": float(l1[m].sum() / l1.sum()) if l1.sum() > 0 else float("nan"),
+        "rel_l1": float(l1[m].sum() / ts[m].sum()) if n else float("nan"),
+    })
 
 
-def breakdown(e, classes):
+def breakdown(e, classes, l1=None, ts=None):
     """{name: class_stats} of the error e (1-D, the judged pixels) over `classes` {name: bool
-    array like e}; shares are of all the pixels, of sum e and of sum e^2."""
+    array like e}; shares are of all the pixels, of sum e and of sum e^2 (and with l1, ts: of
+    the summed l1, and the class's rel. L1)."""
     tot = float((e ** 2).sum())
     tot1 = float(e.sum())
     out = {}
     for name, m in classes.items():
-        s = class_stats(e, m, tot, tot1)
+        s = class_stats(e, m, tot, tot1, l1, ts)
         s["share_of_pixels"] = s["pixels"] / e.size if e.size else float("nan")
         out[name] = s
     return out
@@ -241,12 +253,12 @@ def weighted_median(x, w):
     return float(x[o][np.searchsorted(c, 0.5 * c[-1])])
 
 
-def channel_scale(a, t):
+def channel_scale(a, t, figure="mean"):
     """Per-channel scale s (3,) of the recovered albedo a (n, 3) that minimises the judge's mean
     relative error against t (n, 3), sum_p sum_c |s_c a_pc - t_pc| / sum_c t_pc: the error is
     separable in the channels, and per channel sum_p (a_pc / T_p) |s_c - t_pc / a_pc| is least
-    at the median of t/a weighted by a/T."""
-    st = np.maximum(t.sum(-1), BLACK)
+    at the median of t/a weighted by a/T. figure="l1": the judge's rel. L1 instead (weights a)."""
+    st = np.maximum(t.sum(-1), BLACK) if figure == "mean" else np.ones(len(t))
     s = np.ones(3)
     for c in range(3):
         ok = a[:, c] > 0
@@ -255,22 +267,22 @@ def channel_scale(a, t):
     return s
 
 
-def scaled_error(a, t, groups=None):
-    """Per pixel e after the best per-channel scale (channel_scale) of a, one for all rows or
-    one per value of `groups` (n,); returns (e, {group: scale})."""
+def scaled_error(a, t, groups=None, figure="mean"):
+    """Per pixel e after the best per-channel scale (channel_scale(figure)) of a, one for all
+    rows or one per value of `groups` (n,); returns (e, {group: scale}, the scaled a)."""
     a2 = a.copy()
     scales = {}
     if groups is None:
-        s = channel_scale(a, t)
+        s = channel_scale(a, t, figure)
         a2 = a * s
         scales[None] = s
     else:
         for g in np.unique(groups):
             m = groups == g
-            s = channel_scale(a[m], t[m])
+            s = channel_scale(a[m], t[m], figure)
             a2[m] = a[m] * s
             scales[int(g)] = s
-    return np.abs(a2 - t).sum(-1) / np.maximum(t.sum(-1), BLACK), scales
+    return np.abs(a2 - t).sum(-1) / np.maximum(t.sum(-1), BLACK), scales, a2
 
 
 def gaussian_kernel(sigma):
@@ -663,7 +675,7 @@ EDGE_PX = 1
 BORDER_TEXELS = 2
 SIGMA = 2.0
 
-CLASS_ORDER = ["known material", "light via known", "edge/seam", "filled", "observed interior"]
+CLASS_ORDER = ["known material", "light via known", "filled", "edge/seam", "observed interior"]
 
 
 def classes_of(v, known):
@@ -722,13 +734,16 @@ def analyse(views, meta, sigma=SIGMA):
         },
     }
     cls, ex = classes_of(pooled, known)
-    res["classes"] = breakdown(e, cls)
+    l1 = np.abs(pooled["a"] - pooled["t"]).sum(-1)
+    res["classes"] = breakdown(e, cls, l1, st)
     lab = exclusive(CLASS_ORDER, ex, e.size)
-    res["exclusive"] = breakdown(e, {n: lab == i for i, n in enumerate(CLASS_ORDER)})
+    res["exclusive"] = breakdown(e, {n: lab == i for i, n in enumerate(CLASS_ORDER)}, l1, st)
 
     # colour bias
-    eg, sg = scaled_error(pooled["a"], pooled["t"])
-    es, ss = scaled_error(pooled["a"], pooled["t"], pooled["shape"])
+    eg, sg, _ = scaled_error(pooled["a"], pooled["t"])
+    es, ss, _ = scaled_error(pooled["a"], pooled["t"], pooled["shape"])
+    _, sgl, agl = scaled_error(pooled["a"], pooled["t"], figure="l1")
+    _, _, asl = scaled_error(pooled["a"], pooled["t"], pooled["shape"], figure="l1")
     tot1 = float(e.sum())
     res["colour_bias"] = {
         "global_scale": [float(x) for x in sg[None]],
@@ -740,16 +755,23 @@ def analyse(views, meta, sigma=SIGMA):
         "per_shape_mean_after": float(es.mean()) if e.size else float("nan"),
         "per_shape_removes_share_of_e": 1.0 - float(es.sum()) / tot1 if tot1 else 0.0,
         "per_shape_removes_share_of_e2": 1.0 - float((es ** 2).sum()) / tot if tot else 0.0,
+        "global_scale_l1": [float(x) for x in sgl[None]],
+        "global_rel_l1_after": float(np.abs(agl - pooled["t"]).sum() / st.sum())
+        if e.size else float("nan"),
+        "per_shape_rel_l1_after": float(np.abs(asl - pooled["t"]).sum() / st.sum())
+        if e.size else float("nan"),
     }
 
     # texture detail: low-pass both images within each shape's judged pixels
-    elp = []
+    elp, lp1, lpt = [], 0.0, 0.0
     for v in views.values():
         lab_img = v["shape_img"]
         al = lowpass_within(v["a_img"], lab_img, v["judged"], sigma)
         tl = lowpass_within(v["t_img"], lab_img, v["judged"], sigma)
         el, _ = rel_error(al, tl)
         elp.append(el[v["judged"]])
+        lp1 += float(np.abs(al - tl)[v["judged"]].sum())
+        lpt += float(tl[v["judged"]].sum())
     elp = np.concatenate(elp) if elp else np.zeros(0)
     res["texture_detail"] = {
         "sigma_px": sigma,
@@ -758,6 +780,7 @@ def analyse(views, meta, sigma=SIGMA):
         "lowpass_share_of_e2": float((elp ** 2).sum()) / tot if tot else float("nan"),
         "high_frequency_share_of_e2": 1.0 - float((elp ** 2).sum()) / tot if tot else 0.0,
         "lowpass_mean": float(elp.mean()) if elp.size else float("nan"),
+        "lowpass_rel_l1": lp1 / lpt if lpt > 0 else float("nan"),
     }
 
     # the AOV's own Monte Carlo noise: the true scene against itself with another seed
@@ -795,6 +818,8 @@ def analyse(views, meta, sigma=SIGMA):
             "kind": meta["kinds"][k],
             "pixels": int(m.sum()),
             "share_of_e": float(e[m].sum()) / tot1 if tot1 else float("nan"),
+            "share_of_l1": float(l1[m].sum() / l1.sum()) if l1.sum() > 0 else float("nan"),
+            "rel_l1": float(l1[m].sum() / st[m].sum()),
             "share_of_e2": s2 / tot if tot else float("nan"),
             "rms": math.sqrt(s2 / m.sum()),
             "mean": float(e[m].mean()),
@@ -840,13 +865,15 @@ def table(res, nshapes=15):
     E% = share of the summed squared error."""
     j = res["judge"]
     fl = res.get("floor")
-    head = f"{'pix%':>6s} {'e%':>6s} {'E%':>6s} {'mean%':>7s} {'rms%':>7s}"
+    head = (f"{'pix%':>6s} {'e%':>6s} {'E%':>6s} {'L1%':>6s} {'mean%':>7s} {'rms%':>7s} "
+            f"{'relL1%':>7s}")
     if fl:
         head += f" {'floor%':>7s}"
 
     def row(name, s, floor=True):
         r = (f"{name:22s} {_pct(s['share_of_pixels']):>6s} {_pct(s['share_of_e']):>6s} "
-             f"{_pct(s['share_of_e2']):>6s} {_pct(s['mean']):>7s} {_pct(s['rms']):>7s}")
+             f"{_pct(s['share_of_e2']):>6s} {_pct(s.get('share_of_l1')):>6s} "
+             f"{_pct(s['mean']):>7s} {_pct(s['rms']):>7s} {_pct(s.get('rel_l1')):>7s}")
         if fl and floor:
             r += f" {_pct(fl['class_mean'].get(name)):>7s}"
         return r
@@ -855,7 +882,7 @@ def table(res, nshapes=15):
              f"{100 * j['albedo_rel_l1']:.2f}%, rms {100 * j['rms_rel_error']:.2f}% over "
              f"{j['pixels']} pixels", "", f"{'class (overlapping)':22s} {head}"]
     lines += [row(n, s) for n, s in res["classes"].items()]
-    lines += ["", f"{'exclusive (in order)':22s} {head.split(' floor%')[0]}"]
+    lines += ["", f"{'exclusive (in order)':22s} {head.split(' floor%')[0].rstrip()}"]
     lines += [row(n, s, False) for n, s in res["exclusive"].items()]
     cb = res["colour_bias"]
     g = cb["global_scale"]
@@ -868,12 +895,17 @@ def table(res, nshapes=15):
               f"{_pct(cb['global_removes_share_of_e2']).strip()}% of E); best scale per shape: "
               f"mean -> {100 * cb['per_shape_mean_after']:.2f}% (removes "
               f"{_pct(cb['per_shape_removes_share_of_e']).strip()}% of e, "
-              f"{_pct(cb['per_shape_removes_share_of_e2']).strip()}% of E)"]
+              f"{_pct(cb['per_shape_removes_share_of_e2']).strip()}% of E)",
+              f"  for rel. L1: best global scale {cb['global_scale_l1'][0]:.3f} "
+              f"{cb['global_scale_l1'][1]:.3f} {cb['global_scale_l1'][2]:.3f}: rel. L1 "
+              f"{100 * j['albedo_rel_l1']:.2f}% -> {100 * cb['global_rel_l1_after']:.2f}%; per "
+              f"shape -> {100 * cb['per_shape_rel_l1_after']:.2f}%"]
     td = res["texture_detail"]
     lines.append(f"texture detail: after a Gaussian {td['sigma_px']:g} px low-pass of both, mean "
                  f"{100 * td['lowpass_mean']:.2f}%: high-frequency share "
                  f"{_pct(td['high_frequency_share_of_e']).strip()}% of e, "
-                 f"{_pct(td['high_frequency_share_of_e2']).strip()}% of E")
+                 f"{_pct(td['high_frequency_share_of_e2']).strip()}% of E; rel. L1 "
+                 f"{100 * j['albedo_rel_l1']:.2f}% -> {100 * td['lowpass_rel_l1']:.2f}%")
     if fl:
         lines.append(f"noise floor (the true AOV against itself, seed 1): mean "
                      f"{100 * fl['mean']:.2f}%, rms {100 * fl['rms']:.2f}%, after the low-pass "
@@ -882,12 +914,13 @@ def table(res, nshapes=15):
                     f"{_pct(v['share_of_e']).strip()}% (mean {_pct(v['mean']).strip()}%)"
                     for k, v in res["shape_sizes"].items() if v["shapes"])
     lines += ["", f"shapes by judged pixels: {sz}"]
-    lines += ["", f"{'shape':28s} {'kind':10s} {'pix':>6s} {'e%':>6s} {'E%':>6s} {'mean%':>7s} "
+    lines += ["", f"{'shape':28s} {'kind':10s} {'pix':>6s} {'e%':>6s} {'E%':>6s} {'L1%':>6s} "
+              f"{'mean%':>7s} {'relL1%':>7s} "
               f"{'obsTx%':>7s} {'fill-e%':>7s} {'edge-e%':>7s} {'scaled%':>7s}"]
     for s in res["shapes"][:nshapes]:
         lines.append(f"{s['shape'][:28]:28s} {s['kind'][:10]:10s} {s['pixels']:6d} "
                      f"{_pct(s['share_of_e']):>6s} {_pct(s['share_of_e2']):>6s} "
-                     f"{_pct(s['mean']):>7s} "
+                     f"{_pct(s['share_of_l1']):>6s} {_pct(s['mean']):>7s} {_pct(s['rel_l1']):>7s} "
                      f"{_pct(s['observed_texel_share']):>7s} "
                      f"{_pct(s['filled_share_of_its_e']):>7s} "
                      f"{_pct(s['edge_share_of_its_e']):>7s} {_pct(s['mean_after_scale']):>7s}")
@@ -896,7 +929,8 @@ def table(res, nshapes=15):
         lines.append(f"... {len(rest)} more shapes: {sum(s['pixels'] for s in rest)} pixels, "
                      f"{_pct(sum(s['share_of_e'] for s in rest)).strip()}% of e, "
                      f"{_pct(sum(s['share_of_e2'] for s in rest)).strip()}% of E")
-    lines.append("(e%: share of the summed relative error, E%: of the squared; obsTx%: the "
+    lines.append("(e%: share of the summed relative error, E%: of the squared, L1%: of the "
+                 "summed |a - t|; relL1%: the class's or shape's own rel. L1; obsTx%: the "
                  "shape's covered texels observed; fill-e%, edge-e%: the share of the shape's e "
                  "on its filled, edge/seam pixels; scaled%: its mean after its best colour "
                  "scale)")
@@ -946,6 +980,10 @@ def main():
                     "its mean per class (column floor%%)")
     ap.add_argument("--save", metavar="DIR",
                     help="write <view>_error.exr and <view>_class.png (the exclusive class) here")
+    ap.add_argument("--cache", metavar="FILE",
+                    help="keep the renders and ray casts in FILE (pickle) and read them from it "
+                    "when it exists: re-analyse without rendering (--spp, --floor, --edge-px and "
+                    "--border-texels then come from the first run)")
     ap.add_argument("--scalar", action="store_true",
                     help="scalar_rgb ray casts (default: the LLVM variant when libLLVM is found)")
     a = ap.parse_args()
@@ -955,8 +993,16 @@ def main():
     def log(msg):
         print(msg, file=sys.stderr, flush=True)
 
-    views, meta = collect(a.out, a.scene_dir, a.spp, vectorized=False if a.scalar else None,
-                          log=log, floor=a.floor)
+    if a.cache and os.path.exists(a.cache):
+        with open(a.cache, "rb") as f:
+            views, meta = pickle.load(f)
+        log(f"renders and ray casts read from {a.cache}")
+    else:
+        views, meta = collect(a.out, a.scene_dir, a.spp,
+                              vectorized=False if a.scalar else None, log=log, floor=a.floor)
+        if a.cache:
+            with open(a.cache, "wb") as f:
+                pickle.dump((views, meta), f, protocol=4)
     res = analyse(views, meta, a.sigma)
     if a.save:
         save_images(views, meta, a.save)

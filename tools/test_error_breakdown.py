@@ -62,6 +62,8 @@ class Classes(unittest.TestCase):
         self.assertAlmostEqual(res["classes"]["filled, 3-8 tx"]["share_of_e2"], 1.0, places=12)
         self.assertAlmostEqual(res["classes"]["filled"]["share_of_pixels"], 7 * 13 / 1024)
         self.assertAlmostEqual(res["exclusive"]["filled"]["share_of_e2"], 1.0, places=12)
+        self.assertAlmostEqual(res["classes"]["filled"]["share_of_l1"], 1.0, places=12)
+        self.assertAlmostEqual(res["classes"]["filled"]["rel_l1"], 0.3, places=12)
         # the exclusive classes partition the pixels and the error
         self.assertAlmostEqual(sum(s["share_of_pixels"] for s in res["exclusive"].values()), 1.0)
         self.assertAlmostEqual(sum(s["share_of_e2"] for s in res["exclusive"].values()), 1.0)
@@ -99,6 +101,9 @@ class ColourBias(unittest.TestCase):
         np.testing.assert_allclose(cb["global_scale"], [1 / 1.2, 1 / 0.9, 1 / 1.05], rtol=1e-12)
         self.assertAlmostEqual(cb["global_removes_share_of_e2"], 1.0, places=12)
         self.assertAlmostEqual(cb["global_mean_after"], 0.0, places=12)
+        np.testing.assert_allclose(cb["global_scale_l1"], cb["global_scale"], rtol=1e-12)
+        self.assertAlmostEqual(cb["global_rel_l1_after"], 0.0, places=12)
+        self.assertGreater(res["judge"]["albedo_rel_l1"], 0.05)
         self.assertGreater(res["judge"]["albedo_mean_rel_error"], 0.05)
 
     def test_per_shape_scales_are_removed_by_the_per_shape_correction_only(self):
@@ -112,10 +117,12 @@ class ColourBias(unittest.TestCase):
         res = eb.analyse(views, meta, sigma=1.0)
         cb = res["colour_bias"]
         self.assertAlmostEqual(cb["per_shape_removes_share_of_e2"], 1.0, places=12)
+        self.assertAlmostEqual(cb["per_shape_rel_l1_after"], 0.0, places=12)
+        self.assertGreater(cb["global_rel_l1_after"], 0.05)
         self.assertLess(cb["global_removes_share_of_e2"], 0.5)
         for s in res["shapes"]:
             self.assertAlmostEqual(s["mean_after_scale"], 0.0, places=12)
-            self.assertAlmostEqual(s["share_of_e"], s["share_of_e"])  # defined
+        self.assertAlmostEqual(sum(s["share_of_l1"] for s in res["shapes"]), 1.0)
 
     def test_scale_minimises_the_mean(self):
         rng = np.random.default_rng(3)
