@@ -611,7 +611,9 @@ def collect(out, scene_dir, spp=64, vectorized=None, log=print, floor=False):
     covered = covered_masks(atlases, caster.vectorized)
     log(f"atlas rasterised: {len(covered)} shapes ({time.perf_counter() - t1:.1f} s)")
     borders = {sid: border_texels(c, BORDER_TEXELS) for sid, c in covered.items()}
-    fill_dist = {sid: fill_distance(o) for sid, o in observed.items()}
+    # distances from observed texels inside the charts (the EXR's gutter holds dilated copies)
+    fill_dist = {sid: fill_distance(o & covered[sid] if sid in covered else o)
+                 for sid, o in observed.items()}
     cov_texels = {a["shape"]: a.get("covered_texels") for a in report.get("atlas", [])}
 
     views = {}
