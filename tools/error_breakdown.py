@@ -6,7 +6,8 @@ held-out albedo judge's error (tools/heldout.py, the nightly's figure) along tho
 kdmap run whose scene has a truth.
 
     .venv/bin/python tools/error_breakdown.py <out dir> <scene dir> [--spp 64] [--json out.json]
-        [--edge-px 1] [--border-texels 2] [--sigma 2] [--shapes 15]
+        [--save DIR] [--floor] [--cache FILE] [--edge-px 1] [--border-texels 2] [--sigma 2]
+        [--shapes 15] [--scalar]
 
 `<out dir>` is a finished kdmap run (scene.xml, textures/, maps/<id>_coverage.exr, meshes/,
 report.json); `<scene dir>` holds truth.xml with `cam_train_*` and `cam_test_*` sensors (no
@@ -23,7 +24,7 @@ per pixel (pixel centre):
 - `observed` / `partly observed` / `filled`: the share of the bilinear footprint of the hit's
   texel (the recovered texture's lookup, on the atlas mesh `meshes/<id>.obj`) that is observed,
   `maps/<id>_coverage.exr` > 0: 1, between, 0; filled ones also by the hit texel's distance to
-  the nearest observed texel of its texture (chessboard, in texels: <= 2, 3-8, > 8);
+  the nearest observed texel inside the charts (chessboard, in texels: <= 2, 3-8, > 8);
 - `shape boundary`: within `--edge-px` pixels of a pixel whose first hit is another shape (or
   nothing, or an emitter); `crease/step`: within `--edge-px` of a depth step (the neighbour's
   hit off this pixel's tangent plane by more than 2% of the distance) or of a normal turning by
