@@ -12,6 +12,7 @@
 //! Shapes are written in input order, so shape indices (and `shape_<index>` ids) survive a
 //! round trip through `scene::mitsuba::load`.
 
+use super::page::html::esc;
 use crate::base::error::Error;
 use crate::base::fsio::write_atomic;
 use crate::scene::{
@@ -24,22 +25,6 @@ use std::path::Path;
 
 /// Samples per pixel in the written scene (`<default name="spp">`).
 pub const DEFAULT_SPP: u32 = 256;
-
-/// Escape a string for an XML attribute value.
-fn esc(s: &str) -> String {
-    let mut o = String::with_capacity(s.len());
-    for c in s.chars() {
-        match c {
-            '&' => o.push_str("&amp;"),
-            '<' => o.push_str("&lt;"),
-            '>' => o.push_str("&gt;"),
-            '"' => o.push_str("&quot;"),
-            '\'' => o.push_str("&apos;"),
-            c => o.push(c),
-        }
-    }
-    o
-}
 
 fn rgb(c: Rgb) -> String {
     format!("{}, {}, {}", c.x, c.y, c.z)
@@ -685,7 +670,7 @@ mod tests {
 
     #[test]
     fn attribute_values_are_escaped() {
-        assert_eq!(esc("a&b<\"c\">'"), "a&amp;b&lt;&quot;c&quot;&gt;&apos;");
+        assert_eq!(esc("a&b<\"c\">'"), "a&amp;b&lt;&quot;c&quot;&gt;&#39;");
         let m = Mat4::from_cols_array(&[
             1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0, 10.0, 11.0, 12.0, 13.0, 14.0, 15.0, 16.0,
         ]);

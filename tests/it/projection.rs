@@ -61,6 +61,40 @@ fn project(cfg: &Config, out: &Path, passes: u32) -> (RunContext, Vec<Option<Ima
     (p, maps)
 }
 
+/// The projection stage of `p` run alone, its stores in `out`'s state directory: the
+/// geometry, the state it left, a scratch in that directory and its statistics.
+fn run_projection(
+    p: &RunContext,
+    cfg: &Config,
+    out: &Path,
+) -> (
+    TileStore<TexelGeom>,
+    TileStore<TexelState>,
+    Scratch,
+    ProjectionStats,
+) {
+    let dir = state_dir(out);
+    std::fs::create_dir_all(&dir).unwrap();
+    let geom = build_geometry(p, &dir.join("geometry.tiles"), Mode::Quiet).unwrap();
+    let mut state = p
+        .create_store(dir.join("state.tiles"), TexelState::default())
+        .unwrap();
+    let charts = Charts::new(&p.scene, &p.layout, &p.atlases).unwrap();
+    let hits = HitTable::new(p, &charts);
+    let scratch = Scratch::new(&dir, 1 << 30);
+    let stats = kdmap::stages::project::run(
+        p,
+        cfg,
+        (&hits, &charts),
+        &geom,
+        &mut state,
+        Mode::Quiet,
+        &scratch,
+    )
+    .unwrap();
+    (geom, state, scratch, stats)
+}
+
 /// [`project`], also returning the stage's statistics.
 fn project_stats(
     cfg: &Config,
@@ -70,25 +104,7 @@ fn project_stats(
     let mut cfg = cfg.clone();
     cfg.refine_passes = passes;
     let p = prepare(&cfg, Mode::Quiet).unwrap();
-    let dir = state_dir(out);
-    std::fs::create_dir_all(&dir).unwrap();
-    let geom = build_geometry(&p, &dir.join("geometry.tiles"), Mode::Quiet).unwrap();
-    let mut state = p
-        .create_store(dir.join("state.tiles"), TexelState::default())
-        .unwrap();
-    let charts = Charts::new(&p.scene, &p.layout, &p.atlases).unwrap();
-    let hits = HitTable::new(&p, &charts);
-    let scratch = Scratch::new(&dir, 1 << 30);
-    let stats = kdmap::stages::project::run(
-        &p,
-        &cfg,
-        (&hits, &charts),
-        &geom,
-        &mut state,
-        Mode::Quiet,
-        &scratch,
-    )
-    .unwrap();
+    let (geom, state, scratch, stats) = run_projection(&p, &cfg, out);
     assert!(stats.views >= 1);
     assert!(
         stats.observed_texels > stats.covered_texels / 2,

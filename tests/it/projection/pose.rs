@@ -4,11 +4,7 @@
 
 use super::{config, fixture};
 use glam::{Mat4, Vec2, Vec3};
-use kdmap::atlas::context::HitTable;
-use kdmap::atlas::store::TexelState;
-use kdmap::atlas::texture::Scratch;
-use kdmap::atlas::uv::Charts;
-use kdmap::atlas::{build_geometry, prepare, state_dir, RunContext};
+use kdmap::atlas::{prepare, RunContext};
 use kdmap::base::progress::Mode;
 use kdmap::config::Config;
 use kdmap::physics::camera::Camera;
@@ -54,23 +50,7 @@ fn refine(cfg: &Config, moves: &[(usize, Mat4)], out: &Path) -> (RunContext, Vec
     for &(si, m) in moves {
         p.scene.sensors[si].to_world = m;
     }
-    let dir = state_dir(out);
-    std::fs::create_dir_all(&dir).unwrap();
-    let geom = build_geometry(&p, &dir.join("geometry.tiles"), Mode::Quiet).unwrap();
-    let mut state = (p.create_store(dir.join("state.tiles"), TexelState::default())).unwrap();
-    let charts = Charts::new(&p.scene, &p.layout, &p.atlases).unwrap();
-    let hits = HitTable::new(&p, &charts);
-    let scratch = Scratch::new(&dir, 1 << 30);
-    let stats = kdmap::stages::project::run(
-        &p,
-        &cfg,
-        (&hits, &charts),
-        &geom,
-        &mut state,
-        Mode::Quiet,
-        &scratch,
-    )
-    .unwrap();
+    let (_, _, _, stats) = super::run_projection(&p, &cfg, out);
     for c in &stats.pose {
         eprintln!(
             "{} ({:.2} s, {} iterations)",
