@@ -333,12 +333,15 @@ fn with_shard<R>(world: &World, f: impl FnOnce(&Shard) -> R) -> R {
     let owns = |u: usize| world.owns(u as u64);
     let sync = |s: &mut TileStore<TexelState>| ranks::share_tiles(world, s);
     let pixels = |img: &mut [Option<glam::Vec3>], unit| ranks::share_pixels(world, img, unit);
+    let bytes = |buf: &mut [u8], unit| ranks::share_bytes(world, buf, unit);
     let sum = |v: u64| world.sum(v);
     f(&Shard {
         owns: &owns,
         sync: &sync,
         sync_pixels: &pixels,
+        sync_bytes: &bytes,
         sum: &sum,
+        alone: world.size() == 1,
     })
 }
 

@@ -251,6 +251,28 @@ pub fn share_pixels(world: &World, img: &mut [Option<glam::Vec3>], unit: usize) 
     Ok(())
 }
 
+/// A buffer computed in units of `unit` consecutive bytes, unit `u` by rank `u mod N`
+/// (anything elsewhere): afterwards every rank has every unit.
+pub fn share_bytes(world: &World, buf: &mut [u8], unit: usize) -> Result<()> {
+    if world.size() == 1 {
+        return Ok(());
+    }
+    let unit = unit.max(1);
+    let mine = buf
+        .chunks(unit)
+        .enumerate()
+        .filter(|(u, _)| world.owns(*u as u64))
+        .map(|(u, b)| (u as u64, b.to_vec()))
+        .collect();
+    for (u, b) in share_units(world, mine)? {
+        let at = u as usize * unit;
+        buf.get_mut(at..at + b.len())
+            .ok_or_else(|| mismatch("bytes", world.owner(u), b.len()))?
+            .copy_from_slice(&b);
+    }
+    Ok(())
+}
+
 fn mismatch(what: &str, rank: usize, bytes: usize) -> Error {
     Error::internal(format!(
         "rank {rank} sent {bytes} bytes of {what} that do not fit this rank's layout"

@@ -1,8 +1,9 @@
 //! MPI runs (`--features mpi`, Open MPI's `mpirun`): 2 and 3 ranks end with textures, maps,
 //! renders and report figures bit-identical to one process, for the gather and for photons,
-//! whatever the threads per rank; a run whose rank is killed fails with one line naming it and
-//! an intact checkpoint; a job stopped by SIGTERM checkpoints and exits 130; both resume under
-//! another number of ranks (3, then 1) bit-identically; an input error is one line, once.
+//! whatever the threads per rank, and with the projection's rays shared among ranks (fine
+//! geometry on); a run whose rank is killed fails with one line naming it and an intact
+//! checkpoint; a job stopped by SIGTERM checkpoints and exits 130; both resume under another
+//! number of ranks (3, then 1) bit-identically; an input error is one line, once.
 
 use super::resume::{assert_same_files, manifest};
 use kdmap::pipeline::RunStage;
@@ -126,6 +127,23 @@ fn gather_under_2_and_3_ranks_matches_one_process_bit_for_bit() {
     let tmp = tempfile::tempdir().unwrap();
     let cfg = write_config(tmp.path(), "gather.toml", "");
     same_under_ranks(&cfg, tmp.path());
+}
+
+/// The projection's primary rays are shared: each rank casts those of its bands of rows and
+/// the hits and pixel classes are gathered. With fine geometry on (the loose reading uses the
+/// corner hits too), 2 ranks end with the one process's results, bit for bit.
+#[test]
+fn projection_rays_shared_by_2_ranks_match_one_process_bit_for_bit() {
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg = write_config(tmp.path(), "fine.toml", "");
+    let text = std::fs::read_to_string(&cfg).unwrap();
+    let text = text.replace("[projection]\n", "[projection]\nfine_geometry = true\n");
+    std::fs::write(&cfg, text).unwrap();
+    let solo = tmp.path().join("solo");
+    run(1, &args(&cfg, &solo, "2", &[]));
+    let two = tmp.path().join("np2");
+    run(2, &args(&cfg, &two, "1", &[]));
+    assert_same_results(&solo, &two);
 }
 
 #[test]

@@ -6,12 +6,16 @@
 //! so a texel `(x, y)` covers `[x, x + 1] x [y, y + 1]` and its center is `(x + 0.5, y + 0.5)`.
 //! The result is a pure function of the mesh and the settings: the same bits on every run
 //! and for any rayon thread count (uvunwrap guarantees this for its part; everything here is
-//! sequential or order-preserving).
+//! sequential or order-preserving). A mesh of more than [`FAST_PACKING_TRIANGLES`] triangles
+//! (a scan) is unwrapped in spatial pieces, each on its own page, and the pages are laid side
+//! by side: uvunwrap's fast packing costs more than linear time in the number of charts.
 
 use super::shape_atlas::{AtlasSettings, ShapeAtlas};
 use crate::scene::Mesh;
 use crate::{Error, Result};
-use glam::Vec2;
+use glam::{Vec2, Vec3};
+use rayon::prelude::*;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
 /// Builds the atlas of one mesh (world-space positions), one density everywhere. See
 /// [`build_atlas_with_progress`].
@@ -188,19 +192,162 @@ fn from_mesh_uvs(mesh: &Mesh, s: &AtlasSettings, area: f64) -> Result<ShapeAtlas
 /// within about 0.88..1.21 for a few more charts and no loss of fill or speed.
 const MAX_AREA_DISTORTION: f32 = 1.25;
 
-/// Triangles beyond which charts are packed in rows (`Packing::Fast`) rather than by shape:
-/// a scan-like mesh (a displaced sphere of 1M triangles) unwraps into tens of thousands of
-/// charts, and shape packing spent over 10 minutes on them (`tools/gen_scan_mesh.py`), far
-/// beyond the projection. Smaller meshes, every fixture among them, keep the denser packing.
+/// Triangles beyond which a mesh is unwrapped in pieces of at most [`PIECE_TRIANGLES`],
+/// their charts packed in rows (`Packing::Fast`) rather than by shape: a scan-like mesh (a
+/// displaced sphere of 1M triangles, `tools/gen_scan_mesh.py`) unwraps into tens of thousands
+/// of charts; shape packing spent over 10 minutes on them, and fast packing of them all on one
+/// page about two thirds of the unwrap's 165 s (it tries every remaining chart in the gap above
+/// every row). Smaller meshes, every fixture among them, are unwrapped whole with the denser
+/// packing.
 const FAST_PACKING_TRIANGLES: usize = 100_000;
 
-/// How charts are packed for a mesh of `triangles` triangles.
-fn packing(triangles: usize) -> uvunwrap::Packing {
-    if triangles > FAST_PACKING_TRIANGLES {
-        uvunwrap::Packing::Fast
-    } else {
-        uvunwrap::Packing::Shape
+/// Most triangles of one piece of a mesh unwrapped in pieces.
+const PIECE_TRIANGLES: usize = 32_768;
+
+/// The mesh's triangles in spatially coherent pieces of at most `most`: halved at
+/// the median of their centroids along the longest side of the centroids' bounds (ties by
+/// triangle index), recursively, lower half first; each piece's triangles in mesh order.
+fn pieces(mesh: &Mesh, most: usize) -> Vec<Vec<u32>> {
+    let centroid: Vec<Vec3> = (0..mesh.triangles.len())
+        .map(|t| {
+            let [a, b, c] = mesh.triangle(t);
+            (a + b + c) / 3.0
+        })
+        .collect();
+    let mut out = Vec::new();
+    let mut todo = vec![(0..mesh.triangles.len() as u32).collect::<Vec<u32>>()];
+    while let Some(mut tris) = todo.pop() {
+        if tris.len() <= most.max(1) {
+            tris.sort_unstable();
+            out.push(tris);
+            continue;
+        }
+        let (lo, hi) = tris.iter().fold(
+            (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)),
+            |(lo, hi), &t| (lo.min(centroid[t as usize]), hi.max(centroid[t as usize])),
+        );
+        let e = hi - lo;
+        let axis = match (e.x >= e.y, e.x >= e.z, e.y >= e.z) {
+            (true, true, _) => 0,
+            (false, _, true) => 1,
+            _ => 2,
+        };
+        let mid = tris.len() / 2;
+        tris.select_nth_unstable_by(mid, |&a, &b| {
+            (centroid[a as usize][axis].total_cmp(&centroid[b as usize][axis])).then(a.cmp(&b))
+        });
+        let upper = tris.split_off(mid);
+        todo.push(upper);
+        todo.push(tris);
     }
+    out
+}
+
+/// The triangles `tris` of `mesh` as a mesh of their own (positions only).
+fn piece_mesh(mesh: &Mesh, tris: &[u32]) -> Mesh {
+    let mut used: Vec<u32> = tris
+        .iter()
+        .flat_map(|&t| mesh.triangles[t as usize])
+        .collect();
+    used.sort_unstable();
+    used.dedup();
+    let at = |v: u32| used.binary_search(&v).unwrap_or(0) as u32;
+    Mesh {
+        positions: used.iter().map(|&v| mesh.positions[v as usize]).collect(),
+        normals: None,
+        uvs: None,
+        triangles: tris
+            .iter()
+            .map(|&t| mesh.triangles[t as usize].map(at))
+            .collect(),
+    }
+}
+
+/// Unwraps a large mesh in [`pieces`] of at most `most` triangles, in parallel, each with fast packing on its own page,
+/// then lays the pages side by side ([`shelves`]); progress in triangles of finished pieces.
+fn unwrap_pieces(
+    mesh: &Mesh,
+    s: &AtlasSettings,
+    levels: &[u8],
+    most: usize,
+    progress: impl Fn(&str, usize, Option<usize>) -> bool + Sync,
+) -> Result<ShapeAtlas> {
+    let pieces = pieces(mesh, most);
+    let total = mesh.triangles.len();
+    let (done, cancelled) = (AtomicUsize::new(0), AtomicBool::new(false));
+    let parts: Vec<Result<ShapeAtlas>> = pieces
+        .par_iter()
+        .map(|tris| {
+            let m = piece_mesh(mesh, tris);
+            let lv: Vec<u8> = match levels.is_empty() {
+                true => Vec::new(),
+                false => tris.iter().map(|&t| levels[t as usize]).collect(),
+            };
+            let go = |_: &str, _: usize, _: Option<usize>| !cancelled.load(Ordering::Relaxed);
+            let a = unwrap_one(&m, s, &lv, uvunwrap::Packing::Fast, go)?;
+            let n = done.fetch_add(tris.len(), Ordering::Relaxed) + tris.len();
+            if !progress("parameterizing", n, Some(total)) {
+                cancelled.store(true, Ordering::Relaxed);
+            }
+            Ok(a)
+        })
+        .collect();
+    let parts = parts.into_iter().collect::<Result<Vec<_>>>()?;
+    let sizes: Vec<(u32, u32)> = parts.iter().map(|a| (a.width, a.height)).collect();
+    let (width, height, at) = shelves(&sizes);
+    if width > s.max_size || height > s.max_size {
+        return Err(too_large(
+            width as u64,
+            height as u64,
+            s,
+            "the unwrapped mesh",
+        ));
+    }
+    let mut corner_uv = vec![[Vec2::ZERO; 3]; total];
+    for ((tris, part), &(x, y)) in pieces.iter().zip(&parts).zip(&at) {
+        let o = Vec2::new(x as f32, y as f32);
+        for (&t, uv) in tris.iter().zip(&part.corner_uv) {
+            corner_uv[t as usize] = uv.map(|p| p + o);
+        }
+    }
+    Ok(ShapeAtlas {
+        width,
+        height,
+        corner_uv,
+        charts: parts.iter().map(|a| a.charts).sum(),
+        texel_density: parts.first().map_or(s.texels_per_unit, |a| a.texel_density),
+        levels: parts.iter().map(|a| a.levels).max().unwrap_or(0),
+    })
+}
+
+/// Rectangles of `sizes` laid in shelves (tallest first, ties by index) on a page of the
+/// smallest area among eight widths around the square that holds them: the page's width and
+/// height, and each rectangle's top-left corner. Each page already has its padding inside,
+/// so the pages touch.
+fn shelves(sizes: &[(u32, u32)]) -> (u32, u32, Vec<(u32, u32)>) {
+    let area: f64 = sizes.iter().map(|&(w, h)| w as f64 * h as f64).sum();
+    let widest = sizes.iter().map(|s| s.0).max().unwrap_or(1);
+    let mut order: Vec<usize> = (0..sizes.len()).collect();
+    order.sort_by_key(|&i| (std::cmp::Reverse(sizes[i].1), i));
+    let lay = |limit: u32| {
+        let mut at = vec![(0, 0); sizes.len()];
+        let (mut x, mut y, mut row, mut width) = (0u32, 0u32, 0u32, 0u32);
+        for &i in &order {
+            let (w, h) = sizes[i];
+            if x > 0 && x + w > limit {
+                (x, y, row) = (0, y + row, 0);
+            }
+            at[i] = (x, y);
+            x += w;
+            row = row.max(h);
+            width = width.max(x);
+        }
+        (width.max(1), (y + row).max(1), at)
+    };
+    (0..8)
+        .map(|k| lay(widest.max((area.sqrt() * (0.85 + 0.05 * k as f64)).ceil() as u32)))
+        .min_by_key(|(w, h, _)| (*w as u64 * *h as u64, (*w).max(*h)))
+        .unwrap_or((1, 1, Vec::new()))
 }
 
 /// The triangles of one density level, with their own copy of the vertices they use: one
@@ -253,21 +400,41 @@ fn level_meshes(mesh: &Mesh, levels: &[u8]) -> Vec<LevelMesh> {
 }
 
 /// Unwraps with uvunwrap at a fixed density (per triangle `2^-level` of it) on one page that
-/// grows to fit.
+/// grows to fit; a large mesh in pieces ([`unwrap_pieces`]).
 fn unwrap(
     mesh: &Mesh,
     s: &AtlasSettings,
     levels: &[u8],
     progress: impl Fn(&str, usize, Option<usize>) -> bool + Sync,
 ) -> Result<ShapeAtlas> {
+    if mesh.triangles.len() > FAST_PACKING_TRIANGLES {
+        check_area(mesh, s, levels)?;
+        return unwrap_pieces(mesh, s, levels, PIECE_TRIANGLES, progress);
+    }
+    unwrap_one(mesh, s, levels, uvunwrap::Packing::Shape, progress)
+}
+
+/// Refuses early, before the packer rasterizes anything: the charts alone need this many
+/// texels, and packing never does better than full coverage.
+fn check_area(mesh: &Mesh, s: &AtlasSettings, levels: &[u8]) -> Result<()> {
     let density = s.texels_per_unit as f64;
-    // Refuse early, before the packer rasterizes anything: the charts alone need this many
-    // texels, and packing never does better than full coverage.
     let area = crate::atlas::uv::effective_area(mesh, levels);
     let lower_bound = (area * density * density).sqrt().ceil() as u64;
     if lower_bound > s.max_size as u64 {
         return Err(too_large(lower_bound, lower_bound, s, "the unwrapped mesh"));
     }
+    Ok(())
+}
+
+/// One uvunwrap call over the whole mesh, its charts packed by `packing`.
+fn unwrap_one(
+    mesh: &Mesh,
+    s: &AtlasSettings,
+    levels: &[u8],
+    packing: uvunwrap::Packing,
+    progress: impl Fn(&str, usize, Option<usize>) -> bool + Sync,
+) -> Result<ShapeAtlas> {
+    check_area(mesh, s, levels)?;
     let groups = level_meshes(mesh, levels);
     let inputs: Vec<uvunwrap::MeshInput> = groups
         .iter()
@@ -284,7 +451,7 @@ fn unwrap(
         // uvunwrap keeps charts 2 x padding apart.
         padding: s.padding.div_ceil(2),
         max_area_distortion: MAX_AREA_DISTORTION,
-        packing: packing(mesh.triangles.len()),
+        packing,
         ..Default::default()
     };
     let result = uvunwrap::generate_with_progress(&inputs, &options, |p| {
@@ -636,6 +803,72 @@ mod tests {
         for t in [2, 4] {
             let [p, q, r] = a.corner_uv[t];
             assert!((q - p).perp_dot(r - p).abs() < 1e-6, "triangle {t}");
+        }
+    }
+
+    /// A large mesh's pieces hold every triangle once, each at most the size asked, and
+    /// their pages laid side by side give one atlas: every triangle's texels on it, none
+    /// shared by two triangles, each piece's charts where its page was put (the same UVs up
+    /// to that offset), the charts of all pieces counted.
+    #[test]
+    fn a_mesh_unwrapped_in_pieces_is_one_atlas_without_overlap() {
+        let mesh = bumpy_sphere(64, 48);
+        let n = mesh.triangles.len();
+        let parts = pieces(&mesh, 1500);
+        assert!(parts.len() >= 4 && parts.iter().all(|p| p.len() <= 1500));
+        let mut seen = vec![0; n];
+        for &t in parts.iter().flatten() {
+            seen[t as usize] += 1;
+        }
+        assert!(seen.iter().all(|&k| k == 1));
+        let s = settings(40.0);
+        let a = unwrap_pieces(&mesh, &s, &[], 1500, |_, _, _| true).unwrap();
+        assert!(a.width <= s.max_size && a.height <= s.max_size);
+        let (lo, hi) = bounds(&a);
+        assert!(lo.min_element() >= 0.0);
+        assert!(hi.x <= a.width as f32 && hi.y <= a.height as f32);
+        let map = crate::atlas::uv::TexelMap::new(&mesh, &a);
+        assert_eq!(map.overlapped(), 0);
+        // at least as many texels as the surface needs, and pages that pack well
+        let need = mesh.area() * 40.0 * 40.0;
+        assert!(
+            map.covered() as f64 > 0.9 * need,
+            "{} {need}",
+            map.covered()
+        );
+        let mut charts = 0;
+        for p in &parts {
+            let one = unwrap_one(
+                &piece_mesh(&mesh, p),
+                &s,
+                &[],
+                uvunwrap::Packing::Fast,
+                |_, _, _| true,
+            )
+            .unwrap();
+            charts += one.charts;
+            let d = a.corner_uv[p[0] as usize][0] - one.corner_uv[0][0];
+            assert_eq!(d, d.round(), "a whole texel offset");
+            for (k, &t) in p.iter().enumerate() {
+                assert_eq!(a.corner_uv[t as usize], one.corner_uv[k].map(|c| c + d));
+            }
+        }
+        assert_eq!(a.charts, charts);
+    }
+
+    #[test]
+    fn shelves_hold_rectangles_apart_on_a_near_square_page() {
+        let sizes: Vec<(u32, u32)> = (0..23)
+            .map(|i| (90 + 7 * (i % 5), 80 + 11 * (i % 3)))
+            .collect();
+        let (w, h, at) = shelves(&sizes);
+        let area: u64 = sizes.iter().map(|&(a, b)| a as u64 * b as u64).sum();
+        assert!((w as u64 * h as u64) < area * 13 / 10, "{w}x{h} for {area}");
+        for (i, (&(x, y), &(sw, sh))) in at.iter().zip(&sizes).enumerate() {
+            assert!(x + sw <= w && y + sh <= h);
+            for (&(x2, y2), &(w2, h2)) in at[i + 1..].iter().zip(&sizes[i + 1..]) {
+                assert!(x + sw <= x2 || x2 + w2 <= x || y + sh <= y2 || y2 + h2 <= y);
+            }
         }
     }
 }

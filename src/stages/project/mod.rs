@@ -133,16 +133,23 @@ pub struct ProjectionStats {
 /// re-rendered view), `sync` makes every tile of the state current after a step that changed
 /// it, `sync_pixels` makes an image computed in units of `n` consecutive pixels whole, `sum`
 /// adds a count over the processes; so every process goes on from the same state.
-/// [`Shard::whole`]: one process.
+/// `sync_bytes` makes a buffer computed in units of `n` consecutive bytes whole (a view's
+/// primary rays, [`View::new_shared`]), unit `u` by the process that owns `u`; `alone` says
+/// no other process shares the work (nothing to sync). [`Shard::whole`]: one process.
 pub struct Shard<'a> {
     pub owns: &'a (dyn Fn(usize) -> bool + Sync),
     pub sync: &'a dyn Fn(&mut TileStore<TexelState>) -> Result<()>,
     pub sync_pixels: &'a SyncPixels<'a>,
+    pub sync_bytes: &'a SyncBytes<'a>,
     pub sum: &'a dyn Fn(u64) -> u64,
+    pub alone: bool,
 }
 
 /// See [`Shard::sync_pixels`].
 pub type SyncPixels<'a> = dyn Fn(&mut [Option<Vec3>], usize) -> Result<()> + 'a;
+
+/// See [`Shard::sync_bytes`].
+pub type SyncBytes<'a> = dyn Fn(&mut [u8], usize) -> Result<()> + 'a;
 
 /// Rows of a re-rendered view per work unit (see [`Shard`]).
 pub const ROW_BAND: u32 = 8;
@@ -159,6 +166,9 @@ impl Shard<'static> {
         fn pixels(_: &mut [Option<Vec3>], _: usize) -> Result<()> {
             Ok(())
         }
+        fn bytes(_: &mut [u8], _: usize) -> Result<()> {
+            Ok(())
+        }
         fn alone(v: u64) -> u64 {
             v
         }
@@ -166,7 +176,9 @@ impl Shard<'static> {
             owns: &every,
             sync: &tiles,
             sync_pixels: &pixels,
+            sync_bytes: &bytes,
             sum: &alone,
+            alone: true,
         }
     }
 }
@@ -213,13 +225,14 @@ pub fn run_shard(
     let bounds = tile_bounds(geom)?;
     let mut nominal = Vec::with_capacity(raw.len());
     for ((si, _), photo) in p.views.iter().zip(&raw) {
-        let view = View::new_with(
+        let view = View::new_shared(
             &p.scene,
             &p.accel,
             Camera::from_sensor(&p.scene.sensors[*si]),
             photo,
             cfg.fine_geometry,
-        );
+            shard,
+        )?;
         nominal.push(view);
         stage.inc(1);
         interrupt::check(interrupt::NOTHING_SAVED)?;

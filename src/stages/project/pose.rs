@@ -257,7 +257,7 @@ pub fn refine<'a>(ctx: &Refine<'a>, mode: Mode) -> Result<(Vec<View<'a>>, Vec<Po
         let views: &[View] = match round {
             0 => ctx.views,
             _ => {
-                built = at_poses(ctx, &poses);
+                built = at_poses(ctx, &poses)?;
                 &built
             }
         };
@@ -276,18 +276,19 @@ pub fn refine<'a>(ctx: &Refine<'a>, mode: Mode) -> Result<(Vec<View<'a>>, Vec<Po
     let out = (poses.iter().zip(ctx.views))
         .map(|(p, v)| p.correction(v, share))
         .collect();
-    Ok((at_poses(ctx, &poses), out))
+    Ok((at_poses(ctx, &poses)?, out))
 }
 
-/// The views of `ctx` at `poses`: rays cast again for the cameras that moved.
-fn at_poses<'a>(ctx: &Refine<'a>, poses: &[Pose]) -> Vec<View<'a>> {
+/// The views of `ctx` at `poses`: rays cast again for the cameras that moved (shared among
+/// the processes of `ctx.shard`).
+fn at_poses<'a>(ctx: &Refine<'a>, poses: &[Pose]) -> Result<Vec<View<'a>>> {
     (ctx.views.iter().zip(poses))
         .map(|(v, pose)| match pose.moved_at_all() {
             true => {
-                let (scene, accel) = (&ctx.p.scene, &ctx.p.accel);
-                View::new_with(scene, accel, pose.camera.clone(), v.image, v.is_loose())
+                let (scene, accel, cam) = (&ctx.p.scene, &ctx.p.accel, pose.camera.clone());
+                View::new_shared(scene, accel, cam, v.image, v.is_loose(), ctx.shard)
             }
-            false => v.with_image(v.image),
+            false => Ok(v.with_image(v.image)),
         })
         .collect()
 }

@@ -4,11 +4,15 @@
 //! The rays are cast once per view: one through every pixel corner (kept, for rendering flat
 //! pixels without rays) and one through every pixel center. A clean pixel sees nothing but
 //! one plane of one shape, so a surface point that projects into it and lies on that plane is
-//! visible from the camera: the projection needs no occlusion rays of its own.
+//! visible from the camera: the projection needs no occlusion rays of its own. Processes that
+//! share the projection cast the rays of their own bands of rows and gather the others'
+//! ([`View::new_shared`]), the same bits as one process.
 
 use super::one_surface::{self, Span};
+use super::{Shard, ROW_BAND};
 use crate::atlas::context::HitTable;
 use crate::atlas::uv::NONE;
+use crate::base::error::Result;
 use crate::image::Image;
 use crate::physics::accel::{Accel, Hit};
 use crate::physics::camera::Camera;
@@ -58,13 +62,21 @@ fn plane_tol(t: f32) -> f32 {
     1e-3 * t + 1e-6
 }
 
-/// The rays through every pixel corner of `camera`: `(hit, hit point)`, row-major.
-fn trace_corners(accel: &Accel, camera: &Camera) -> Vec<Option<(Hit, Vec3)>> {
+/// Which rows (of pixels, or of pixel corners) a process casts rays for.
+type Rows<'r> = &'r (dyn Fn(u32) -> bool + Sync);
+
+/// The rays through every pixel corner of `camera` on the corner rows `mine` accepts:
+/// `(hit, hit point)`, row-major (`None` on the other rows).
+fn trace_corners(accel: &Accel, camera: &Camera, mine: Rows) -> Vec<Option<(Hit, Vec3)>> {
     let (w, h) = (camera.width(), camera.height());
     (0..=h)
         .into_par_iter()
         .flat_map_iter(|gy| {
+            let here = mine(gy);
             (0..=w).map(move |gx| {
+                if !here {
+                    return None;
+                }
                 let (o, d) = camera.ray(gx as f32, gy as f32);
                 accel
                     .intersect(o, d, f32::INFINITY)
@@ -87,6 +99,30 @@ fn classify(
     camera: &Camera,
     image: &Image,
     corners: &[Option<(Hit, Vec3)>],
+) -> Vec<PixelInfo> {
+    erode_to_filter(
+        center_rays(scene, accel, camera, image, corners, &|_| true),
+        camera,
+    )
+}
+
+/// What a pixel that is not classified (here) holds.
+const MISS: PixelInfo = PixelInfo {
+    shape: u32::MAX,
+    normal: Vec3::ZERO,
+    plane: 0.0,
+    clean: false,
+};
+
+/// [`classify`] before the film filter's erosion, on the pixel rows `mine` accepts ([`MISS`]
+/// on the others); `corners` must be whole.
+fn center_rays(
+    scene: &Scene,
+    accel: &Accel,
+    camera: &Camera,
+    image: &Image,
+    corners: &[Option<(Hit, Vec3)>],
+    mine: Rows,
 ) -> Vec<PixelInfo> {
     let (w, h) = (camera.width(), camera.height());
     let gw = (w + 1) as usize;
@@ -113,15 +149,14 @@ fn classify(
     let infos: Vec<PixelInfo> = (0..h)
         .into_par_iter()
         .flat_map_iter(|y| {
+            let here = mine(y);
             (0..w).map(move |x| {
+                if !here {
+                    return MISS;
+                }
                 let (o, d) = camera.ray(x as f32 + 0.5, y as f32 + 0.5);
                 let Some(hit) = accel.intersect(o, d, f32::INFINITY) else {
-                    return PixelInfo {
-                        shape: u32::MAX,
-                        normal: Vec3::ZERO,
-                        plane: 0.0,
-                        clean: false,
-                    };
+                    return MISS;
                 };
                 let mesh = &scene.shapes[hit.shape as usize].mesh;
                 let nrm = mesh.face_normal_raw(hit.tri as usize).normalize_or_zero();
@@ -142,7 +177,89 @@ fn classify(
             })
         })
         .collect();
-    erode_to_filter(infos, camera)
+    infos
+}
+
+/// 32-bit words of one pixel corner's hit as processes exchange it: present, shape, triangle,
+/// primitive, `b1`, `b2`, `t`, the hit point.
+const CORNER_WORDS: usize = 10;
+
+/// 32-bit words of one pixel's [`PixelInfo`]: shape, normal, plane, clean.
+const PIXEL_WORDS: usize = 6;
+
+fn encode_corners(hits: &[Option<(Hit, Vec3)>]) -> Vec<u32> {
+    let mut out = Vec::with_capacity(hits.len() * CORNER_WORDS);
+    for h in hits {
+        match h {
+            Some((hit, p)) => out.extend_from_slice(&[
+                1,
+                hit.shape,
+                hit.tri,
+                hit.prim,
+                hit.b1.to_bits(),
+                hit.b2.to_bits(),
+                hit.t.to_bits(),
+                p.x.to_bits(),
+                p.y.to_bits(),
+                p.z.to_bits(),
+            ]),
+            None => out.extend_from_slice(&[0; CORNER_WORDS]),
+        }
+    }
+    out
+}
+
+fn decode_corners(words: &[u32]) -> Vec<Option<(Hit, Vec3)>> {
+    let f = f32::from_bits;
+    (words.chunks_exact(CORNER_WORDS))
+        .map(|c| {
+            (c[0] == 1).then(|| {
+                let hit = Hit {
+                    shape: c[1],
+                    tri: c[2],
+                    prim: c[3],
+                    b1: f(c[4]),
+                    b2: f(c[5]),
+                    t: f(c[6]),
+                };
+                (hit, Vec3::new(f(c[7]), f(c[8]), f(c[9])))
+            })
+        })
+        .collect()
+}
+
+fn encode_pixels(infos: &[PixelInfo]) -> Vec<u32> {
+    let mut out = Vec::with_capacity(infos.len() * PIXEL_WORDS);
+    for p in infos {
+        out.extend_from_slice(&[
+            p.shape,
+            p.normal.x.to_bits(),
+            p.normal.y.to_bits(),
+            p.normal.z.to_bits(),
+            p.plane.to_bits(),
+            u32::from(p.clean),
+        ]);
+    }
+    out
+}
+
+fn decode_pixels(words: &[u32]) -> Vec<PixelInfo> {
+    let f = f32::from_bits;
+    (words.chunks_exact(PIXEL_WORDS))
+        .map(|c| PixelInfo {
+            shape: c[0],
+            normal: Vec3::new(f(c[1]), f(c[2]), f(c[3])),
+            plane: f(c[4]),
+            clean: c[5] == 1,
+        })
+        .collect()
+}
+
+/// `words` computed in bands of [`ROW_BAND`] rows of `per_row` words made whole by `shard`.
+fn sync_rows(shard: &Shard, mut words: Vec<u32>, per_row: usize) -> Result<Vec<u32>> {
+    let unit = ROW_BAND as usize * per_row * 4;
+    (shard.sync_bytes)(bytemuck::cast_slice_mut(&mut words), unit)?;
+    Ok(words)
 }
 
 /// With a film filter that reaches `n > 0` pixels beyond the pixel (tent, gaussian), a pixel's
@@ -203,8 +320,47 @@ impl<'a> View<'a> {
         image: &'a Image,
         loose: bool,
     ) -> View<'a> {
-        let hits = trace_corners(accel, &camera);
+        let hits = trace_corners(accel, &camera, &|_| true);
         let pixels = classify(scene, accel, &camera, image, &hits);
+        View::assemble(scene, camera, image, loose, hits, pixels)
+    }
+
+    /// [`View::new_with`] shared by the processes of `shard`: each casts the corner and
+    /// center rays of the bands of [`ROW_BAND`] rows it owns (band `y / ROW_BAND`), and the
+    /// hits and classifications are gathered, so every process ends with the view one
+    /// process makes, bit for bit, for a share of its rays.
+    pub fn new_shared(
+        scene: &Scene,
+        accel: &Accel,
+        camera: Camera,
+        image: &'a Image,
+        loose: bool,
+        shard: &Shard,
+    ) -> Result<View<'a>> {
+        if shard.alone {
+            return Ok(View::new_with(scene, accel, camera, image, loose));
+        }
+        let owns = shard.owns;
+        let mine = move |y: u32| owns((y / ROW_BAND) as usize);
+        let (w, gw) = (camera.width() as usize, camera.width() as usize + 1);
+        let hits = trace_corners(accel, &camera, &mine);
+        let hits = decode_corners(&sync_rows(shard, encode_corners(&hits), gw * CORNER_WORDS)?);
+        let infos = center_rays(scene, accel, &camera, image, &hits, &mine);
+        let infos = decode_pixels(&sync_rows(shard, encode_pixels(&infos), w * PIXEL_WORDS)?);
+        let pixels = erode_to_filter(infos, &camera);
+        Ok(View::assemble(scene, camera, image, loose, hits, pixels))
+    }
+
+    /// The view from its corner hits and classified pixels (and, with `loose`, what the loose
+    /// reading needs of them).
+    fn assemble(
+        scene: &Scene,
+        camera: Camera,
+        image: &'a Image,
+        loose: bool,
+        hits: Vec<Option<(Hit, Vec3)>>,
+        pixels: Vec<PixelInfo>,
+    ) -> View<'a> {
         let (hot, spans) = match loose {
             true => {
                 let hot = one_surface::near_emitters(scene, &camera, &hits);
@@ -452,5 +608,101 @@ pub fn classify_pixels(
     camera: &Camera,
     image: &Image,
 ) -> Vec<PixelInfo> {
-    classify(scene, accel, camera, image, &trace_corners(accel, camera))
+    classify(
+        scene,
+        accel,
+        camera,
+        image,
+        &trace_corners(accel, camera, &|_| true),
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::atlas::store::{TexelState, TileStore};
+    use std::sync::{Barrier, Mutex};
+
+    /// What a view holds, comparable.
+    type Parts = (Vec<u32>, Vec<Corner>, Vec<Option<Span>>, Vec<bool>);
+
+    fn parts(v: &View) -> Parts {
+        let pixels = encode_pixels(&v.pixels);
+        (pixels, v.corners.clone(), v.spans.clone(), v.hot.clone())
+    }
+
+    /// `n` processes as threads: each casts the rays of its own bands of rows and the bands
+    /// are exchanged through shared memory as `ranks::share_bytes` exchanges them over MPI.
+    fn shared_views(
+        n: usize,
+        scene: &Scene,
+        accel: &Accel,
+        cam: &Camera,
+        img: &Image,
+    ) -> Vec<Parts> {
+        let slots = Mutex::new(vec![Vec::new(); n]);
+        let barrier = Barrier::new(n);
+        std::thread::scope(|s| {
+            let handles: Vec<_> = (0..n)
+                .map(|r| {
+                    let (slots, barrier) = (&slots, &barrier);
+                    s.spawn(move || {
+                        let owns = move |u: usize| u % n == r;
+                        let sync = |_: &mut TileStore<TexelState>| -> Result<()> { Ok(()) };
+                        let pixels = |_: &mut [Option<Vec3>], _: usize| -> Result<()> { Ok(()) };
+                        let bytes = |buf: &mut [u8], unit: usize| -> Result<()> {
+                            slots.lock().unwrap()[r] = buf.to_vec();
+                            barrier.wait();
+                            let all = slots.lock().unwrap().clone();
+                            for (u, b) in buf.chunks_mut(unit).enumerate() {
+                                let at = u * unit;
+                                b.copy_from_slice(&all[u % n][at..at + b.len()]);
+                            }
+                            barrier.wait();
+                            Ok(())
+                        };
+                        let sum = |v: u64| v;
+                        let shard = Shard {
+                            owns: &owns,
+                            sync: &sync,
+                            sync_pixels: &pixels,
+                            sync_bytes: &bytes,
+                            sum: &sum,
+                            alone: false,
+                        };
+                        let v = View::new_shared(scene, accel, cam.clone(), img, true, &shard);
+                        parts(&v.unwrap())
+                    })
+                })
+                .collect();
+            handles.into_iter().map(|h| h.join().unwrap()).collect()
+        })
+    }
+
+    /// The classification split among 2 and 3 processes by bands of rows and gathered is the
+    /// one process's, bit for bit, on every process (with a masked pixel, an emitter in view
+    /// and the loose reading's spans).
+    #[test]
+    fn rays_split_among_processes_and_gathered_classify_as_one_process() {
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+        let scene =
+            crate::scene::mitsuba::load(&root.join("tests/fixtures/cbox/input.xml")).unwrap();
+        let accel = Accel::build(&scene);
+        let cam = Camera::from_sensor(&scene.sensors[0]);
+        let (w, h) = (cam.width(), cam.height());
+        let mut px = vec![Vec3::splat(0.4); (w * h) as usize];
+        px[(37 * w + 101) as usize] = Vec3::NAN;
+        let img = Image::from_raw(w, h, px);
+        let one = parts(&View::new_with(&scene, &accel, cam.clone(), &img, true));
+        assert!(one.0.chunks(PIXEL_WORDS).any(|p| p[5] == 1), "clean pixels");
+        assert!(one.3.iter().any(|&b| b), "an emitter in view");
+        for n in [2, 3] {
+            for (r, got) in shared_views(n, &scene, &accel, &cam, &img)
+                .iter()
+                .enumerate()
+            {
+                assert!(got == &one, "{n} processes, rank {r}");
+            }
+        }
+    }
 }
