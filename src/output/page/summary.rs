@@ -176,7 +176,8 @@ fn truth_scores(a: &Value) -> String {
 
 /// The run's warnings (`true`) and notes in plain words.
 pub fn notes(r: &Report) -> Vec<(bool, String)> {
-    let mut n = Vec::new();
+    // the run's own warnings (the console's last lines) first
+    let mut n: Vec<(bool, String)> = r.warnings.iter().map(|w| (true, w.clone())).collect();
     let c = &r.counts;
     if r.stopped_by == "max_iterations" {
         n.push((false, format!("The solver stopped after the most iterations allowed ({}), not because the error stopped changing.", r.iterations.len())));
@@ -223,6 +224,16 @@ pub fn notes(r: &Report) -> Vec<(bool, String)> {
 mod tests {
     use super::*;
     use crate::config::Config;
+
+    #[test]
+    fn the_run_s_warnings_come_first_as_warnings() {
+        let mut r = Report::new(Config::for_scene("s.xml".into()));
+        r.warnings = vec!["photos observed 2.1% of the covered texels".into()];
+        r.stopped_by = "max_iterations".into();
+        let n = notes(&r);
+        assert_eq!(n[0], (true, r.warnings[0].clone()));
+        assert!(n.len() >= 2 && !n[1].0);
+    }
 
     #[test]
     fn notes_name_the_iteration_limit_and_the_unseen_share() {
