@@ -697,8 +697,10 @@ fn plan_run(cfg: &Config, scene: &Scene) -> RunPlan {
                     kdmap::atlas::uv::density::gather_bytes(s.mesh.area(), d, cfg.gather_rays)
                 })
                 .sum::<u64>()
-                // the ray cache keeps hits within half the budget (the rest are cast again)
-                .min((cfg.memory_budget_mib << 20) / 2)
+                // the ray cache keeps hits within its limit (the rest are cast again)
+                .min(kdmap::stages::indirect::gather::budget::cache_bytes(
+                    cfg.memory_budget_mib,
+                ))
         }
         kdmap::config::Method::Photons => 0,
     };

@@ -955,12 +955,7 @@ impl<'a> Run<'a> {
         ranks::share_points(self.world, &mut variance)?;
         drop(radiance);
         std::fs::remove_file(&path).map_err(|e| crate::Error::io(&path, e))?;
-        let (points, layout, charts, geom) = (
-            self.gather_points(&r.state)?,
-            &p.layout,
-            &self.charts,
-            &self.geom,
-        );
+        let (layout, charts, geom) = (&p.layout, &self.charts, &self.geom);
         let (values, variance) = points.filtered(&values, &variance, POINT_FILTER_Z);
         let stage = self.tile_stage("E_i", 1);
         let tick = |k| stage.inc(k);
@@ -994,8 +989,7 @@ impl<'a> Run<'a> {
         let owns = |i: usize| world.owns((i / GATHER_CHUNK) as u64);
         let mine = (0..points.points.len()).filter(|&i| owns(i)).count();
         let stage = Stage::new(self.mode, "gather rays", mine as u64, "points");
-        // half the budget, beside the radiance cache's half (see `gather_estimate`)
-        let limit = (self.cfg.memory_budget_mib << 20) / 2;
+        let limit = gather::budget::cache_bytes(self.cfg.memory_budget_mib);
         let cache = trace_points_where(&ctx, points, (&owns, limit), &|k| stage.inc(k));
         stage.finish();
         let again = self.world.sum(cache.stats.retraced_points);
@@ -1077,20 +1071,20 @@ impl<'a> Run<'a> {
             progress::SHOW_AFTER,
         );
         let tick = |k| stage.inc(k);
-        let covered = self.atlas.iter().map(|a| a.covered_texels).sum();
-        let cap = gather::budget::point_cap(covered);
         let stores = (&self.geom, state, &self.charts);
+        let cap = self.gather_cap();
         let (pts, floor) =
             gather::budget::capped_points(&self.p, stores, &spacing, cap, &self.scratch, &tick)?;
         stage.finish();
         if floor > 0.0 && self.world.is_root() {
-            let rays = gather::budget::rays_for(self.cfg.gather_rays, pts.points.len(), cap);
+            let rays = self.gather_rays(&pts);
             note(
                 self.mode,
                 &format!(
-                    "gather: {} points for {covered} covered texels (at most one per {} texels): \
+                    "gather: {} points for {} covered texels (at most one per {} texels): \
                      spacing raised to at least {floor:.4} scene units on the smallest shapes{}",
                     pts.points.len(),
+                    self.covered_texels(),
                     gather::budget::TEXELS_PER_POINT,
                     match rays < self.cfg.gather_rays {
                         true => format!(", {rays} rays per point (one per chart and cell)"),
@@ -1102,11 +1096,19 @@ impl<'a> Run<'a> {
         Ok(self.points.get_or_init(|| pts))
     }
 
+    /// The covered texels of every shape's atlas.
+    fn covered_texels(&self) -> u64 {
+        self.atlas.iter().map(|a| a.covered_texels).sum()
+    }
+
+    /// The most gather points this run places ([`gather::budget::point_cap`]).
+    fn gather_cap(&self) -> usize {
+        gather::budget::point_cap(self.covered_texels())
+    }
+
     /// Rays per gather point: `[gather] rays`, fewer where the points are over their cap.
     fn gather_rays(&self, points: &GatherPoints) -> u32 {
-        let covered = self.atlas.iter().map(|a| a.covered_texels).sum();
-        let cap = gather::budget::point_cap(covered);
-        gather::budget::rays_for(self.cfg.gather_rays, points.points.len(), cap)
+        gather::budget::rays_for(self.cfg.gather_rays, points.points.len(), self.gather_cap())
     }
 
     /// The hit table of this run (made on first use).

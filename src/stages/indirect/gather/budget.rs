@@ -97,6 +97,12 @@ fn next_floor(floor: f32, spacing: &[f32], placed: usize, cap: usize) -> f32 {
     from * ((placed as f32 / cap as f32).sqrt() * 1.1)
 }
 
+/// The byte limit of the ray cache for a run of `memory_budget_mib`: half of it, beside the
+/// radiance lookups' half.
+pub fn cache_bytes(memory_budget_mib: u64) -> u64 {
+    (memory_budget_mib << 20) / 2
+}
+
 /// Bytes a point's kept hits take.
 pub(super) fn hit_bytes(hits: usize) -> u64 {
     (hits * std::mem::size_of::<super::CachedHit>()) as u64

@@ -731,14 +731,13 @@ impl GatherCache {
             .enumerate()
             .map(|(i, f)| {
                 let (mut sum, mut pairs, mut first) = (Vec3::ZERO, self.known_pairs[i], 0.0f32);
-                let again = match self.retrace[i] {
-                    true => trace_point(ctx, i as u64, &points.points[i]).2,
-                    false => Vec::new(),
-                };
-                let hits = if self.retrace[i] {
-                    &again[..]
-                } else {
-                    &self.hits[i][..]
+                let again;
+                let hits: &[CachedHit] = match self.retrace[i] {
+                    true => {
+                        again = trace_point(ctx, i as u64, &points.points[i]).2;
+                        &again
+                    }
+                    false => &self.hits[i],
                 };
                 for h in hits {
                     let l = radiance.lookup(h.slot as usize, h.uv, h.chart).0 * h.weight;

@@ -607,16 +607,13 @@ fn gather_is_bit_identical_across_thread_counts() {
     assert_eq!(a, b);
 }
 
-/// Rays cast once and their unobserved hits re-read with new estimates give what casting the
-/// rays again with those estimates gives (the cache is exact, not an approximation).
-#[test]
-fn cached_hits_reevaluate_like_a_fresh_trace() {
+/// An observed spherical room (inward normals) around an unobserved ball of radius 0.3 at
+/// `at`, whose texels hold a first estimate (`K_d`, `E_d`): hits on it are cached.
+fn room_with_ball(at: Vec3) -> Fixture {
     let mut m = mesh::sphere();
     mesh::flip_normals(&mut m);
     let mut inner = mesh::sphere();
-    inner.transform(
-        &(Mat4::from_translation(Vec3::new(0.2, 0.1, 0.0)) * Mat4::from_scale(Vec3::splat(0.3))),
-    );
+    inner.transform(&(Mat4::from_translation(at) * Mat4::from_scale(Vec3::splat(0.3))));
     let mut fx = Fixture::new(
         vec![shape("room", m, None), shape("ball", inner, None)],
         12.0,
@@ -626,6 +623,22 @@ fn cached_hits_reevaluate_like_a_fresh_trace() {
         s.k_d = [0.4; 3];
         s.e_d = [1.0, 2.0, 3.0];
     });
+    fx
+}
+
+/// The next iteration's estimates on [`room_with_ball`]'s ball.
+fn next_estimates(fx: &mut Fixture) {
+    fx.set("ball", |s| {
+        s.k_d = [0.8, 0.5, 0.2];
+        s.e_i = [0.5; 3];
+    });
+}
+
+/// Rays cast once and their unobserved hits re-read with new estimates give what casting the
+/// rays again with those estimates gives (the cache is exact, not an approximation).
+#[test]
+fn cached_hits_reevaluate_like_a_fresh_trace() {
+    let mut fx = room_with_ball(Vec3::new(0.2, 0.1, 0.0));
     let points = fx.points(0.2);
     let trace = |fx: &Fixture| {
         let radiance = fx.radiance(1 << 30);
@@ -639,10 +652,7 @@ fn cached_hits_reevaluate_like_a_fresh_trace() {
     let kept: usize = cache.hits.iter().map(|h| h.len()).sum();
     assert_eq!(kept as u64, cache.stats.cached_hits);
     // the ball's estimate changes; the room (observed) does not
-    fx.set("ball", |s| {
-        s.k_d = [0.8, 0.5, 0.2];
-        s.e_i = [0.5; 3];
-    });
+    next_estimates(&mut fx);
     let (fresh, radiance) = trace(&fx);
     let ctx = fx.context(&radiance, 36);
     let (a, _) = cache.evaluate(&ctx, &points);
@@ -948,19 +958,7 @@ fn the_points_filter_averages_noise_and_keeps_slopes_and_steps() {
 /// points left out cast the same rays again, at this iteration's radiance.
 #[test]
 fn a_cache_over_its_limit_retraces_to_the_same_bits() {
-    let mut m = mesh::sphere();
-    mesh::flip_normals(&mut m);
-    let mut inner = mesh::sphere();
-    inner.transform(&Mat4::from_scale(Vec3::splat(0.3)));
-    let mut fx = Fixture::new(
-        vec![shape("room", m, None), shape("ball", inner, None)],
-        12.0,
-    );
-    fx.observe("room", Vec3::new(0.3, 0.2, 0.1));
-    fx.set("ball", |s| {
-        s.k_d = [0.4; 3];
-        s.e_d = [1.0, 2.0, 3.0];
-    });
+    let mut fx = room_with_ball(Vec3::ZERO);
     let points = fx.points(0.2);
     let radiance = fx.radiance(1 << 30);
     let ctx = fx.context(&radiance, 36);
@@ -972,11 +970,7 @@ fn a_cache_over_its_limit_retraces_to_the_same_bits() {
     assert!(some.stats.retraced_points > 0 && some.stats.cached_hits <= all.stats.cached_hits / 2);
     assert!(none.stats.cached_hits == 0 && none.stats.retraced_points > 0);
     drop(radiance);
-    // the next iteration's estimates on the ball
-    fx.set("ball", |s| {
-        s.k_d = [0.8, 0.5, 0.2];
-        s.e_i = [0.5; 3];
-    });
+    next_estimates(&mut fx);
     let radiance = fx.radiance(1 << 30);
     let ctx = fx.context(&radiance, 36);
     let want = all.evaluate(&ctx, &points);
