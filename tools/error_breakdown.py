@@ -337,47 +337,7 @@ def lowpass_within(img, labels, mask, sigma):
 
 
 class _Caster(heldout._RayCaster):
-    """heldout's ray caster with the hit's normal and UV as well."""
-
-    def cast_full(self, o, d):
-        """(t, shape index, point, unit normal, uv) of rays o (n, 3)|(3,), unit d (n, 3)."""
-        mi = mitsuba()
-        n = len(d)
-        o = np.broadcast_to(np.asarray(o, dtype=np.float64), (n, 3))
-        with mi.variant_context(self.variant):
-            if self.vectorized:
-                import drjit as dr
-
-                def f(a):
-                    return (mi.Float(np.ascontiguousarray(a[:, k]).astype(np.float32))
-                            for k in range(3))
-
-                ray = mi.Ray3f(mi.Point3f(*f(o)), mi.Vector3f(*f(d)))
-                si = self.scene.ray_intersect(ray)
-                valid = np.array(si.is_valid())
-                t = np.where(valid, np.array(si.t, dtype=np.float64), np.inf)
-                p = np.array(si.p, dtype=np.float64).T
-                nn = np.array(si.n, dtype=np.float64).T
-                uv = np.array(si.uv, dtype=np.float64).T
-                ptr = np.array(dr.reinterpret_array(mi.UInt32, si.shape))
-                uniq, inv = np.unique(ptr, return_inverse=True)
-                idx = np.array([self._index_of.get(int(v), -1) for v in uniq], dtype=np.int64)
-                shape = np.where(valid, idx[inv.reshape(-1)], -1)
-                return t, shape, p, nn, uv
-            t = np.full(n, np.inf)
-            shape = np.full(n, -1, dtype=np.int64)
-            p = np.zeros((n, 3))
-            nn = np.zeros((n, 3))
-            uv = np.zeros((n, 2))
-            for i in range(n):
-                si = self.scene.ray_intersect(mi.Ray3f(mi.Point3f(*o[i]), mi.Vector3f(*d[i])))
-                if si.is_valid():
-                    t[i] = si.t
-                    shape[i] = self._index_of.get(id(si.shape), -1)
-                    p[i] = (si.p[0], si.p[1], si.p[2])
-                    nn[i] = (si.n[0], si.n[1], si.n[2])
-                    uv[i] = (si.uv[0], si.uv[1])
-            return t, shape, p, nn, uv
+    """heldout's ray caster with the scene's BSDF kinds and emitter points as well."""
 
     def bsdf_kinds(self):
         """Per shape: 'emitter', 'diffuse', or the BSDF's class name when it has a glossy or

@@ -344,6 +344,11 @@ class _RayCaster:
     def cast(self, o, d):
         """Rays from o (n, 3) or (3,) along unit d (n, 3): hit distance (inf on a miss), the
         hit shape's index in self.shapes (-1 on a miss) and the hit point (n, 3)."""
+        return self.cast_full(o, d, surface=False)
+
+    def cast_full(self, o, d, surface=True):
+        """cast()'s (t, shape index, point), and with `surface` also the hit's unit normal
+        (n, 3) and UV (n, 2)."""
         mi = mitsuba()
         n = len(d)
         o = np.broadcast_to(np.asarray(o, dtype=np.float64), (n, 3))
@@ -352,7 +357,8 @@ class _RayCaster:
                 import drjit as dr
 
                 def f(a):
-                    return (mi.Float(a[:, k].astype(np.float32)) for k in range(3))
+                    return (mi.Float(np.ascontiguousarray(a[:, k]).astype(np.float32))
+                            for k in range(3))
 
                 ray = mi.Ray3f(mi.Point3f(*f(o)), mi.Vector3f(*f(d)))
                 si = self.scene.ray_intersect(ray)
@@ -363,17 +369,25 @@ class _RayCaster:
                 uniq, inv = np.unique(ptr, return_inverse=True)
                 idx = np.array([self._index_of.get(int(v), -1) for v in uniq], dtype=np.int64)
                 shape = np.where(valid, idx[inv.reshape(-1)], -1)
-                return t, shape, p
+                if not surface:
+                    return t, shape, p
+                nn = np.array(si.n, dtype=np.float64).T
+                uv = np.array(si.uv, dtype=np.float64).T
+                return t, shape, p, nn, uv
             t = np.full(n, np.inf)
             shape = np.full(n, -1, dtype=np.int64)
             p = np.zeros((n, 3))
+            nn = np.zeros((n, 3))
+            uv = np.zeros((n, 2))
             for i in range(n):
                 si = self.scene.ray_intersect(mi.Ray3f(mi.Point3f(*o[i]), mi.Vector3f(*d[i])))
                 if si.is_valid():
                     t[i] = si.t
                     shape[i] = self._index_of.get(id(si.shape), -1)
                     p[i] = (si.p[0], si.p[1], si.p[2])
-            return t, shape, p
+                    nn[i] = (si.n[0], si.n[1], si.n[2])
+                    uv[i] = (si.uv[0], si.uv[1])
+            return (t, shape, p, nn, uv) if surface else (t, shape, p)
 
 
 def seen_mask(caster, view_id, train_ids):
