@@ -267,6 +267,50 @@ fn pixel(
     }
 }
 
+/// The `k x k` sub-pixel values of pixel `(x, y)` as [`render_view_with`] with
+/// [`Film::HitsOnly`] finds them (row-major into `out`; `None` where a sub-pixel ray sees no
+/// texture), before they are averaged: what a film's filter weighs one by one.
+pub fn pixel_samples(
+    (accel, camera, textures): (&Accel, &Camera, &[Option<Texture>]),
+    k: u32,
+    plan: Plan,
+    (x, y): (u32, u32),
+    out: &mut [Option<Vec3>],
+) {
+    out.fill(None);
+    let flat = match plan {
+        Plan::Skip => return,
+        Plan::Flat(f) => textures
+            .get(f.shape as usize)
+            .and_then(|t| t.as_ref().map(|t| (t, f))),
+        Plan::Trace => None,
+    };
+    for j in 0..k {
+        let ty = (j as f32 + 0.5) / k as f32;
+        for i in 0..k {
+            let tx = (i as f32 + 0.5) / k as f32;
+            out[(j * k + i) as usize] = match flat {
+                Some((tex, f)) => {
+                    let [a, b, c, d] = f.uv;
+                    let (l, r) = (a.lerp(c, ty), b.lerp(d, ty));
+                    Some(bilinear(tex.texels, l.lerp(r, tx)))
+                }
+                None => {
+                    let stream = ((y as u64 * camera.width() as u64 + x as u64) * k as u64
+                        + j as u64)
+                        * k as u64
+                        + i as u64;
+                    let (px, py) = (x as f32 + tx, y as f32 + ty);
+                    match trace(accel, camera, textures, None, (px, py), stream) {
+                        Seen::Texture(v) => Some(v),
+                        _ => None,
+                    }
+                }
+            };
+        }
+    }
+}
+
 /// Mixed into the seed of the re-renders' paths through known materials.
 const RENDER_TAG: u64 = 0x7e4d_e5ca_77e2_0001;
 

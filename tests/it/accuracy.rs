@@ -577,12 +577,15 @@ fn input_with_tent_filter(root: &Path, dir: &Path) -> std::path::PathBuf {
 }
 
 /// A tent pixel filter blurs a photo more than a box (the weighted mean reads that blur), and
-/// the refinement passes undo what they can of it: noise-free albedo images of `cbox-tex`
-/// through a tent filter (`albedo-tent/`, `tools/render_albedo_aov.py --filter tent`),
-/// projected by a scene whose films say tent, score 11.5% against the box images' 8.9%
-/// (the tent's images read as if box-filtered: 14.6%; 32 passes instead of 16: 12.2%, so the
-/// gap is detail the tent took out of the photos, not passes left to run). Bounds: the tent
-/// within 1.35x of the box, and clearly better than the same images read through box films.
+/// the refinement passes undo it, their re-renders weighing each sub-pixel sample by the tent
+/// where it lies (`physics::film_filter`): noise-free albedo images of `cbox-tex` through a
+/// tent filter (`albedo-tent/`, `tools/render_albedo_aov.py --filter tent`), projected by a
+/// scene whose films say tent, score 9.46% against the box images' 8.93% (32 passes: 9.48%
+/// against 9.33%, so what is left is how fast the passes converge, not the model). The tent's
+/// images read as if box-filtered score 14.6%; with the tent applied to pixel means instead
+/// of samples (as before) they scored 11.5%, which the bounds below fail. Bounds: the tent
+/// within 1.1x of the box (each shape within 1.15x), and clearly better than the same images
+/// read through box films.
 #[test]
 fn tent_filtered_photos_project_close_to_box_filtered_ones() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/cbox-tex");
@@ -608,14 +611,14 @@ fn tent_filtered_photos_project_close_to_box_filtered_ones() {
         100.0 * t,
         100.0 * m
     );
-    assert!(t <= 1.35 * b, "tent {t:.4} vs box {b:.4}");
+    assert!(t <= 1.1 * b, "tent {t:.4} vs box {b:.4}");
     assert!(
         t <= m - 0.02,
         "the film's tent undid no blur: {t:.4} vs {m:.4} read as box"
     );
     for (a, f) in tent.iter().zip(&boxed) {
         assert!(
-            a.mean_rel_error <= 1.45 * f.mean_rel_error + 0.005,
+            a.mean_rel_error <= 1.15 * f.mean_rel_error + 0.005,
             "{}: tent {:.4} vs box {:.4}",
             a.shape,
             a.mean_rel_error,

@@ -73,7 +73,14 @@ const FOLDERS: &[(&str, &[Layer])] = &[
     (
         "physics",
         &[(
-            &["accel", "camera", "bsdf_sampling", "light", "render"],
+            &[
+                "accel",
+                "camera",
+                "bsdf_sampling",
+                "light",
+                "render",
+                "film_filter",
+            ],
             Listed,
         )],
     ),
@@ -120,6 +127,7 @@ const FOLDERS: &[(&str, &[Layer])] = &[
             &[
                 "one_surface",
                 "view",
+                "lookups",
                 "visible",
                 "exposure",
                 "noise",

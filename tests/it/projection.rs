@@ -1034,3 +1034,35 @@ fn the_noise_probe_predicts_the_texel_noise_of_independent_photos() {
         "the propagation alone was within {worst_without:.2}"
     );
 }
+
+/// The refinement keeps each view's look-ups within a quarter of the memory budget and looks
+/// up the rest again in every pass: at 16 MiB it keeps part of cbox's (the test checks that),
+/// at 1 GiB all, and the projection's state is the same to the bit.
+#[test]
+fn the_projection_is_the_same_whatever_share_of_its_look_ups_is_kept() {
+    let root = fixture("cbox");
+    let run = |mib: u64| {
+        let mut cfg = config(&root);
+        cfg.refine_passes = 2;
+        cfg.noise_probe = false;
+        cfg.memory_budget_mib = mib;
+        let out = tempfile::tempdir().unwrap();
+        let p = prepare(&cfg, Mode::Quiet).unwrap();
+        let (_, state, _, stats) = run_projection(&p, &cfg, out.path());
+        let bits: Vec<u32> = (0..state.tile_count())
+            .flat_map(|t| state.read_tile(t).unwrap())
+            .flat_map(|s| [s.l_orig[0], s.l_orig[1], s.l_orig[2], s.weight, s.l_var])
+            .map(f32::to_bits)
+            .collect();
+        (bits, stats.lookup_bytes)
+    };
+    let (small, kept_small) = run(16);
+    let (large, kept_large) = run(1024);
+    eprintln!("look-ups kept: {kept_small} bytes at 16 MiB, {kept_large} at 1 GiB");
+    assert!(
+        kept_small > 0 && kept_small < kept_large,
+        "{kept_small} vs {kept_large}"
+    );
+    assert!(kept_small <= 4 << 20);
+    assert!(small == large, "the kept share changed the projection");
+}

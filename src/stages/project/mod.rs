@@ -61,6 +61,7 @@
 
 mod diagnose;
 pub mod exposure;
+mod lookups;
 mod noise;
 pub mod noise_probe;
 mod one_surface;
@@ -72,6 +73,7 @@ mod view;
 mod visible;
 
 pub use diagnose::notes as capture_notes;
+pub use lookups::{Lookups, TileLookups};
 pub use refine::{Refine, REFINE_SUPERSAMPLE};
 pub use shrinkage::{shrink_residual, shrink_residual_levels, NoiseLevels};
 pub use view::{classify_pixels, Pair, PixelInfo, Value, View};
@@ -126,6 +128,8 @@ pub struct ProjectionStats {
     pub pose_seconds: f64,
     /// Per view, its photo's gain and what fixed it.
     pub gains: Vec<crate::report::ViewCapture>,
+    /// Bytes of the views' look-ups the refinement kept ([`Lookups`]).
+    pub lookup_bytes: u64,
 }
 
 /// How the stage is shared with the other processes of a run (decided by `pipeline`): this
@@ -251,6 +255,7 @@ pub fn run_shard(
         .collect();
     drop(nominal);
     drop(raw);
+    let none = Lookups::new(0, 0, 0);
     let ctx = refine::Refine {
         p,
         hits,
@@ -262,6 +267,7 @@ pub fn run_shard(
         scratch,
         shard,
         label: "refinement",
+        lookups: &none,
     };
     let posed;
     let ctx = match cfg.refine_pose {
@@ -280,9 +286,16 @@ pub fn run_shard(
         }
         false => ctx,
     };
+    let tiles = p.layout.tile_count as usize;
+    let lookups = Lookups::new(ctx.views.len(), tiles, lookup_budget(cfg));
+    let ctx = refine::Refine {
+        lookups: &lookups,
+        ..ctx
+    };
     let passes = refine::Passes::of(cfg);
     let (noise, residual) = project_and_refine(&ctx, state, passes, mode, cfg.fine_geometry)?;
     stats.refine_residual = residual;
+    stats.lookup_bytes = lookups.bytes();
     for (g, n) in stats.gains.iter_mut().zip(&noise) {
         g.check = n.check.clone();
     }
@@ -309,6 +322,12 @@ pub fn run_shard(
     stats.visible_texels = (shard.sum)(v);
     stats.seconds = t0.elapsed().as_secs_f64();
     Ok(stats)
+}
+
+/// Bytes the refinement may keep of its look-ups ([`Lookups`]): a quarter of the memory
+/// budget.
+fn lookup_budget(cfg: &Config) -> u64 {
+    (cfg.memory_budget_mib << 20) / 4
 }
 
 /// The noise probe (see [`noise_probe`]): the photos perturbed by their own noise, projected
@@ -477,7 +496,7 @@ fn observe_with<T: Value>(
     view: &View,
     shape: &ShapeRef,
     g: &TexelGeom,
-    sample: impl Fn(glam::Vec2, Vec3) -> Option<T>,
+    mut sample: impl FnMut(glam::Vec2, Vec3) -> Option<T>,
 ) -> Option<(T, f32)> {
     let cam = view.camera.position();
     let p = g.p();
@@ -652,22 +671,14 @@ pub struct ResidualViews<'a> {
 /// current `l_orig`), and the statistics of [`Residual`].
 pub fn backproject_tile(
     rv: &ResidualViews,
-    shape: &ShapeRef,
-    geom: &[TexelGeom],
+    looks: &TileLookups,
     state: &[TexelState],
     acc: &mut [Residual],
 ) -> Agreement {
     let mut seen = Agreement::default();
-    for ((g, s), a) in geom.iter().zip(state).zip(acc.iter_mut()) {
-        if !g.covered() {
-            continue;
-        }
-        let width = rv.view.camera.width();
-        let get = |x: u32, y: u32| rv.residual[(y * width + x) as usize];
-        let Some((Pair(raw, r, level, keep), w)) = observe_texel_from(rv.view, shape, g, &get)
-        else {
-            continue;
-        };
+    let width = rv.view.camera.width();
+    for (i, Pair(raw, r, level, keep), w) in looks.read(width, rv.residual) {
+        let (s, a) = (&state[i], &mut acc[i]);
         let l = luminance(Vec3::from_array(s.l_orig)).max(0.0);
         let var = texel_noise_variance(level, rv.sigma, l, w);
         let y = luminance(raw);

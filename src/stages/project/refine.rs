@@ -8,8 +8,8 @@ use super::shrinkage::relative;
 use super::total_variation::tv_luminance;
 use super::view::View;
 use super::{
-    apply_refinement, backproject_tile, shrink_residual_levels, Pair, Residual, ResidualViews,
-    Shard, ROW_BAND,
+    apply_refinement, backproject_tile, shrink_residual_levels, Lookups, Pair, Residual,
+    ResidualViews, Shard, TileLookups, ROW_BAND,
 };
 use crate::atlas::context::HitTable;
 use crate::atlas::store::{map_tiles, TileStore};
@@ -19,7 +19,8 @@ use crate::atlas::uv::Charts;
 use crate::atlas::RunContext;
 use crate::base::error::{Error, Result};
 use crate::base::progress::{Mode, Stage};
-use crate::physics::render::{apply_pixel_filter, render_view_with, Film, Plan, Texture};
+use crate::physics::film_filter::render_filtered;
+use crate::physics::render::{render_view_with, Film, Plan, Texture};
 use glam::Vec3;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Mutex;
@@ -153,6 +154,9 @@ pub struct Refine<'a> {
     pub shard: &'a Shard<'a>,
     /// The progress stage's name.
     pub label: &'static str,
+    /// Each view's look-ups per tile, kept across the passes (and shared with the noise
+    /// probe, whose views are these with other photos).
+    pub lookups: &'a Lookups,
 }
 
 /// The residuals of a pass, per texel, summed over the views: a scratch tile store (mapped a
@@ -209,8 +213,8 @@ impl Refine<'_> {
             noise.clear();
             let mut pass_residuals = Vec::with_capacity(self.views.len());
             let last = pass + 1 == count;
-            for view in self.views {
-                let (n, r) = self.backproject(view, &textures, state, &mut delta, last)?;
+            for (i, view) in self.views.iter().enumerate() {
+                let (n, r) = self.backproject((i, view), &textures, state, &mut delta, last)?;
                 sigma += n.sigma;
                 noise.push(n);
                 pass_residuals.push(r);
@@ -270,7 +274,7 @@ impl Refine<'_> {
     /// [`mean_relative_residual`].
     fn backproject(
         &self,
-        view: &View,
+        (vi, view): (usize, &View),
         textures: &[Option<Texture>],
         state: &TileStore<TexelState>,
         delta: &mut Delta,
@@ -290,11 +294,19 @@ impl Refine<'_> {
             view.flat(self.hits, x, y).map_or(Plan::Trace, Plan::Flat)
         };
         let k = REFINE_SUPERSAMPLE;
-        let mut render =
-            render_view_with(&p.accel, &view.camera, textures, k, Film::HitsOnly, &plan);
-        (self.shard.sync_pixels)(&mut render, (ROW_BAND * w) as usize)?;
         // The photo is the scene seen through the film's filter: so is what it is compared with.
-        let render = apply_pixel_filter(&render, w, photo.height, filter);
+        let render = match filter.is_box() {
+            true => {
+                let mut r =
+                    render_view_with(&p.accel, &view.camera, textures, k, Film::HitsOnly, &plan);
+                (self.shard.sync_pixels)(&mut r, (ROW_BAND * w) as usize)?;
+                r
+            }
+            false => {
+                let parts = (&p.accel, &view.camera, textures);
+                render_filtered(parts, k, filter, &plan, (self.shard.sync_pixels, ROW_BAND))?
+            }
+        };
         let mut residual: Vec<Vec3> = photo
             .pixels
             .iter()
@@ -331,16 +343,20 @@ impl Refine<'_> {
             {
                 return;
             }
-            let (g, st) = match (self.geom.read_tile(t), state.read_tile(t)) {
-                (Ok(g), Ok(st)) => (g, st),
-                (Err(e), _) | (_, Err(e)) => {
+            let slot = p.layout.slot_of_tile(t as u32);
+            let shape = p.shape_ref(slot);
+            let find = || Ok(TileLookups::find(view, &shape, &self.geom.read_tile(t)?));
+            let found = state.read_tile(t).and_then(|st| {
+                (self.lookups).with(vi, t, find, |looks| backproject_tile(&rv, looks, &st, d))
+            });
+            let a = match found {
+                Ok(a) => a,
+                Err(e) => {
                     *err.lock().unwrap_or_else(|e| e.into_inner()) = Some(e);
                     return;
                 }
             };
             touched[t].store(true, Ordering::Relaxed);
-            let slot = p.layout.slot_of_tile(t as u32);
-            let a = backproject_tile(&rv, &p.shape_ref(slot), &g, &st, d);
             texels.fetch_add(a.texels, Ordering::Relaxed);
             disagreeing.fetch_add(a.disagreeing, Ordering::Relaxed);
         })?;

@@ -486,21 +486,71 @@ impl<'a> View<'a> {
         n: Vec3,
         get: &dyn Fn(u32, u32) -> T,
     ) -> Option<T> {
+        Some(self.tap(pix, q, shape, n)?.read(self.camera.width(), get))
+    }
+
+    /// Which pixels [`View::sample`] reads for `q` and with what weights, without reading
+    /// them (`None` where it reads none).
+    pub fn tap(&self, pix: Vec2, q: Vec3, shape: u32, n: Vec3) -> Option<Tap> {
         let tol = plane_tol((q - self.camera.position()).length());
         let sees = |x: i64, y: i64| self.sees(x, y, q, shape, n, tol);
+        let w = self.camera.width() as i64;
         let fx = pix.x - 0.5;
         let fy = pix.y - 0.5;
         let (x0, y0) = (fx.floor() as i64, fy.floor() as i64);
         let (tx, ty) = (fx - x0 as f32, fy - y0 as f32);
         let quad = [(x0, y0), (x0 + 1, y0), (x0, y0 + 1), (x0 + 1, y0 + 1)];
         if quad.iter().all(|&(x, y)| sees(x, y)) {
-            let g = |x: i64, y: i64| get(x as u32, y as u32);
-            let top = g(x0, y0) * (1.0 - tx) + g(x0 + 1, y0) * tx;
-            let bot = g(x0, y0 + 1) * (1.0 - tx) + g(x0 + 1, y0 + 1) * tx;
-            return Some(top * (1.0 - ty) + bot * ty);
+            let base = (y0 * w + x0) as u32;
+            return Some(Tap { base, tx, ty });
         }
         let (x, y) = (pix.x.floor() as i64, pix.y.floor() as i64);
-        sees(x, y).then(|| get(x as u32, y as u32))
+        sees(x, y).then(|| Tap {
+            base: (y * w + x) as u32,
+            tx: Tap::ONE_PIXEL,
+            ty: 0.0,
+        })
+    }
+}
+
+/// Where one look-up reads a photo: bilinear over the four pixels from `base` (row-major
+/// index; `base + 1`, `base + width`, `base + width + 1`) with fractions `tx`, `ty`, or the
+/// pixel `base` alone (`tx` = [`Tap::ONE_PIXEL`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Tap {
+    pub base: u32,
+    pub tx: f32,
+    pub ty: f32,
+}
+
+impl Tap {
+    /// The `tx` of a tap that reads one pixel.
+    pub const ONE_PIXEL: f32 = -1.0;
+
+    /// The value at this tap of an image `width` pixels wide read through `get(x, y)`.
+    #[inline(always)]
+    pub fn read<T: Value>(&self, width: u32, get: &dyn Fn(u32, u32) -> T) -> T {
+        let (x, y) = (self.base % width, self.base / width);
+        if self.tx == Tap::ONE_PIXEL {
+            return get(x, y);
+        }
+        let (tx, ty) = (self.tx, self.ty);
+        let top = get(x, y) * (1.0 - tx) + get(x + 1, y) * tx;
+        let bot = get(x, y + 1) * (1.0 - tx) + get(x + 1, y + 1) * tx;
+        top * (1.0 - ty) + bot * ty
+    }
+
+    /// [`Tap::read`] from a row-major image `width` pixels wide held in `values`.
+    #[inline(always)]
+    pub fn read_slice<T: Value>(&self, width: u32, values: &[T]) -> T {
+        let b = self.base as usize;
+        if self.tx == Tap::ONE_PIXEL {
+            return values[b];
+        }
+        let (tx, ty, w) = (self.tx, self.ty, width as usize);
+        let top = values[b] * (1.0 - tx) + values[b + 1] * tx;
+        let bot = values[b + w] * (1.0 - tx) + values[b + w + 1] * tx;
+        top * (1.0 - ty) + bot * ty
     }
 }
 
