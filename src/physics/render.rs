@@ -19,6 +19,10 @@ pub trait Texels: Sync {
     fn height(&self) -> u32;
     /// Texel `(x, y)`, inside the texture.
     fn texel(&self, x: u32, y: u32) -> Vec3;
+    /// Every texel, row-major, where they are held that way (lookups then index the slice).
+    fn row_major(&self) -> Option<&[Vec3]> {
+        None
+    }
 }
 
 /// A row-major `width x height` slice as [`Texels`].
@@ -39,6 +43,9 @@ impl Texels for RowMajor<'_> {
     fn texel(&self, x: u32, y: u32) -> Vec3 {
         self.texels[(y * self.width + x) as usize]
     }
+    fn row_major(&self) -> Option<&[Vec3]> {
+        Some(self.texels)
+    }
 }
 
 impl Texels for Image {
@@ -51,6 +58,9 @@ impl Texels for Image {
     #[inline]
     fn texel(&self, x: u32, y: u32) -> Vec3 {
         self.pixels[(y * self.width + x) as usize]
+    }
+    fn row_major(&self) -> Option<&[Vec3]> {
+        Some(&self.pixels)
     }
 }
 
@@ -65,12 +75,20 @@ pub struct Texture<'a> {
 /// (i + 0.5, j + 0.5)), clamped to the texture.
 pub fn bilinear(texels: &dyn Texels, uv: Vec2) -> Vec3 {
     let (width, height) = (texels.width(), texels.height());
+    match texels.row_major() {
+        Some(v) => bilinear_with(width, height, uv, |x, y| v[(y * width + x) as usize]),
+        None => bilinear_with(width, height, uv, |x, y| texels.texel(x, y)),
+    }
+}
+
+/// [`bilinear`] over texels read by `g`.
+#[inline(always)]
+fn bilinear_with(width: u32, height: u32, uv: Vec2, g: impl Fn(u32, u32) -> Vec3) -> Vec3 {
     let fx = (uv.x - 0.5).clamp(0.0, (width - 1) as f32);
     let fy = (uv.y - 0.5).clamp(0.0, (height - 1) as f32);
     let (x0, y0) = (fx.floor() as u32, fy.floor() as u32);
     let (x1, y1) = ((x0 + 1).min(width - 1), (y0 + 1).min(height - 1));
     let (tx, ty) = (fx - x0 as f32, fy - y0 as f32);
-    let g = |x: u32, y: u32| texels.texel(x, y);
     let top = g(x0, y0) * (1.0 - tx) + g(x1, y0) * tx;
     let bot = g(x0, y1) * (1.0 - tx) + g(x1, y1) * tx;
     top * (1.0 - ty) + bot * ty

@@ -493,6 +493,12 @@ impl crate::physics::render::Texels for SlotTexture<glam::Vec3> {
     fn texel(&self, x: u32, y: u32) -> glam::Vec3 {
         self.get(x, y)
     }
+    fn row_major(&self) -> Option<&[glam::Vec3]> {
+        match &self.data {
+            Data::Whole(v) => Some(v),
+            Data::Tiled { .. } => None,
+        }
+    }
 }
 
 /// See [`SlotTexture::reader`].
