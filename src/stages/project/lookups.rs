@@ -91,7 +91,8 @@ impl TileLookups {
 /// their bytes fit `budget`.
 pub struct Lookups {
     tiles: usize,
-    kept: Vec<OnceLock<Option<TileLookups>>>,
+    /// Boxed: most of a large run's (view, tile) pairs hold nothing.
+    kept: Vec<OnceLock<Option<Box<TileLookups>>>>,
     budget: u64,
     used: AtomicU64,
 }
@@ -133,7 +134,7 @@ impl Lookups {
             let _ = slot.set(None);
             return Ok(r);
         }
-        let mut found = Some(found);
+        let mut found = Some(Box::new(found));
         let kept = slot.get_or_init(|| found.take());
         match (kept, &found) {
             (Some(l), _) | (None, Some(l)) => Ok(use_them(l)),

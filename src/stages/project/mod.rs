@@ -351,9 +351,20 @@ fn probe_noise(
         .collect();
     let path = ctx.scratch.dir.join("probe-state.tiles");
     let mut probe_state = p.create_store(&path, TexelState::default())?;
+    // the look-ups are the views' own while the probe's photos mask the same pixels
+    let same = (probe_views.iter().zip(views)).all(|(a, b)| a.pixels == b.pixels);
+    let own;
+    let lookups = match same {
+        true => ctx.lookups,
+        false => {
+            own = Lookups::new(views.len(), p.layout.tile_count as usize, lookup_budget(cfg));
+            &own
+        }
+    };
     let pctx = refine::Refine {
         views: &probe_views,
         label: "noise probe",
+        lookups,
         ..*ctx
     };
     project_and_refine(&pctx, &mut probe_state, passes, mode, cfg.fine_geometry)?;

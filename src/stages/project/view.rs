@@ -22,7 +22,7 @@ use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
 /// What the primary ray through a pixel center found.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PixelInfo {
     /// Shape index hit at the pixel center, `u32::MAX` for none.
     pub shape: u32,
