@@ -15,7 +15,15 @@ use std::time::{Duration, Instant};
 /// (so the sharded refinement renders and the gate are checked too; the gate holds texels
 /// here: with `refine_gate = 0` the textures differ), `extra` appended to the config.
 fn write_config(dir: &Path, name: &str, extra: &str) -> PathBuf {
-    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/cbox/input.xml");
+    write_config_of("cbox", dir, name, extra)
+}
+
+/// [`write_config`] for the fixture `fixture`.
+fn write_config_of(fixture: &str, dir: &Path, name: &str, extra: &str) -> PathBuf {
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/fixtures")
+        .join(fixture)
+        .join("input.xml");
     let p = dir.join(name);
     let text = format!(
         "scene = {:?}\n[atlas]\ntexels_per_unit = 24.0\n[projection]\nrefine_passes = 2\n\
@@ -139,6 +147,20 @@ fn projection_rays_shared_by_2_ranks_match_one_process_bit_for_bit() {
     let text = std::fs::read_to_string(&cfg).unwrap();
     let text = text.replace("[projection]\n", "[projection]\nfine_geometry = true\n");
     std::fs::write(&cfg, text).unwrap();
+    let solo = tmp.path().join("solo");
+    run(1, &args(&cfg, &solo, "2", &[]));
+    let two = tmp.path().join("np2");
+    run(2, &args(&cfg, &two, "1", &[]));
+    assert_same_results(&solo, &two);
+}
+
+/// A tent film's re-render weighs sub-pixel samples along rows, shares the row sums in bands
+/// and weighs them down the columns (`physics::film_filter`): 2 ranks end with the one
+/// process's results, bit for bit (mirror-cbox's films are tents).
+#[test]
+fn tent_film_refinement_under_2_ranks_matches_one_process_bit_for_bit() {
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg = write_config_of("mirror-cbox", tmp.path(), "tent.toml", "");
     let solo = tmp.path().join("solo");
     run(1, &args(&cfg, &solo, "2", &[]));
     let two = tmp.path().join("np2");

@@ -357,7 +357,11 @@ fn probe_noise(
     let lookups = match same {
         true => ctx.lookups,
         false => {
-            own = Lookups::new(views.len(), p.layout.tile_count as usize, lookup_budget(cfg));
+            own = Lookups::new(
+                views.len(),
+                p.layout.tile_count as usize,
+                lookup_budget(cfg),
+            );
             &own
         }
     };
