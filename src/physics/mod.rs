@@ -6,5 +6,6 @@
 pub mod accel;
 pub mod bsdf_sampling;
 pub mod camera;
+pub mod coat;
 pub mod light;
 pub mod render;

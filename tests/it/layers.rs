@@ -73,7 +73,14 @@ const FOLDERS: &[(&str, &[Layer])] = &[
     (
         "physics",
         &[(
-            &["accel", "camera", "bsdf_sampling", "light", "render"],
+            &[
+                "accel",
+                "camera",
+                "bsdf_sampling",
+                "coat",
+                "light",
+                "render",
+            ],
             Listed,
         )],
     ),
@@ -118,6 +125,7 @@ const FOLDERS: &[(&str, &[Layer])] = &[
         "stages::project",
         &[(
             &[
+                "coat",
                 "one_surface",
                 "view",
                 "visible",
