@@ -121,7 +121,7 @@ fn only_linear_plastics_are_coats() {
 #[test]
 fn the_base_s_factors_match_mitsuba_s() {
     let mitsuba = [
-        (None, [1.015947, 1.004400, 0.918075, 0.699673], [0.002; 4]),
+        (None, [1.015947, 1.0044, 0.918075, 0.699673], [0.002; 4]),
         (
             Some(Rough {
                 alpha: 0.15,

@@ -1,6 +1,7 @@
 //! The coat's reflection taken out of the photos of coated shapes before they are projected:
 //! per pixel whose centre sees a coated shape, `(photo - L_coat) / T_o`, the base's radiance
-//! as a Lambertian surface under the light its coat lets in (see `physics::coat`).
+//! as a Lambertian surface under the light its coat lets in (see `physics::coat`); a pixel
+//! whose value is mostly the coat's reflection is masked instead.
 //!
 //! `L_coat` is the coat's reflection of the scene along the pixel's ray: the mirror direction
 //! of a smooth coat, a stratified set of lobe samples of a rough one (random numbers keyed by
@@ -19,7 +20,7 @@ use crate::physics::accel::{offset_origin, Hit};
 use crate::physics::camera::Camera;
 use crate::physics::coat::{self, Coat, Patch};
 use crate::physics::light::spot_falloff;
-use crate::scene::{Emitter, Scene};
+use crate::scene::{luminance, Emitter, Scene};
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
@@ -94,40 +95,52 @@ fn shape_means(p: &RunContext, cameras: &[Camera], photos: &[Image]) -> Vec<Vec3
         .collect()
 }
 
+/// A pixel whose predicted coat reflection is more than this share of its value is left out
+/// (masked): its base is a small difference of two large numbers, and the prediction, made
+/// at the pixel's centre, misses where a sharp reflection (a lamp's image in a gloss coat)
+/// covers only part of the pixel.
+const DOMINANT: f32 = 0.5;
+
 /// One view's photo with the coat's reflection removed from its coated pixels.
 fn view(seen: &Seen, coats: &[Option<Coat>], v: usize, seed: u64) -> Image {
     let ph = &seen.photos[v];
     let cam = &seen.cameras[v];
     let mut out = ph.clone();
-    let w = ph.width;
-    out.pixels
-        .par_chunks_mut(w as usize)
+    let w = ph.width as usize;
+    (out.pixels.par_chunks_mut(w))
+        .zip(out.valid.par_chunks_mut(w))
         .enumerate()
-        .for_each(|(y, row)| {
-            for (x, px) in row.iter_mut().enumerate() {
-                let (x, y) = (x as u32, y as u32);
-                if !ph.is_valid(x, y) {
+        .for_each(|(y, (row, valid))| {
+            for (x, (px, ok)) in row.iter_mut().zip(valid.iter_mut()).enumerate() {
+                if !*ok {
                     continue;
                 }
                 let key = (y * w + x) as u64;
                 let mut rng = Rng::new(seed ^ COAT_TAG, v as u64, 0, key);
-                if let Some(b) = base(seen, coats, cam, (x, y), &mut rng) {
-                    *px = b(*px);
+                let Some((l_coat, t_o)) = base(seen, coats, cam, (x as u32, y as u32), &mut rng)
+                else {
+                    continue;
+                };
+                if luminance(l_coat) > DOMINANT * luminance(*px) {
+                    (*px, *ok) = (Vec3::ZERO, false);
+                } else {
+                    *px = (*px - l_coat).max(Vec3::ZERO) / t_o;
                 }
             }
         });
+    out.masked = out.valid.iter().filter(|v| !**v).count();
     out
 }
 
-/// The map from a pixel's value to its base radiance, for a pixel whose centre sees the front
-/// of a coated shape.
+/// The coat's reflection and `T_o` at pixel `(x, y)`, if its centre sees the front of a
+/// coated shape.
 fn base(
     seen: &Seen,
     coats: &[Option<Coat>],
     cam: &Camera,
     (x, y): (u32, u32),
     rng: &mut Rng,
-) -> Option<impl Fn(Vec3) -> Vec3> {
+) -> Option<(Vec3, f32)> {
     let (o, d, hit) = centre_hit(seen.p, cam, x, y);
     let hit = hit?;
     let c = coats[hit.shape as usize].as_ref()?;
@@ -147,8 +160,7 @@ fn base(
     if rough {
         l_coat += lights(seen, c, (at, ng, ns), wi);
     }
-    let t_o = c.base_out(wi.dot(ns)).max(1e-3);
-    Some(move |v: Vec3| (v - l_coat).max(Vec3::ZERO) / t_o)
+    Some((l_coat, c.base_out(wi.dot(ns)).max(1e-3)))
 }
 
 /// The radiance arriving at `o` from direction `dir`: an emitter's (zero with `no_area`: it is
