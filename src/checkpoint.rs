@@ -46,7 +46,7 @@ static CHECKPOINT_WRITES: AtomicU64 = AtomicU64::new(0);
 /// what the state's fields mean and their size (92 bytes a texel), and the fields of the
 /// config and report it carries (bincode is not self-describing, so a checkpoint with other
 /// fields would not decode).
-pub const VERSION: u32 = 15;
+pub const VERSION: u32 = 16;
 const MAGIC: &str = "KDMCKPT";
 /// The current manifest.
 pub const MANIFEST: &str = "progress.kdm";
@@ -722,14 +722,14 @@ mod tests {
             tv_weight noise_probe area_samples env_samples method gather_rays gather_spacing \
             photons photons_per_texel batch_size max_depth smoothing_radius iterations \
             tolerance alpha0 update relaxation initial_indirect_share seed threads \
-            checkpoint_every_batches checkpoint_every_seconds memory_budget_mib min_observed_share known_shapes \
+            checkpoint_every_batches checkpoint_every_seconds memory_budget_mib min_observed_share known_shapes kept_coats \
             photometric_scale uv_fold uniform_radius uniform_tolerance"
             .split_whitespace()
             .collect();
         want.sort();
         assert_eq!(
             (VERSION, got),
-            (15, want.iter().map(|s| s.to_string()).collect::<Vec<_>>()),
+            (16, want.iter().map(|s| s.to_string()).collect::<Vec<_>>()),
             "the config's fields changed: bump VERSION and update this list"
         );
     }

@@ -801,6 +801,9 @@ impl<'a> Run<'a> {
             Method::Photons => (self.photon_estimate(r, n, &mut pass, sampler)?, cfg.update),
             Method::Gather => (self.gather_estimate(r)?, UpdateRule::FixedPoint),
         };
+        if cfg.method == Method::Photons {
+            crate::stages::indirect::through_coats(&self.p, &self.geom, (&mut r.state, window))?;
+        }
         let t = Instant::now();
         let prev = r
             .report

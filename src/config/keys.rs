@@ -527,7 +527,9 @@ pub fn default_toml() -> String {
          # cam_0 = \"photos/cam_0.exr\"\n\
          # cam_1 = { photo = \"photos/cam_1.jpg\", exposure = 1.0 }\n\
          \n# [shapes.<id>]: a shape whose diffuse reflectance is known: kept, not reconstructed\n\
-         # reconstruct = false\n# reflectance = [0.725, 0.71, 0.68]   # or one number, in [0, 1]\n",
+         # reconstruct = false\n# reflectance = [0.725, 0.71, 0.68]   # or one number, in [0, 1]\n\
+         # (a plastic's base is reconstructed by default; reconstruct = false alone keeps the\n\
+         # base its scene states)\n",
     );
     out
 }
@@ -570,7 +572,10 @@ pub fn markdown() -> String {
          Without photo entries every sensor with a file\n`<scene dir>/images/<sensor \
          id>.exr` (or `.png`, `.jpg`) is used. `[shapes.<id>]` with `reconstruct =\nfalse` \
          and `reflectance` (one number or `[r, g, b]`, linear, in [0, 1]) marks a shape whose \
-         albedo\nis known: it keeps that value and takes part in the light transport.\n",
+         albedo\nis known: it keeps that value and takes part in the light transport. A coated \
+         shape (`plastic`,\n`roughplastic`, a `principled` with `metallic = 0` and `spec_trans = 0`) \
+         has its diffuse base\nreconstructed under its known coat; `reconstruct = false` without a \
+         `reflectance` keeps the base\nits scene states (`reconstruct = true` is the default).\n",
     );
     out
 }

@@ -15,7 +15,7 @@ pub use views::{Exposure, Response, Similarity};
 
 use crate::base::error::{Error, Result};
 use serde::{Deserialize, Serialize};
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 
 /// Command-line overrides (`None` = not given).
@@ -312,6 +312,11 @@ pub struct Config {
     /// (linear RGB): they keep that albedo and take part in the light transport.
     #[serde(default)]
     pub known_shapes: BTreeMap<String, [f32; 3]>,
+    /// Coated shapes (`plastic`, `roughplastic`, ...) marked `reconstruct = false` without a
+    /// reflectance: they keep the base their scene states, as known materials. Every other
+    /// coated shape has its base reconstructed.
+    #[serde(default)]
+    pub kept_coats: BTreeSet<String>,
     /// The run-config file these settings came from, if any (named in errors).
     #[serde(skip)]
     pub source: Option<PathBuf>,
@@ -390,6 +395,7 @@ impl Config {
             memory_budget_mib: 1024,
             min_observed_share: 0.5,
             known_shapes: BTreeMap::new(),
+            kept_coats: BTreeSet::new(),
             uv_fold: true,
             uniform_radius: UNIFORM_RADIUS,
             uniform_tolerance: UNIFORM_TOLERANCE,

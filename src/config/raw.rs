@@ -5,7 +5,7 @@ use super::views::RawViews;
 use super::{Config, Density, Preset, UpdateRule};
 use crate::base::error::{Error, Location, Result};
 use serde::Deserialize;
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 
 /// The run config as written in TOML. Every field is optional except `scene`.
@@ -158,13 +158,15 @@ pub enum RawDensity {
     Named(String),
 }
 
+/// What the `[shapes.<id>]` tables say: shapes of known diffuse reflectance, and coated shapes
+/// whose base is kept as the scene states it.
+type ShapeSettings = (BTreeMap<String, [f32; 3]>, BTreeSet<String>);
+
 /// The `[shapes.<id>]` tables: shapes marked `reconstruct = false` with their reflectance in
-/// [0, 1]; anything else is refused.
-fn known_shapes(
-    path: &Path,
-    raw: BTreeMap<String, RawShape>,
-) -> Result<BTreeMap<String, [f32; 3]>> {
-    let mut out = BTreeMap::new();
+/// [0, 1], or without one (a coated shape that keeps its stated base; checked against the
+/// scene when it is loaded); anything else is refused.
+fn shape_settings(path: &Path, raw: BTreeMap<String, RawShape>) -> Result<ShapeSettings> {
+    let (mut known, mut kept) = (BTreeMap::new(), BTreeSet::new());
     for (id, s) in raw {
         let rho = match s.reflectance {
             Some(RawColor::Grey(v)) => Some([v; 3]),
@@ -174,19 +176,17 @@ fn known_shapes(
         let bad = |m: &str| Error::config_in(path, format!("[shapes.{id}]: {m}"));
         match (s.reconstruct, rho) {
             (Some(false), Some(r)) if r.iter().all(|v| (0.0..=1.0).contains(v)) => {
-                out.insert(id, r);
+                known.insert(id, r);
             }
             (Some(false), Some(_)) => return Err(bad("reflectance must lie in [0, 1]")),
             (Some(false), None) => {
-                return Err(bad(
-                    "reconstruct = false needs the shape's `reflectance` (a number or [r, g, b])",
-                ))
+                kept.insert(id);
             }
             (_, Some(_)) => return Err(bad("reflectance is only read with reconstruct = false")),
             (_, None) => {}
         }
     }
-    Ok(out)
+    Ok((known, kept))
 }
 
 impl Config {
@@ -222,7 +222,7 @@ impl Config {
         let mut c = Config::for_scene(base.join(scene)).with_preset(preset.unwrap_or(file_preset));
         raw.views.apply(base, &mut c);
         c.source = Some(path.to_path_buf());
-        c.known_shapes = known_shapes(path, raw.shapes)?;
+        (c.known_shapes, c.kept_coats) = shape_settings(path, raw.shapes)?;
         raw.atlas.apply(path, &mut c)?;
         raw.projection.apply(&mut c);
         set(&mut c.area_samples, raw.direct.area_samples);

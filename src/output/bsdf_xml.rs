@@ -1,6 +1,7 @@
 //! Known materials written back as Mitsuba 3 bsdfs, so the recovered `scene.xml` keeps the
 //! mirrors and glass of the input (kdmap's loader reads each form back to the same
-//! [`KnownBsdf`]). A `principled` input comes back as the blend kdmap used for it.
+//! [`KnownBsdf`]). A `principled` input comes back as the blend kdmap used for it; a coated
+//! shape's material as its `plastic` or `roughplastic` over the recovered base, a bitmap.
 
 use crate::scene::{KnownBsdf, Rgb, Rough};
 use std::fmt::Write as _;
@@ -106,4 +107,30 @@ pub fn bsdf_xml(b: &KnownBsdf) -> String {
         KnownBsdf::Null => write!(w, "<bsdf type=\"null\"/>"),
     };
     w
+}
+
+/// A coated material (see [`KnownBsdf::coat`]) as a `plastic` or `roughplastic` whose
+/// `diffuse_reflectance` is the bitmap `texture` (linear values, `raw`).
+pub fn coated_xml(b: &KnownBsdf, texture: &str) -> String {
+    let Some(KnownBsdf::Plastic {
+        eta,
+        specular,
+        rough,
+        ..
+    }) = b.coat()
+    else {
+        return bsdf_xml(b);
+    };
+    let (kind, r) = match rough {
+        Some(r) => ("roughplastic", rough_props(r)),
+        None => ("plastic", String::new()),
+    };
+    format!(
+        "<bsdf type=\"{kind}\">{}{}<texture type=\"bitmap\" name=\"diffuse_reflectance\">\
+         <string name=\"filename\" value=\"{texture}\"/><boolean name=\"raw\" value=\"true\"/>\
+         </texture>{}{r}</bsdf>",
+        float("int_ior", *eta),
+        float("ext_ior", 1.0),
+        rgb("specular_reflectance", *specular)
+    )
 }

@@ -3,7 +3,7 @@
 //! an `obj` (`meshes/<id>.obj`, world space, atlas UVs) with a `diffuse` bsdf whose
 //! reflectance is the recovered albedo (`textures/<id>_albedo.exr`, `raw="true"` so the
 //! linear values are used as they are), wrapped in `twosided` where the input reflected on
-//! both sides. Emitter shapes keep their area emitter and get a black bsdf; point, spot and
+//! both sides (a coated shape: its `plastic` or `roughplastic` over that texture). Emitter shapes keep their area emitter and get a black bsdf; point, spot and
 //! directional lights and the sensors are written with the parameters kdmap read, transforms
 //! as explicit row-major matrices, angles in degrees; an `envmap` with its `scale` and
 //! `to_world`, its map copied to `textures/env_<k>.<ext>` (so the output directory stands on
@@ -312,10 +312,13 @@ fn write_shape(w: &mut String, shape: &Shape, folded: bool) {
         let _ = writeln!(w, "  </shape>");
         return;
     }
-    let diffuse = if shape.is_reconstructed() {
+    let texture = format!("textures/{id}_albedo{suffix}.exr");
+    let diffuse = if let Some(k) = shape.coated() {
+        super::bsdf_xml::coated_xml(&k.bsdf, &texture)
+    } else if shape.is_reconstructed() {
         format!(
             "<bsdf type=\"diffuse\"><texture type=\"bitmap\" name=\"reflectance\">\
-             <string name=\"filename\" value=\"textures/{id}_albedo{suffix}.exr\"/>\
+             <string name=\"filename\" value=\"{texture}\"/>\
              <boolean name=\"raw\" value=\"true\"/></texture></bsdf>"
         )
     } else {

@@ -108,7 +108,7 @@ fn reflection(wi: Vec3, ns: Vec3, rough: Option<Rough>, rng: &mut Rng) -> Option
 }
 
 /// The microfacet sampling weight `G |wi.m| / (|wi.n| |m.n|)` (1 for a smooth surface).
-fn shadowing(wi: Vec3, wo: Vec3, ns: Vec3, m: Vec3, rough: Option<Rough>) -> f32 {
+pub fn shadowing(wi: Vec3, wo: Vec3, ns: Vec3, m: Vec3, rough: Option<Rough>) -> f32 {
     let Some(r) = rough else {
         return 1.0;
     };
@@ -222,6 +222,11 @@ pub fn refract(wi: Vec3, m: Vec3, eta: f32) -> Option<Vec3> {
 /// A microfacet normal about `n` with density `D(m) (m.n)`.
 fn microfacet_normal(n: Vec3, r: Rough, rng: &mut Rng) -> Vec3 {
     let (u1, u2) = (rng.f32(), rng.f32());
+    microfacet_normal_at(n, r, u1, u2)
+}
+
+/// The microfacet normal of [`microfacet_normal`] for the uniform pair `(u1, u2)`.
+pub fn microfacet_normal_at(n: Vec3, r: Rough, u1: f32, u2: f32) -> Vec3 {
     let a2 = r.alpha * r.alpha;
     let tan2 = match r.ggx {
         true => a2 * u1 / (1.0 - u1).max(1e-7),
@@ -235,7 +240,7 @@ fn microfacet_normal(n: Vec3, r: Rough, rng: &mut Rng) -> Vec3 {
 }
 
 /// Smith's masking term of one direction `v` for roughness `r` about `n`.
-fn smith_g1(v: Vec3, n: Vec3, r: Rough) -> f32 {
+pub fn smith_g1(v: Vec3, n: Vec3, r: Rough) -> f32 {
     let c = v.dot(n).abs().min(1.0);
     if c >= 1.0 {
         return 1.0;

@@ -6,6 +6,7 @@
 pub mod accel;
 pub mod bsdf_sampling;
 pub mod camera;
+pub mod coat;
 pub mod film_filter;
 pub mod light;
 pub mod render;

@@ -71,6 +71,22 @@ impl KnownBsdf {
     }
 }
 
+impl KnownBsdf {
+    /// The plastic whose diffuse base kdmap can reconstruct under its coat: a `plastic` or
+    /// `roughplastic` with `nonlinear = false`, also inside blends that pick one side always
+    /// (a `principled` with `metallic = 0` and `spec_trans = 0`).
+    pub fn coat(&self) -> Option<&KnownBsdf> {
+        match self {
+            KnownBsdf::Plastic {
+                nonlinear: false, ..
+            } => Some(self),
+            KnownBsdf::Blend { weight, a, .. } if *weight == 0.0 => a.coat(),
+            KnownBsdf::Blend { weight, b, .. } if *weight == 1.0 => b.coat(),
+            _ => None,
+        }
+    }
+}
+
 /// A microfacet roughness (isotropic: Mitsuba's `alpha`, or the mean of `alpha_u/v`).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Rough {

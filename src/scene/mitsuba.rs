@@ -1181,7 +1181,12 @@ impl<'a, 'i> Parser<'a, 'i> {
     /// The `reflectance` a diffuse bsdf states: a constant, a nested bitmap texture or a
     /// reference to a top-level one. `None` for any other form.
     fn stated_reflectance(&mut self, node: Node<'a, 'i>) -> Option<ReflectanceSpec> {
-        let c = Self::elements(node).find(|c| c.attribute("name") == Some("reflectance"))?;
+        self.stated(node, "reflectance")
+    }
+
+    /// The reflectance parameter `name` of a bsdf, as [`Parser::stated_reflectance`] reads it.
+    pub(super) fn stated(&mut self, node: Node<'a, 'i>, name: &str) -> Option<ReflectanceSpec> {
+        let c = Self::elements(node).find(|c| c.attribute("name") == Some(name))?;
         match c.tag_name().name() {
             "rgb" | "spectrum" | "float" | "integer" => {
                 Some(ReflectanceSpec::Constant(self.color_of(c).ok()?.as_vec3()))

@@ -203,6 +203,10 @@ pub enum Material {
     /// A material the scene (or the run config) states and kdmap does not reconstruct:
     /// part of the light transport only.
     Known(Box<KnownMaterial>),
+    /// A coated material (`plastic`, `roughplastic`, a `principled` that is one): the coat is
+    /// known, the diffuse base under it is reconstructed. The base the scene states is kept
+    /// only for writing the material back.
+    Coated(Box<KnownMaterial>),
 }
 
 /// A diffuse reflectance as a scene file writes it.
@@ -220,7 +224,15 @@ impl Shape {
     pub fn known(&self) -> Option<&KnownMaterial> {
         match &self.material {
             Material::Known(k) => Some(k),
-            Material::Unknown => None,
+            Material::Unknown | Material::Coated(_) => None,
+        }
+    }
+
+    /// The coated material whose base is reconstructed, if the shape has one.
+    pub fn coated(&self) -> Option<&KnownMaterial> {
+        match &self.material {
+            Material::Coated(k) => Some(k),
+            _ => None,
         }
     }
 
@@ -238,9 +250,10 @@ impl Shape {
         self.is_reconstructed() || self.pinned_albedo().is_some()
     }
 
-    /// Whether the albedo of this shape is recovered (emitters and known materials are not).
+    /// Whether the albedo of this shape is recovered (emitters and known materials are not; a
+    /// coated shape's base is).
     pub fn is_reconstructed(&self) -> bool {
-        self.emission.is_none() && self.material == Material::Unknown
+        self.emission.is_none() && matches!(self.material, Material::Unknown | Material::Coated(_))
     }
 }
 

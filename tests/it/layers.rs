@@ -77,6 +77,7 @@ const FOLDERS: &[(&str, &[Layer])] = &[
                 "accel",
                 "camera",
                 "bsdf_sampling",
+                "coat",
                 "light",
                 "render",
                 "film_filter",
@@ -125,6 +126,7 @@ const FOLDERS: &[(&str, &[Layer])] = &[
         "stages::project",
         &[(
             &[
+                "coat",
                 "one_surface",
                 "view",
                 "lookups",

@@ -6,6 +6,7 @@ mod budget;
 mod camera;
 mod capture;
 mod cli;
+mod coat;
 mod colmap;
 mod diskfull;
 mod failfast;

@@ -9,6 +9,7 @@ use crate::atlas::context::RunContext;
 use crate::atlas::uv::Charts;
 use crate::atlas::uv::NONE;
 use crate::physics::accel::{Accel, Hit};
+use crate::physics::coat::{self, Coat};
 use crate::scene::{Emitter, EnvMap, KnownBsdf, Rgb, Sides};
 use glam::{Vec2, Vec3};
 use std::sync::Arc;
@@ -49,6 +50,8 @@ pub struct SurfaceHit {
 pub struct HitTable {
     prims: Vec<Prim>,
     known: Vec<Option<KnownBsdf>>,
+    /// Per shape, the coat over its reconstructed base, if it has one.
+    coats: Vec<Option<Coat>>,
     emission: Vec<Option<Rgb>>,
     /// The environment emitters (a ray that leaves the scene sees their sum).
     env: Vec<Arc<EnvMap>>,
@@ -70,6 +73,7 @@ impl HitTable {
                 .iter()
                 .map(|s| s.known().map(|k| k.bsdf.clone()))
                 .collect(),
+            coats: coat::coats(&p.scene),
             emission: shapes.iter().map(|s| s.emission).collect(),
             env: p
                 .scene
@@ -93,6 +97,12 @@ impl HitTable {
     #[inline]
     pub fn known(&self, prim: &Prim) -> Option<&KnownBsdf> {
         self.known[prim.shape as usize].as_ref()
+    }
+
+    /// The coat over the reconstructed base of shape `shape`, if it is coated.
+    #[inline]
+    pub fn coat(&self, shape: u32) -> Option<&Coat> {
+        self.coats[shape as usize].as_ref()
     }
 
     /// The radiance `prim` emits towards a ray arriving along `dir` with shading normal `ns`

@@ -146,27 +146,58 @@ fn prepare_scene(
 }
 
 /// Marks the run config's `[shapes.<id>] reconstruct = false` shapes as known diffuse
-/// surfaces of the reflectance given; an id the scene lacks, or a shape that emits or already
-/// has a known material, is refused.
+/// surfaces of the reflectance given, and every coated shape not kept that way as coated (its
+/// base reconstructed); an id the scene lacks, a shape that emits or already has a known
+/// material, or one kept without a reflectance that has no coat, is refused.
 fn apply_known_shapes(cfg: &Config, scene: &mut Scene) -> Result<()> {
+    let bad = |id: &str, m: String| match &cfg.source {
+        Some(p) => Error::config_in(p, format!("[shapes.{id}]: {m}")),
+        None => Error::config(format!("[shapes.{id}]: {m}")),
+    };
     for (id, rho) in &cfg.known_shapes {
-        let bad = |m: String| match &cfg.source {
-            Some(p) => Error::config_in(p, format!("[shapes.{id}]: {m}")),
-            None => Error::config(format!("[shapes.{id}]: {m}")),
-        };
         let Some(s) = scene.shapes.iter_mut().find(|s| &s.id == id) else {
-            return Err(bad(format!("the scene has no shape '{id}'")));
+            return Err(bad(id, format!("the scene has no shape '{id}'")));
         };
         if s.emission.is_some() || s.known().is_some() {
-            return Err(bad(format!(
-                "shape '{id}' is an emitter or has a non-diffuse material; only a diffuse \
-                 shape takes a known reflectance"
-            )));
+            return Err(bad(
+                id,
+                format!(
+                    "shape '{id}' is an emitter or has a non-diffuse material; only a diffuse \
+                     shape takes a known reflectance"
+                ),
+            ));
         }
         s.material = Material::Known(Box::new(KnownMaterial {
             plugin: "diffuse (known)".into(),
             bsdf: KnownBsdf::Diffuse(Vec3::from_array(*rho)),
         }));
+    }
+    for id in &cfg.kept_coats {
+        let coated = scene
+            .shapes
+            .iter()
+            .find(|s| &s.id == id)
+            .map(|s| s.known().is_some_and(|k| k.bsdf.coat().is_some()));
+        match coated {
+            None => return Err(bad(id, format!("the scene has no shape '{id}'"))),
+            Some(false) => {
+                return Err(bad(
+                    id,
+                    "reconstruct = false needs the shape's `reflectance` (a number or [r, g, b]) \
+                     unless the shape is a plastic whose stated base is kept"
+                        .into(),
+                ))
+            }
+            Some(true) => {}
+        }
+    }
+    for s in &mut scene.shapes {
+        let coat = s.known().is_some_and(|k| k.bsdf.coat().is_some());
+        if coat && !cfg.kept_coats.contains(&s.id) {
+            if let Material::Known(k) = std::mem::take(&mut s.material) {
+                s.material = Material::Coated(k);
+            }
+        }
     }
     Ok(())
 }

@@ -77,13 +77,34 @@ impl<'a, 'i> Parser<'a, 'i> {
         };
         Ok(Bsdf {
             sides,
-            reflectance: None,
+            reflectance: self.coat_base(node, kind, &bsdf),
             unsupported: None,
             known: Some(KnownMaterial {
                 plugin: kind.to_string(),
                 bsdf,
             }),
         })
+    }
+
+    /// The base a coated material states (see [`KnownBsdf::coat`]): its `diffuse_reflectance`
+    /// (a principled's `base_color`), Mitsuba's 0.5 when absent. For the truth reader only.
+    fn coat_base(
+        &mut self,
+        node: Node<'a, 'i>,
+        kind: &str,
+        b: &KnownBsdf,
+    ) -> Option<ReflectanceSpec> {
+        b.coat()?;
+        let name = match kind {
+            "plastic" | "roughplastic" => "diffuse_reflectance",
+            "principled" | "principledthin" => "base_color",
+            _ => return None,
+        };
+        let stated = Self::elements(node).any(|c| c.attribute("name") == Some(name));
+        match stated {
+            true => self.stated(node, name),
+            false => Some(ReflectanceSpec::Constant(Vec3::splat(0.5))),
+        }
     }
 
     fn is_bsdf_ref(&self, o: Node) -> bool {

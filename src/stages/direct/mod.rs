@@ -12,6 +12,7 @@
 //! texel count. A texel next to a hard shadow edge (point, spot, directional light) is
 //! estimated densely too, in case its own few rays missed an edge that just touches it.
 
+mod coat;
 pub mod sampling;
 
 use crate::atlas::store::{map_tiles, TileStore};
@@ -106,12 +107,14 @@ fn light_tiles(
     let feature = crate::physics::light::bounding_sphere(&p.scene).1 * feature;
     let mine = (0..state.tile_count()).filter(|&t| owns(t)).count();
     let stage = Stage::new(mode, "direct", mine as u64, "tiles");
+    let coats = coat::Coats::of(&p.scene);
     let sums = map_tiles(state, geom, window, |t, g, st| {
         // a stop was asked for: skip the rest, the stage's result is not used
         if !owns(t) || interrupt::requested() {
             return TileSums::default();
         }
-        let ctx = TileCtx::new(p, charts, (cfg.seed, feature), &params, t, g);
+        let mut ctx = TileCtx::new(p, charts, (cfg.seed, feature), &params, t, g);
+        ctx.coat = coats.of_shape(ctx.shape);
         let s = ctx.run(st);
         stage.inc(1);
         s
@@ -170,6 +173,9 @@ struct TileCtx<'a> {
     ts: usize,
     /// The coarsest first-pass lattice spacing ([`coarse_spacing`]).
     coarse: usize,
+    /// The tile's shape, and its coat with the emitters' centres if it has one.
+    shape: usize,
+    coat: Option<coat::TileCoat<'a>>,
 }
 
 impl<'a> TileCtx<'a> {
@@ -220,6 +226,8 @@ impl<'a> TileCtx<'a> {
             first_key: t as u64 * p.layout.tile_texels() as u64,
             ts: p.layout.tile_size as usize,
             coarse: coarse_spacing(density, feature, p.layout.tile_size),
+            shape: shape.index as usize,
+            coat: None,
         }
     }
 
@@ -280,8 +288,12 @@ impl<'a> TileCtx<'a> {
                 } else {
                     (ek, vk)
                 };
-                e += ek;
-                var += vk;
+                let share = self
+                    .coat
+                    .as_ref()
+                    .map_or(1.0, |c| c.share(&self.fps[off], k));
+                e += ek * share;
+                var += vk * share * share;
             }
             st[off].e_d = e.to_array();
             // the sample pairs' own spread: `sampling::estimate` keeps the smaller of it and

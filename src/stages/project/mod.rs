@@ -59,6 +59,7 @@
 //! by rays from there) before the weighted mean and the refinement passes, which then see only
 //! the refined poses; so do the noise probe and, through `report.json`, the outputs.
 
+mod coat;
 mod diagnose;
 pub mod exposure;
 mod lookups;
@@ -250,6 +251,7 @@ pub fn run_shard(
     let photos: Vec<Image> = (raw.iter().zip(&stats.gains))
         .map(|(ph, g)| exposure::apply(ph, g.gain))
         .collect();
+    let photos = coat::remove(p, &photos, cfg.seed).unwrap_or(photos);
     let views: Vec<View> = (nominal.iter().zip(&photos))
         .map(|(v, ph)| v.with_image(ph))
         .collect();

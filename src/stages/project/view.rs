@@ -397,10 +397,15 @@ impl<'a> View<'a> {
     /// The same view (camera, pixel classification, corners) of another photo of the same
     /// size: no rays are cast again.
     pub fn with_image<'b>(&self, image: &'b Image) -> View<'b> {
+        let mut pixels = self.pixels.clone();
+        // a pixel `image` masks (the coat's: see `coat`) is not read
+        for (p, ok) in pixels.iter_mut().zip(&image.valid) {
+            p.clean &= *ok;
+        }
         View {
             camera: self.camera.clone(),
             image,
-            pixels: self.pixels.clone(),
+            pixels,
             corners: self.corners.clone(),
             spans: self.spans.clone(),
             hot: self.hot.clone(),

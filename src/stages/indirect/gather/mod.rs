@@ -44,7 +44,7 @@
 //! random number is `Rng::new(seed ^ tag, 0, point, 0)`: results do not depend on threads or
 //! chunking, and a resumed run casts the same rays again.
 
-use crate::atlas::context::HitTable;
+use crate::atlas::context::{HitTable, Prim};
 use crate::atlas::store::{flags, Layout, TexelGeom, TexelState};
 use crate::atlas::store::{map_tiles, window_tiles_for_budget, TileStore};
 use crate::atlas::store::{Reader, TileCache};
@@ -81,6 +81,8 @@ pub struct Point {
     pub x: u32,
     pub y: u32,
     pub chart: u32,
+    /// Index into `Scene::shapes` of the point's shape.
+    pub shape: u32,
     pub p: Vec3,
     /// Unit shading normal (light is gathered over its hemisphere).
     pub n: Vec3,
@@ -164,7 +166,10 @@ impl GatherPoints {
             let levels = strides
                 .iter()
                 .enumerate()
-                .map(|(k, &s)| out.add_level(&g, s, |c| chart_level[c as usize] as usize == k))
+                .map(|(k, &s)| {
+                    let of_level = |c: u32| chart_level[c as usize] as usize == k;
+                    out.add_level(&g, (s, st.shape as u32), of_level)
+                })
                 .collect();
             g.check()?;
             out.slots.push(SlotCells {
@@ -181,7 +186,7 @@ impl GatherPoints {
     fn add_level(
         &mut self,
         tex: &SlotTexture<GeomChart>,
-        s: u32,
+        (s, shape): (u32, u32),
         of_level: impl Fn(u32) -> bool,
     ) -> LevelCells {
         let (w, h) = (tex.grid.width, tex.grid.height);
@@ -219,6 +224,7 @@ impl GatherPoints {
                         x,
                         y,
                         chart: c,
+                        shape,
                         p: g.p(),
                         n: g.n(),
                         ng: g.ng(),
@@ -799,6 +805,7 @@ fn trace_point(ctx: &GatherContext, index: u64, pt: &Point) -> (Vec3, f32, Vec<C
     let (u, v) = pt.n.any_orthonormal_pair();
     // Rays must leave on the side of the geometric surface the shading normal is on.
     let side = pt.n.dot(pt.ng).signum();
+    let coat = ctx.hits.coat(pt.shape);
     let (mut sum, mut pairs, mut cached) = (Vec3::ZERO, 0.0f32, Vec::new());
     for i in 0..k {
         // the first ray of the current pair: its luminance, or its cached hit
@@ -810,15 +817,25 @@ fn trace_point(ctx: &GatherContext, index: u64, pt: &Point) -> (Vec3, f32, Vec<C
             let d = (u * (r * phi.cos()) + v * (r * phi.sin()) + pt.n * (1.0 - r2).max(0.0).sqrt())
                 .normalize();
             let mut ray: Result<f32, CachedHit> = Ok(0.0);
+            // a coated point's base receives what its coat lets in
+            let t = coat.map_or(1.0, |c| c.transmittance((1.0 - r2).max(0.0).sqrt()));
             if d.dot(pt.ng) * side > 0.0 {
-                if let Seen::Surface(h) = walk(ctx, offset_origin(pt.p, pt.ng, d), d, &mut rng) {
-                    ray = match ctx.radiance.lookup(h.slot as usize, h.uv, h.chart) {
-                        (l, true) => {
-                            sum += l * h.weight;
-                            Ok(luminance(l * h.weight))
-                        }
-                        (_, false) => Err(h),
-                    };
+                match walk(ctx, offset_origin(pt.p, pt.ng, d), d, &mut rng) {
+                    Seen::Surface(mut h) => {
+                        h.weight *= t;
+                        ray = match ctx.radiance.lookup(h.slot as usize, h.uv, h.chart) {
+                            (l, true) => {
+                                sum += l * h.weight;
+                                Ok(luminance(l * h.weight))
+                            }
+                            (_, false) => Err(h),
+                        };
+                    }
+                    Seen::Light(l) => {
+                        sum += l * t;
+                        ray = Ok(luminance(l * t));
+                    }
+                    Seen::Nothing => {}
                 }
             }
             match (first.take(), ray) {
@@ -858,51 +875,81 @@ fn trace_point(ctx: &GatherContext, index: u64, pt: &Point) -> (Vec3, f32, Vec<C
 
 /// What a gather ray brings back.
 enum Seen {
-    /// A reconstructed surface (directly, or through mirrors and glass: `weight`).
+    /// A reconstructed surface (directly, or through mirrors, glass and coats: `weight`).
     Surface(CachedHit),
+    /// Light of known radiance: an emitter or the environment seen by way of a coat (the
+    /// caustic pass follows mirrors and glass only, so this light is nowhere else).
+    Light(Vec3),
     Nothing,
 }
 
 /// Follows a gather ray from `o` along `d` through known materials (sampled by `bsdf_sampling`)
-/// to the reconstructed surface it sees. Emitters (seen directly: `E_d`; through mirrors and
-/// glass: the caustic pass's, also in `E_d`), misses and the back of one-sided surfaces bring
-/// nothing.
+/// and coats (reflected with the coat's probability, else seeing the base, see
+/// `physics::coat::Coat::step`) to the reconstructed surface it sees. Emitters (seen directly:
+/// `E_d`; through mirrors and glass: the caustic pass's, also in `E_d`), misses and the back
+/// of one-sided surfaces bring nothing, unless a coat reflected the ray on its way.
 fn walk(ctx: &GatherContext, mut o: Vec3, mut d: Vec3, rng: &mut Rng) -> Seen {
     let mut weight = Vec3::ONE;
+    let mut coated = false;
     for _ in 0..=bsdf_sampling::MAX_SPECULAR {
         let Some((hit, prim)) = ctx.hits.trace(ctx.accel, o, d, f32::INFINITY) else {
-            return Seen::Nothing;
+            return light(coated, ctx.hits.environment(d) * weight);
         };
         let back = d.dot(hit.ns) >= 0.0;
-        if prim.slot != NONE {
-            if prim.chart == NONE || (prim.one_sided && back) {
-                return Seen::Nothing;
+        if let Some(e) = ctx.hits.emitted(prim, hit.ns, d) {
+            return light(coated, e * weight);
+        }
+        let dir = match (prim.slot != NONE, ctx.hits.coat(prim.shape)) {
+            (true, _) if prim.chart == NONE || (prim.one_sided && back) => return Seen::Nothing,
+            (true, Some(c)) if !back => match c.step(d, hit.ns, rng.f32(), rng) {
+                Ok((dir, w)) => {
+                    coated = true;
+                    weight *= w;
+                    dir
+                }
+                Err(w) => return surface(prim, hit.uv, weight * w),
+            },
+            (true, _) => return surface(prim, hit.uv, weight),
+            (false, _) => {
+                let Some(b) = ctx.hits.known(prim) else {
+                    return Seen::Nothing;
+                };
+                if prim.one_sided && back {
+                    return Seen::Nothing;
+                }
+                let Some(sc) = bsdf_sampling::sample(b, d, hit.ns, rng) else {
+                    return Seen::Nothing;
+                };
+                weight *= sc.weight;
+                sc.dir
             }
-            return Seen::Surface(CachedHit {
-                slot: prim.slot,
-                chart: prim.chart,
-                uv: hit.uv,
-                weight,
-                mate: Mate::Unpaired,
-            });
-        }
-        let Some(b) = ctx.hits.known(prim) else {
-            return Seen::Nothing;
         };
-        if prim.one_sided && back {
-            return Seen::Nothing;
-        }
-        let Some(sc) = bsdf_sampling::sample(b, d, hit.ns, rng) else {
-            return Seen::Nothing;
-        };
-        weight *= sc.weight;
         if weight.max_element() < 1e-4 {
             return Seen::Nothing;
         }
-        o = offset_origin(hit.p, prim.ng, sc.dir);
-        d = sc.dir;
+        o = offset_origin(hit.p, prim.ng, dir);
+        d = dir;
     }
     Seen::Nothing
+}
+
+/// A reconstructed surface's texel seen with throughput `weight`.
+fn surface(prim: &Prim, uv: Vec2, weight: Vec3) -> Seen {
+    Seen::Surface(CachedHit {
+        slot: prim.slot,
+        chart: prim.chart,
+        uv,
+        weight,
+        mate: Mate::Unpaired,
+    })
+}
+
+/// Light seen at the end of a path: counted only when a coat reflected it (see [`Seen`]).
+fn light(coated: bool, l: Vec3) -> Seen {
+    match coated {
+        true => Seen::Light(l),
+        false => Seen::Nothing,
+    }
 }
 
 /// Writes the gathered `E_i` into `TexelState::accum` of every covered texel (interpolated
