@@ -194,9 +194,9 @@ fn rough_sample(wi: Vec3, ns: Vec3, r: Rough, eta: f32, (u1, u2): (f32, f32)) ->
 
 type Lobe1 = (Vec3, f32);
 
-/// The directional albedo of a rough dielectric reflection of relative index `eta` at
-/// cosine `mu` (a stratified grid of microfacet normals).
-fn rough_albedo(mu: f32, eta: f32, r: Rough) -> f32 {
+/// The mean of `f(wi, u)` (0 where `None`) over a stratified `ALBEDO_GRID`-squared grid of
+/// points `u` in the unit square, `wi` the direction at cosine `mu` (in the x-z plane).
+fn grid_mean(mu: f32, f: impl Fn(Vec3, (f32, f32)) -> Option<f32>) -> f32 {
     let mu = mu.max(1e-6);
     let wi = Vec3::new((1.0 - mu * mu).max(0.0).sqrt(), 0.0, mu);
     let n = ALBEDO_GRID;
@@ -206,34 +206,32 @@ fn rough_albedo(mu: f32, eta: f32, r: Rough) -> f32 {
                 ((k / n) as f32 + 0.5) / n as f32,
                 ((k % n) as f32 + 0.5) / n as f32,
             );
-            rough_sample(wi, Vec3::Z, r, eta, u).map(|s| s.1)
+            f(wi, u)
         })
         .sum();
     sum / (n * n) as f32
+}
+
+/// The directional albedo of a rough dielectric reflection of relative index `eta` at
+/// cosine `mu` (a stratified grid of microfacet normals).
+fn rough_albedo(mu: f32, eta: f32, r: Rough) -> f32 {
+    grid_mean(mu, |wi, u| {
+        rough_sample(wi, Vec3::Z, r, eta, u).map(|s| s.1)
+    })
 }
 
 /// The directional transmittance of a rough dielectric interface of relative index `eta` at
 /// cosine `mu`: the light refracted through it that its microfacets do not shadow, Mitsuba's
 /// `eval_transmittance` (`(1 - F) G1(w_t)` over the visible normals), on the same grid.
 fn rough_transmittance(mu: f32, eta: f32, r: Rough) -> f32 {
-    let mu = mu.max(1e-6);
-    let wi = Vec3::new((1.0 - mu * mu).max(0.0).sqrt(), 0.0, mu);
-    let n = ALBEDO_GRID;
-    let sum: f32 = (0..n * n)
-        .filter_map(|k| {
-            let u = (
-                ((k / n) as f32 + 0.5) / n as f32,
-                ((k % n) as f32 + 0.5) / n as f32,
-            );
-            let m = microfacet_normal_at(Vec3::Z, r, u.0, u.1);
-            let c = wi.dot(m);
-            let wt = refract(wi, m, eta).filter(|w| w.z < 0.0)?;
-            // the visible normals' weight of a normal drawn from `D(m) (m.n)`
-            let visible = smith_g1(wi, Vec3::Z, r) * c.max(0.0) / (mu * m.z);
-            Some(visible * (1.0 - fresnel_dielectric(c, eta)) * smith_g1(wt, Vec3::Z, r))
-        })
-        .sum();
-    sum / (n * n) as f32
+    grid_mean(mu, |wi, u| {
+        let m = microfacet_normal_at(Vec3::Z, r, u.0, u.1);
+        let c = wi.dot(m);
+        let wt = refract(wi, m, eta).filter(|w| w.z < 0.0)?;
+        // the visible normals' weight of a normal drawn from `D(m) (m.n)`
+        let visible = smith_g1(wi, Vec3::Z, r) * c.max(0.0) / (wi.z * m.z);
+        Some(visible * (1.0 - fresnel_dielectric(c, eta)) * smith_g1(wt, Vec3::Z, r))
+    })
 }
 
 /// Mitsuba's rough tables: `t(mu_i)` ([`rough_transmittance`]) and

@@ -92,6 +92,14 @@ pub fn spot_falloff(theta: f32, cutoff: f32, beam_width: f32) -> f32 {
     }
 }
 
+/// [`spot_falloff`] of a spot of unit `axis` towards a point that sees the light in unit
+/// direction `to_light`.
+#[inline]
+pub fn spot_falloff_towards(axis: Vec3, to_light: Vec3, cutoff: f32, beam_width: f32) -> f32 {
+    let theta = axis.dot(-to_light).clamp(-1.0, 1.0).acos();
+    spot_falloff(theta, cutoff, beam_width)
+}
+
 /// `integral of spot_falloff over the sphere` (steradians), in closed form:
 /// `2 pi [ (1 - cos b) + int_b^c (c - t)/(c - b) sin t dt ] = 2 pi [ 1 - (sin c - sin b)/(c - b) ]`,
 /// written as `2 pi [1 - cos m * sin(h)/h]`, `m = (c + b)/2`, `h = (c - b)/2`, which stays
@@ -380,9 +388,7 @@ fn hard_light(e: &Emitter, n: Vec3, q: Vec3) -> Option<(Vec3, Toward)> {
             ..
         } => {
             let (dir, d2, cos) = towards(q, n, position)?;
-            // Angle between the axis and the direction from the light to q.
-            let theta = axis.normalize_or_zero().dot(-dir).clamp(-1.0, 1.0).acos();
-            let f = spot_falloff(theta, cutoff, beam_width);
+            let f = spot_falloff_towards(axis.normalize_or_zero(), dir, cutoff, beam_width);
             (f > 0.0).then(|| (intensity * (f * cos / d2), Toward::Point(position)))
         }
         Emitter::Directional {

@@ -19,7 +19,7 @@ use crate::image::Image;
 use crate::physics::accel::{offset_origin, Hit};
 use crate::physics::camera::Camera;
 use crate::physics::coat::{self, Coat, Patch};
-use crate::physics::light::spot_falloff;
+use crate::physics::light::spot_falloff_towards;
 use crate::scene::{luminance, Emitter, Scene};
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
@@ -209,8 +209,7 @@ fn lights(seen: &Seen, c: &Coat, (at, ng, ns): (Vec3, Vec3, Vec3), wi: Vec3) -> 
                 ..
             } => {
                 let (w, r) = unit_and_length(*position - at);
-                let theta = (-w).dot(*axis).clamp(-1.0, 1.0).acos();
-                let fall = spot_falloff(theta, *cutoff, *beam_width);
+                let fall = spot_falloff_towards(*axis, w, *cutoff, *beam_width);
                 if fall > 0.0 && lit(w, r) {
                     sum += c.glossy(wi, w, ns) * *intensity * fall / (r * r);
                 }

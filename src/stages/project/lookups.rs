@@ -113,32 +113,25 @@ impl Lookups {
         &self,
         view: usize,
         tile: usize,
-        find: impl FnOnce() -> Result<TileLookups>,
+        find: impl Fn() -> Result<TileLookups>,
         use_them: impl FnOnce(&TileLookups) -> R,
     ) -> Result<R> {
         let Some(slot) = self.kept.get(view * self.tiles + tile) else {
             return Ok(use_them(&find()?));
         };
-        if let Some(kept) = slot.get() {
-            if let Some(l) = kept {
-                return Ok(use_them(l));
+        if slot.get().is_none() {
+            let found = find()?;
+            let bytes = found.bytes();
+            if self.used.fetch_add(bytes, Ordering::Relaxed) + bytes > self.budget {
+                self.used.fetch_sub(bytes, Ordering::Relaxed);
+                let _ = slot.set(None);
+                return Ok(use_them(&found));
             }
-            return Ok(use_them(&find()?));
+            let _ = slot.set(Some(Box::new(found)));
         }
-        let found = find()?;
-        let bytes = found.bytes();
-        let fits = self.used.fetch_add(bytes, Ordering::Relaxed) + bytes <= self.budget;
-        if !fits {
-            self.used.fetch_sub(bytes, Ordering::Relaxed);
-            let r = use_them(&found);
-            let _ = slot.set(None);
-            return Ok(r);
-        }
-        let mut found = Some(Box::new(found));
-        let kept = slot.get_or_init(|| found.take());
-        match (kept, &found) {
-            (Some(l), _) | (None, Some(l)) => Ok(use_them(l)),
-            (None, None) => Ok(use_them(&TileLookups::default())),
+        match slot.get() {
+            Some(Some(kept)) => Ok(use_them(kept)),
+            _ => Ok(use_them(&find()?)),
         }
     }
 
