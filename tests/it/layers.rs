@@ -138,6 +138,7 @@ const FOLDERS: &[(&str, &[Layer])] = &[
                 "noise_probe",
                 "diagnose",
                 "refine",
+                "edges",
                 "pose",
             ],
             Listed,

@@ -61,6 +61,7 @@
 
 mod coat;
 mod diagnose;
+mod edges;
 pub mod exposure;
 mod lookups;
 mod noise;

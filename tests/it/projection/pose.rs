@@ -1,6 +1,7 @@
 //! Pose refinement (`project::pose`): a camera moved off its true pose (the photo stays the
 //! true camera's) is brought back to within a seventh of a pixel, a camera at its true pose
-//! stays, a move beyond the bounds is refused, and the thread count changes nothing.
+//! stays, a move beyond the bounds is refused, the whole rig moved by one motion is brought back
+//! by the geometry's edges, and the thread count changes nothing.
 
 use super::{config, fixture};
 use glam::{Mat4, Vec2, Vec3};
@@ -132,9 +133,10 @@ fn a_view_moved_by_a_pixel_and_a_half_comes_back_within_a_seventh_of_a_pixel() {
         e < 0.15 && e < given / 8.0,
         "{e:.4} px left of {given:.4} px"
     );
+    // The others may move by the geometric edges' own bias (up to a tenth of a pixel).
     for (v, (e, _)) in errs.iter().enumerate().skip(1) {
         assert!(
-            *e < 0.1,
+            *e < 0.125,
             "view {v} was at its true pose and moved {e:.4} px"
         );
     }
@@ -149,10 +151,12 @@ fn a_view_moved_by_a_pixel_and_a_half_comes_back_within_a_seventh_of_a_pixel() {
 }
 
 #[test]
-fn views_at_their_true_poses_stay_within_a_twentieth_of_a_pixel() {
+fn views_at_their_true_poses_stay_within_an_eighth_of_a_pixel() {
+    // Photometric alignment alone kept them within 0.04 px; the geometric edges that anchor
+    // the rig's common motion carry a bias of their own, up to 0.1 px on this fixture.
     let (errs, poses) = refine_moved(&[], 2);
     for ((e, _), c) in errs.iter().zip(&poses) {
-        assert!(*e < 0.06, "{}: moved {e:.4} px off the truth", c.summary());
+        assert!(*e < 0.125, "{}: moved {e:.4} px off the truth", c.summary());
     }
 }
 
@@ -165,4 +169,29 @@ fn a_correction_beyond_the_bound_is_refused_and_the_scene_pose_kept() {
     assert_ne!(poses[0].status, "aligned");
     assert_eq!(poses[0].matrix(), moved, "the scene's (moved) pose is kept");
     assert!((errs[0].0 - errs[0].1).abs() < 1e-9);
+}
+
+#[test]
+fn views_all_moved_by_one_rigid_motion_come_back_to_the_mesh() {
+    // One motion of the whole rig (0.3 degrees about the box's centre and 2 cm): the photos
+    // agree with each other at the moved poses as well as at the true ones, so only the
+    // geometry's edges can bring the cameras back.
+    let (_, truth) = cbox_tex();
+    let c = Vec3::new(0.0, 1.0, 0.0);
+    let rig = Mat4::from_translation(c + Vec3::new(0.006, -0.012, 0.015))
+        * Mat4::from_axis_angle(Vec3::new(0.8, 0.5, 0.3).normalize(), 0.3f32.to_radians())
+        * Mat4::from_translation(-c);
+    let moves: Vec<(usize, Mat4)> = (truth.iter().enumerate())
+        .map(|(i, t)| (i, rig * *t))
+        .collect();
+    let (errs, poses) = refine_moved(&moves, 2);
+    for ((e, given), c) in errs.iter().zip(&poses) {
+        assert!(*given > 0.8, "{}: the move is {given:.3} px", c.view);
+        assert!(c.applied, "{}", c.summary());
+        assert!(
+            *e < 0.35 && *e < given / 3.0,
+            "{}: {e:.4} px left of {given:.4} px",
+            c.view
+        );
+    }
 }
