@@ -147,9 +147,9 @@ struct Pose {
     iterations: u32,
     /// The relative residual at the scene's pose and at the refined one.
     residual: (f64, f64),
-    /// The median edge offset (px) at the scene's pose and at the refined one, and the
-    /// edges measured at the refined one.
-    edge_px: (f64, f64, u64),
+    /// The median edge offset (px) and the edges measured, at the scene's pose and at the
+    /// pose the view keeps (once judged).
+    edge_px: [(f64, u64); 2],
     /// What a refused alignment had found (rotation, translation).
     found: Option<(DQuat, DVec3)>,
 }
@@ -171,7 +171,7 @@ impl Pose {
             converged: false,
             iterations: 0,
             residual: (0.0, 0.0),
-            edge_px: (0.0, 0.0, 0),
+            edge_px: [(0.0, 0); 2],
             found: None,
         }
     }
@@ -234,6 +234,13 @@ impl Pose {
     /// view's share of the time.
     fn correction(&self, view: &View, seconds: f64) -> PoseCorrection {
         let (rot, shift) = self.found.unwrap_or((self.rot, self.shift));
+        // A view refused before the verdict keeps the scene's pose: its residual and edges
+        // as they were there.
+        let judged = self.edge_px[1].1 > 0 || self.residual.1 > 0.0;
+        let after = match judged {
+            true => (self.residual.1, self.edge_px[1]),
+            false => (self.residual.0, self.edge_px[0]),
+        };
         PoseCorrection {
             view: view.camera.id.clone(),
             to_world: self.camera.to_world().transpose().to_cols_array_2d(),
@@ -245,10 +252,10 @@ impl Pose {
             translation_rel: shift.length() / self.distance,
             shift_px: mean_pixel_shift(view, &self.at(rot, shift)),
             residual_before: self.residual.0,
-            residual_after: self.residual.1,
-            edge_px_before: self.edge_px.0,
-            edge_px_after: self.edge_px.1,
-            edges: self.edge_px.2,
+            residual_after: after.0,
+            edge_px_before: self.edge_px[0].0,
+            edge_px_after: after.1 .0,
+            edges: after.1 .1,
             gain: self.gain,
             iterations: self.iterations,
             seconds,
@@ -343,7 +350,7 @@ fn refine_round(
             let at_start = evaluate(&joint, &start, &vec![[1.0; 2]; views.len()], false);
             for (v, pose) in poses.iter_mut().enumerate() {
                 pose.residual.0 = at_start.relative(v);
-                pose.edge_px.0 = edge_median(&levels[v], &start[v]).0;
+                pose.edge_px[0] = edge_median(&levels[v], &start[v]);
             }
         }
         let settled = iterate(&joint, poses, STEP_TOL * sigma as f64);
@@ -1371,8 +1378,7 @@ fn judge(joint: &Joint, poses: &mut [Pose], settled: bool) {
     }
     // How far each camera the run uses sits from the mesh's edges.
     for (pose, level) in poses.iter_mut().zip(joint.levels) {
-        let (m, n) = edge_median(level, pose);
-        pose.edge_px = (pose.edge_px.0, m, n);
+        pose.edge_px[1] = edge_median(level, pose);
     }
 }
 
