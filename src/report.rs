@@ -217,6 +217,13 @@ pub struct PoseCorrection {
     /// (finest level, luminance) at the scene's pose and at the refined one.
     pub residual_before: f64,
     pub residual_after: f64,
+    /// The median distance, pixels, between the geometry's edges (silhouettes, creases,
+    /// shape borders) as the camera projects them and the photo's edges, at the scene's pose
+    /// and at the refined one (finest level), and how many edges the photo showed: how far
+    /// the camera sits from the mesh, whatever the other views say.
+    pub edge_px_before: f64,
+    pub edge_px_after: f64,
+    pub edges: u64,
     /// The photo's brightness relative to the other views' (a nuisance of the alignment).
     pub gain: f64,
     /// Gauss-Newton iterations over every round and level.
@@ -239,13 +246,16 @@ impl PoseCorrection {
         };
         format!(
             "pose of '{}': {what} by {:.3} deg and {:.2}% of the distance, {:.2} px on average; \
-             residual {:.2}% -> {:.2}%{}",
+             residual {:.2}% -> {:.2}%, off the mesh's {} edges {:.2} -> {:.2} px{}",
             self.view,
             self.rotation_deg,
             100.0 * self.translation_rel,
             self.shift_px,
             100.0 * self.residual_before,
             100.0 * self.residual_after,
+            self.edges,
+            self.edge_px_before,
+            self.edge_px_after,
             if self.converged {
                 ""
             } else {

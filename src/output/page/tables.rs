@@ -115,6 +115,10 @@ pub fn pose_table(poses: &[PoseCorrection]) -> String {
                     pct(c.residual_before, 2),
                     pct(c.residual_after, 2)
                 ),
+                format!(
+                    "{:.2} px &rarr; {:.2} px",
+                    c.edge_px_before, c.edge_px_after
+                ),
                 c.iterations.to_string(),
             ]
         })
@@ -126,12 +130,14 @@ pub fn pose_table(poses: &[PoseCorrection]) -> String {
         "translation (of the distance)",
         "mean pixel shift",
         "residual against the others",
+        "off the mesh's edges (median)",
         "iterations",
     ];
     format!(
         "<p>Each camera's pose as refined against the other views (at most 2 degrees and 2% of \
-         the viewing distance): the correction found, and the photo's mean relative difference \
-         from the others' re-render before and after.</p>{}",
+         the viewing distance): the correction found, the photo's mean relative difference \
+         from the others' re-render before and after, and the median distance between the \
+         geometry's edges as the camera projects them and the photo's edges.</p>{}",
         table(&head, &rows)
     )
 }
@@ -149,6 +155,8 @@ mod tests {
             rotation_deg: 0.2134,
             translation_rel: 0.004,
             shift_px: 1.38,
+            edge_px_before: 1.27,
+            edge_px_after: 0.21,
             ..Default::default()
         };
         let kept = PoseCorrection {
@@ -162,5 +170,6 @@ mod tests {
         assert!(html.contains(a), "{html}");
         assert!(html.contains("<td>cam_b</td><td>kept the scene's (beyond the bound)</td>"));
         assert!(html.contains("1.38 px"), "{html}");
+        assert!(html.contains("1.27 px &rarr; 0.21 px"), "{html}");
     }
 }

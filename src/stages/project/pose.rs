@@ -147,6 +147,9 @@ struct Pose {
     iterations: u32,
     /// The relative residual at the scene's pose and at the refined one.
     residual: (f64, f64),
+    /// The median edge offset (px) and the edges measured, at the scene's pose and at the
+    /// pose the view keeps (once judged).
+    edge_px: [(f64, u64); 2],
     /// What a refused alignment had found (rotation, translation).
     found: Option<(DQuat, DVec3)>,
 }
@@ -168,6 +171,7 @@ impl Pose {
             converged: false,
             iterations: 0,
             residual: (0.0, 0.0),
+            edge_px: [(0.0, 0); 2],
             found: None,
         }
     }
@@ -230,6 +234,13 @@ impl Pose {
     /// view's share of the time.
     fn correction(&self, view: &View, seconds: f64) -> PoseCorrection {
         let (rot, shift) = self.found.unwrap_or((self.rot, self.shift));
+        // A view refused before the verdict keeps the scene's pose: its residual and edges
+        // as they were there.
+        let judged = self.edge_px[1].1 > 0 || self.residual.1 > 0.0;
+        let after = match judged {
+            true => (self.residual.1, self.edge_px[1]),
+            false => (self.residual.0, self.edge_px[0]),
+        };
         PoseCorrection {
             view: view.camera.id.clone(),
             to_world: self.camera.to_world().transpose().to_cols_array_2d(),
@@ -241,7 +252,10 @@ impl Pose {
             translation_rel: shift.length() / self.distance,
             shift_px: mean_pixel_shift(view, &self.at(rot, shift)),
             residual_before: self.residual.0,
-            residual_after: self.residual.1,
+            residual_after: after.0,
+            edge_px_before: self.edge_px[0].0,
+            edge_px_after: after.1 .0,
+            edges: after.1 .1,
             gain: self.gain,
             iterations: self.iterations,
             seconds,
@@ -336,6 +350,7 @@ fn refine_round(
             let at_start = evaluate(&joint, &start, &vec![[1.0; 2]; views.len()], false);
             for (v, pose) in poses.iter_mut().enumerate() {
                 pose.residual.0 = at_start.relative(v);
+                pose.edge_px[0] = edge_median(&levels[v], &start[v]);
             }
         }
         let settled = iterate(&joint, poses, STEP_TOL * sigma as f64);
@@ -1044,6 +1059,19 @@ const MIN_EDGE_SCALE: f64 = 0.05;
 /// 0.17-0.38 px, 30 left 0.17-0.32 px (held-out albedo 11.2%, 7.2%, 6.1%), 100 no better.
 const EDGE_SHARE: f64 = 30.0;
 
+/// The median absolute offset (px) of the edges the photo shows at `pose`, and how many.
+fn edge_median(level: &Level, pose: &Pose) -> (f64, u64) {
+    let mut d: Vec<f32> = (level.edges.par_iter())
+        .filter_map(|e| edge_offset(level, pose, e).map(|m| m.0.abs()))
+        .collect();
+    if d.is_empty() {
+        return (0.0, 0);
+    }
+    let mid = d.len() / 2;
+    let (_, m, _) = d.select_nth_unstable_by(mid, f32::total_cmp);
+    (*m as f64, d.len() as u64)
+}
+
 /// Where edge `e`'s photo edge is from its projection through `pose` (px, along the
 /// image normal), and that normal.
 fn edge_offset(level: &Level, pose: &Pose, e: &Edge) -> Option<(f32, Vec2)> {
@@ -1330,6 +1358,7 @@ fn solve(mut a: Vec<f64>, mut b: Vec<f64>, m: usize) -> Option<Vec<f64>> {
 
 /// The last round's verdict: per view still aligned, its residual at the scene's pose (the
 /// others where they are) and at the refined one; a pose that does not lower it is refused.
+/// Then every view's edge offset at the pose it keeps.
 fn judge(joint: &Joint, poses: &mut [Pose], settled: bool) {
     let ones = vec![[1.0; 2]; poses.len()];
     let after = evaluate(joint, poses, &ones, false);
@@ -1346,6 +1375,10 @@ fn judge(joint: &Joint, poses: &mut [Pose], settled: bool) {
         if poses[v].residual.1 >= before {
             poses[v].refuse(Status::NoImprovement);
         }
+    }
+    // How far each camera the run uses sits from the mesh's edges.
+    for (pose, level) in poses.iter_mut().zip(joint.levels) {
+        pose.edge_px[1] = edge_median(level, pose);
     }
 }
 
