@@ -31,6 +31,7 @@
 //! there than a twentieth per pixel of blur (about a 12% step), is no measurement; so a gain
 //! or a shading factor moves no edge.
 
+use super::view::Tap;
 use crate::image::Image;
 use crate::physics::accel::Accel;
 use crate::physics::camera::Camera;
@@ -216,20 +217,8 @@ impl EdgeImage {
     /// The gradient along `n` at continuous pixel coordinates `q` and the luminance there
     /// (bilinear), `None` off the image.
     fn along(&self, q: Vec2, n: Vec2) -> Option<(f32, f32)> {
-        let (fx, fy) = (q.x - 0.5, q.y - 0.5);
-        if !(fx >= 0.0 && fy >= 0.0) {
-            return None;
-        }
-        let (x0, y0) = (fx as usize, fy as usize);
-        if x0 + 1 >= self.width || y0 + 1 >= self.height {
-            return None;
-        }
-        let (tx, ty) = (fx - x0 as f32, fy - y0 as f32);
-        let i = y0 * self.width + x0;
-        let mix = |v: &[f32]| {
-            (v[i] * (1.0 - tx) + v[i + 1] * tx) * (1.0 - ty)
-                + (v[i + self.width] * (1.0 - tx) + v[i + self.width + 1] * tx) * ty
-        };
+        let tap = Tap::inside(q, self.width, self.height)?;
+        let mix = |v: &[f32]| tap.read_slice(self.width as u32, v);
         Some((mix(&self.dx) * n.x + mix(&self.dy) * n.y, mix(&self.lum)))
     }
 

@@ -66,7 +66,7 @@
 
 use super::edges::{self, Edge, EdgeImage};
 use super::refine::{current_maps, Refine, REFINE_SUPERSAMPLE};
-use super::view::View;
+use super::view::{Tap, View};
 use super::{observe_texel, project_tile, ROW_BAND};
 use crate::atlas::store::{map_tiles, TexelState, TileStore};
 use crate::atlas::texture::SlotTexture;
@@ -628,11 +628,12 @@ struct Level {
     /// pose parameters: a move `d` shifts the pixels by `sqrt(d^T M d)` px (RMS).
     motion: [[f64; 6]; 6],
     /// The geometry's edges in this view (at the finest level only: at coarser blurs the
-    /// strongest edge within reach is too often another one), the photo's edges at this blur,
+    /// strongest edge within reach is too often another one), the photo's edges at this blur
+    /// (also at the finest level only),
     /// how far from an edge's projection its photo edge is looked for (px), and each edge's
     /// weight ([`EDGE_SHARE`] spread over the edges).
     edges: Vec<Edge>,
-    edge_image: EdgeImage,
+    edge_image: Option<EdgeImage>,
     reach: f32,
     edge_weight: f64,
 }
@@ -669,7 +670,9 @@ impl Level {
     /// `sigma / 2` (at least 1) along each axis are aligned on.
     fn new(view: &View, reference: &Reference, edges: &[Edge], sigma: f32) -> Level {
         let (w, h) = (reference.width, reference.height);
-        let edge_image = EdgeImage::new(view.image, sigma, |v, m| blur(v, m, w, h, sigma).0);
+        let finest = sigma <= LEVELS[LEVELS.len() - 1];
+        let edge_image =
+            finest.then(|| EdgeImage::new(view.image, sigma, |v, m| blur(v, m, w, h, sigma).0));
         let mask = reference.mask((3.0 * sigma + GUARD_PX).ceil() as usize);
         let valid: Vec<bool> = (mask.iter().zip(&view.image.valid))
             .map(|(m, v)| *m && *v)
@@ -703,7 +706,7 @@ impl Level {
             samples,
             cross: Vec::new(),
             edge_weight: EDGE_SHARE * 3.0 * samples_len as f64 / edges.len().max(1) as f64,
-            edges: match sigma <= LEVELS[LEVELS.len() - 1] {
+            edges: match finest {
                 true => edges.to_vec(),
                 false => Vec::new(),
             },
@@ -715,16 +718,8 @@ impl Level {
     /// The blurred photo and its derivatives at continuous pixel coordinates `q`
     /// (bilinear), where the four pixels around `q` are on the image and mostly usable.
     fn sample(&self, q: Vec2) -> Option<(Vec3, Vec3, Vec3)> {
-        let (fx, fy) = (q.x - 0.5, q.y - 0.5);
-        if !(fx >= 0.0 && fy >= 0.0) {
-            return None;
-        }
-        let (x0, y0) = (fx as usize, fy as usize);
-        if x0 + 1 >= self.width || y0 + 1 >= self.height {
-            return None;
-        }
-        let (tx, ty) = (fx - x0 as f32, fy - y0 as f32);
-        let i = y0 * self.width + x0;
+        let Tap { base, tx, ty } = Tap::inside(q, self.width, self.height)?;
+        let i = base as usize;
         let idx = [i, i + 1, i + self.width, i + self.width + 1];
         let wts = [
             (1.0 - tx) * (1.0 - ty),
@@ -1076,7 +1071,8 @@ fn edge_median(level: &Level, pose: &Pose) -> (f64, u64) {
 /// image normal), and that normal.
 fn edge_offset(level: &Level, pose: &Pose, e: &Edge) -> Option<(f32, Vec2)> {
     let (p, n) = edges::in_image(&pose.camera, e)?;
-    Some((level.edge_image.offset(p, n, level.reach)?, n))
+    let image = level.edge_image.as_ref()?;
+    Some((image.offset(p, n, level.reach)?, n))
 }
 
 /// Every view's move since the round's start ([`Pose::delta_from`]).

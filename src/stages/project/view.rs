@@ -532,6 +532,22 @@ impl Tap {
     /// The `tx` of a tap that reads one pixel.
     pub const ONE_PIXEL: f32 = -1.0;
 
+    /// The bilinear tap at continuous pixel coordinates `q` of a `width x height` image, if
+    /// the four pixels around `q` are all on it.
+    pub fn inside(q: Vec2, width: usize, height: usize) -> Option<Tap> {
+        let (fx, fy) = (q.x - 0.5, q.y - 0.5);
+        if !(fx >= 0.0 && fy >= 0.0) {
+            return None;
+        }
+        let (x0, y0) = (fx as usize, fy as usize);
+        if x0 + 1 >= width || y0 + 1 >= height {
+            return None;
+        }
+        let (tx, ty) = (fx - x0 as f32, fy - y0 as f32);
+        let base = (y0 * width + x0) as u32;
+        Some(Tap { base, tx, ty })
+    }
+
     /// The value at this tap of an image `width` pixels wide read through `get(x, y)`.
     #[inline(always)]
     pub fn read<T: Value>(&self, width: u32, get: &dyn Fn(u32, u32) -> T) -> T {
