@@ -15,10 +15,16 @@
 //! crate does either.
 //!
 //! **Edge points.** Between two neighbouring pixel centres whose rays meet different surfaces
-//! (one misses; other shapes; normals more than [`CREASE_DEG`] apart; one point off the
-//! other's plane by more than [`DEPTH_STEP`] of the distance) the transition is bisected with [`BISECTIONS`] more rays, and the
-//! edge point is where the nearer side's last ray met it: the near surface ends there, at a
-//! side of the triangle hit, whose direction is the edge's 3-D tangent. To first order a
+//! (one misses; other shapes; shading normals more than [`CREASE_DEG`] apart; one point off
+//! the other's plane by more than [`DEPTH_STEP`] of the distance) the transition is bisected
+//! with [`BISECTIONS`] more rays. It is an edge only if the two sides still differ a
+//! thousandth of a pixel apart: a discontinuity survives the bisection, a smooth surface
+//! that merely turns fast between pixel centres does not (the tube of a torus a few pixels
+//! thick turns more than [`CREASE_DEG`] from one pixel to the next and shows no edge in a
+//! photo; counted as edges, its turns were measured on whatever gradient lay near and biased
+//! the camera by 0.3-0.5 px). The edge point is where the nearer side's last ray met it: the
+//! near surface ends there, at a side of the triangle hit, whose direction is the edge's 3-D
+//! tangent. To first order a
 //! camera move shifts an edge's image as it shifts that point, smooth occluding contours
 //! included (the contour slides along the ray).
 //!
@@ -39,7 +45,8 @@ use crate::scene::{luminance, Scene};
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
-/// Normals further apart than this (degrees) make a crease.
+/// Shading normals further apart than this (degrees) make a crease (the facets of a
+/// smooth-shaded mesh make none: its photo shows none).
 pub const CREASE_DEG: f32 = 20.0;
 /// A depth edge within one shape: a point off the neighbour's plane by this share of the
 /// distance.
@@ -56,12 +63,14 @@ pub struct Edge {
     pub tangent: Vec3,
 }
 
-/// What the ray through a film position met: shape, unit geometric normal, distance.
+/// What the ray through a film position met: shape, unit geometric and shading normals,
+/// distance.
 #[derive(Debug, Clone, Copy)]
 struct Seen {
     shape: u32,
     tri: u32,
     normal: Vec3,
+    shading: Vec3,
     t: f32,
     point: Vec3,
 }
@@ -75,6 +84,7 @@ fn look(scene: &Scene, accel: &Accel, cam: &Camera, q: Vec2) -> Option<Seen> {
         shape: hit.shape,
         tri: hit.tri,
         normal,
+        shading: mesh.shading_normal(hit.tri as usize, hit.b1, hit.b2),
         t: hit.t,
         point: o + d * hit.t,
     })
@@ -86,7 +96,7 @@ fn same(a: Option<Seen>, b: Option<Seen>) -> bool {
         (None, None) => true,
         (Some(a), Some(b)) => {
             a.shape == b.shape
-                && a.normal.dot(b.normal).abs() > CREASE_DEG.to_radians().cos()
+                && a.shading.dot(b.shading).abs() > CREASE_DEG.to_radians().cos()
                 && a.normal.dot(b.point - a.point).abs() < DEPTH_STEP * a.t.min(b.t)
         }
         _ => false,
@@ -119,7 +129,8 @@ pub fn edges(scene: &Scene, accel: &Accel, cam: &Camera) -> Vec<Edge> {
     out
 }
 
-/// The edge point between `from` (seeing `a`) and `from + step`.
+/// The edge point between `from` (seeing `a`) and `from + step`, if the two sides are still
+/// different surfaces where the bisection ends.
 fn bisect(
     scene: &Scene,
     accel: &Accel,
@@ -136,6 +147,11 @@ fn bisect(
             true => (lo, near_a) = (m, s),
             false => (hi, near_b) = (m, s),
         }
+    }
+    // A discontinuity still separates the two sides a thousandth of a pixel apart; a surface
+    // that only turns or recedes fast between the pixel centres does not.
+    if same(near_a, near_b) {
+        return None;
     }
     let ta = near_a.map_or(f32::INFINITY, |s| s.t);
     let tb = near_b.map_or(f32::INFINITY, |s| s.t);

@@ -133,10 +133,12 @@ fn a_view_moved_by_a_pixel_and_a_half_comes_back_within_a_seventh_of_a_pixel() {
         e < 0.15 && e < given / 8.0,
         "{e:.4} px left of {given:.4} px"
     );
-    // The others may move by the geometric edges' own bias (up to a tenth of a pixel).
+    // The others may move by the geometric edges' own bias: up to 0.10 px, 0.13 px since
+    // only discontinuities are edges (fewer edges on this box; the open envmap scene's
+    // cameras came from 0.7-1.0 px to 0.1-0.7 px with it).
     for (v, (e, _)) in errs.iter().enumerate().skip(1) {
         assert!(
-            *e < 0.125,
+            *e < 0.15,
             "view {v} was at its true pose and moved {e:.4} px"
         );
     }

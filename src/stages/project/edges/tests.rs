@@ -60,6 +60,37 @@ fn the_edges_of_a_cube_lie_on_its_edges_and_run_along_them() {
     assert!(inside.is_empty(), "{} edges on one face", inside.len());
 }
 
+#[test]
+fn a_smooth_surface_that_turns_fast_between_pixels_has_edges_only_on_its_outline() {
+    // Mitsuba's sphere, smooth-shaded, about 9 px across: from one pixel centre to the next
+    // its normals turn 13 degrees at the centre and more towards the outline, past the
+    // crease angle, and points recede past the depth step; none of that is an edge.
+    let shape = crate::scene::Shape {
+        id: "ball".into(),
+        kind: "test".into(),
+        file: None,
+        mesh: crate::scene::mesh::sphere(),
+        sides: crate::scene::Sides::Front,
+        emission: None,
+        reflectance: None,
+        material: Default::default(),
+    };
+    let b = Built::new(vec![shape], vec![], 4.0, vec![]);
+    let eye = Vec3::new(2.0, 2.5, 9.2);
+    let cam = camera(eye, 32);
+    let found = edges(&b.p.scene, &b.p.accel, &cam);
+    assert!(
+        found.len() > 20,
+        "{} edge points on the outline",
+        found.len()
+    );
+    for e in &found {
+        // on the outline the view ray grazes the sphere: normal (the point) across the ray
+        let grazing = e.point.normalize().dot((e.point - eye).normalize()).abs();
+        assert!(grazing < 0.12, "{e:?}: inside the outline ({grazing:.3})");
+    }
+}
+
 /// A `w x h` photo of a vertical step at `x = at` (pixels are box-filtered: a pixel the step
 /// crosses holds the mix of its covered parts), `lo` left of it and `hi` right.
 fn step(w: u32, h: u32, at: f32, (lo, hi): (f32, f32)) -> Image {
