@@ -10,7 +10,7 @@
 //! the geometry puts it whatever the textures are. This module finds those edges as 3-D points
 //! and measures, in a photo, the offset of its edge from where a camera projects them,
 //! as model-based edge trackers do (RAPiD, Harris 1992; the moving edges of ViSP): along the
-//! edge's image normal, the sub-pixel peak of the photo's log-luminance gradient. Hand-written
+//! edge's image normal, the sub-pixel peak of the photo's luminance gradient. Hand-written
 //! because the points come from the scene's own rays and the search from its own photos; no
 //! crate does either.
 //!
@@ -24,18 +24,18 @@
 //! photo; counted as edges, its turns were measured on whatever gradient lay near and biased
 //! the camera by 0.3-0.5 px). The edge point is where the nearer side's last ray met it: the
 //! near surface ends there, at a side of the triangle hit, whose direction is the edge's 3-D
-//! tangent. To first order a
-//! camera move shifts an edge's image as it shifts that point, smooth occluding contours
-//! included (the contour slides along the ray).
+//! tangent. To first order a camera move shifts an edge's image as it shifts that point,
+//! smooth occluding contours included (the contour slides along the ray).
 //!
 //! **Measurement.** The photo's luminance (linear: a pixel the edge crosses holds the mix of
 //! its two sides, so the blurred step's steepest point is the edge; in a logarithm it would
 //! lean towards the darker side by up to half a pixel) is blurred over its valid pixels
 //! ([`super::pose`]'s blur, about a Gaussian); its gradient is sampled every quarter pixel
-//! along the image normal within `reach`, and the centroid of the strongest peak's upper half is
-//! the photo's edge (a bilinear gradient peaks at pixel centres; its centroid does not). A peak on the search's border, or weaker relative to the blurred luminance
-//! there than a twentieth per pixel of blur (about a 12% step), is no measurement; so a gain
-//! or a shading factor moves no edge.
+//! along the image normal within `reach`, and the centroid of the strongest peak's upper half
+//! is the photo's edge (a bilinear gradient peaks at pixel centres; its centroid does not). A
+//! peak on the search's border, or weaker relative to the blurred luminance there than a
+//! twentieth per pixel of blur (about a 12% step), is no measurement; so a gain or a shading
+//! factor moves no edge.
 
 use super::view::Tap;
 use crate::image::Image;
@@ -189,7 +189,7 @@ pub fn in_image(cam: &Camera, e: &Edge) -> Option<(Vec2, Vec2)> {
     (t != Vec2::ZERO).then(|| (p, Vec2::new(-t.y, t.x)))
 }
 
-/// A photo's log-luminance gradient at one blur, for measuring where its edges lie.
+/// A photo's luminance gradient at one blur, for measuring where its edges lie.
 pub struct EdgeImage {
     width: usize,
     height: usize,

@@ -48,7 +48,9 @@
 //! capture then comes to 0.17-0.32 px RMS per camera (held-out 6.1%, against 4.8% with
 //! perfect poses). A weak prior on each correction ([`PRIOR`]: a 1 px move costs a sample
 //! what a residual of a tenth of a robust standard deviation costs) settles what neither
-//! constrains at the smallest correction.
+//! constrains at the smallest correction, and a prior in degrees and viewing distances
+//! ([`BOUND_PRIOR`]) holds the moves that shift the pixels little (in an open scene, sliding a
+//! camera along its view of far objects) near the scene's pose.
 //!
 //! **Bounds.** The correction (relative to the scene's pose) may reach [`MAX_ROTATION_DEG`]
 //! and [`MAX_TRANSLATION`] of the viewing distance (the median distance of the view's clean
@@ -629,9 +631,8 @@ struct Level {
     motion: [[f64; 6]; 6],
     /// The geometry's edges in this view (at the finest level only: at coarser blurs the
     /// strongest edge within reach is too often another one), the photo's edges at this blur
-    /// (also at the finest level only),
-    /// how far from an edge's projection its photo edge is looked for (px), and each edge's
-    /// weight ([`EDGE_SHARE`] spread over the edges).
+    /// (also at the finest level only), how far from an edge's projection its photo edge is
+    /// looked for (px), and each edge's weight ([`EDGE_SHARE`] spread over the edges).
     edges: Vec<Edge>,
     edge_image: Option<EdgeImage>,
     reach: f32,
@@ -1025,22 +1026,23 @@ fn scales(joint: &Joint, poses: &[Pose]) -> Vec<[f64; 2]> {
                 .flat_map_iter(|s| look(level, pose, s, &deltas).map(|l| l.0.abs().to_array()))
                 .flatten_iter()
                 .collect();
-            let e: Vec<f32> = (level.edges.par_iter())
-                .filter_map(|e| edge_offset(level, pose, e).map(|m| m.0.abs()))
-                .collect();
-            [robust_sd(r, 1e-12), robust_sd(e, MIN_EDGE_SCALE)]
+            [
+                robust_sd(r, 1e-12),
+                robust_sd(edge_offsets(level, pose), MIN_EDGE_SCALE),
+            ]
         })
         .collect()
 }
 
 /// 1.4826 x the median of `abs` (1 if empty), at least `floor`.
-fn robust_sd(mut abs: Vec<f32>, floor: f64) -> f64 {
-    if abs.is_empty() {
-        return 1.0;
-    }
-    let mid = abs.len() / 2;
-    let (_, m, _) = abs.select_nth_unstable_by(mid, f32::total_cmp);
-    (1.4826 * *m as f64).max(floor)
+fn robust_sd(abs: Vec<f32>, floor: f64) -> f64 {
+    median(abs).map_or(1.0, |m| (1.4826 * m as f64).max(floor))
+}
+
+/// The median (the upper one of an even count) of `v`, `None` if empty.
+fn median(mut v: Vec<f32>) -> Option<f32> {
+    let mid = v.len() / 2;
+    (!v.is_empty()).then(|| *v.select_nth_unstable_by(mid, f32::total_cmp).1)
 }
 
 /// The smallest robust spread of the edge offsets, px: the edges' own precision.
@@ -1056,15 +1058,16 @@ const EDGE_SHARE: f64 = 30.0;
 
 /// The median absolute offset (px) of the edges the photo shows at `pose`, and how many.
 fn edge_median(level: &Level, pose: &Pose) -> (f64, u64) {
-    let mut d: Vec<f32> = (level.edges.par_iter())
+    let d = edge_offsets(level, pose);
+    let n = d.len() as u64;
+    (median(d).map_or(0.0, f64::from), n)
+}
+
+/// The absolute offsets (px) of the edges of `level` the photo shows at `pose`, in edge order.
+fn edge_offsets(level: &Level, pose: &Pose) -> Vec<f32> {
+    (level.edges.par_iter())
         .filter_map(|e| edge_offset(level, pose, e).map(|m| m.0.abs()))
-        .collect();
-    if d.is_empty() {
-        return (0.0, 0);
-    }
-    let mid = d.len() / 2;
-    let (_, m, _) = d.select_nth_unstable_by(mid, f32::total_cmp);
-    (*m as f64, d.len() as u64)
+        .collect()
 }
 
 /// Where edge `e`'s photo edge is from its projection through `pose` (px, along the
