@@ -86,7 +86,8 @@ pub fn bilinear(texels: &dyn Texels, uv: Vec2) -> Vec3 {
 fn bilinear_with(width: u32, height: u32, uv: Vec2, g: impl Fn(u32, u32) -> Vec3) -> Vec3 {
     let fx = (uv.x - 0.5).clamp(0.0, (width - 1) as f32);
     let fy = (uv.y - 0.5).clamp(0.0, (height - 1) as f32);
-    let (x0, y0) = (fx.floor() as u32, fy.floor() as u32);
+    // non-negative after the clamp (or NaN, which both casts make 0): truncation is the floor
+    let (x0, y0) = (fx as u32, fy as u32);
     let (x1, y1) = ((x0 + 1).min(width - 1), (y0 + 1).min(height - 1));
     let (tx, ty) = (fx - x0 as f32, fy - y0 as f32);
     let top = g(x0, y0) * (1.0 - tx) + g(x1, y0) * tx;
@@ -183,6 +184,19 @@ pub fn render_view_with(
 /// shape has no texture).
 fn flat_pixel(textures: &[Option<Texture>], k: u32, f: &FlatPixel) -> Option<Vec3> {
     let tex = textures.get(f.shape as usize)?.as_ref()?;
+    let (w, h) = (tex.texels.width(), tex.texels.height());
+    // the texture resolved once per pixel, not per sub-pixel look-up
+    Some(match tex.texels.row_major() {
+        Some(v) => flat_mean(k, f, |uv| {
+            bilinear_with(w, h, uv, |x, y| v[(y * w + x) as usize])
+        }),
+        None => flat_mean(k, f, |uv| bilinear(tex.texels, uv)),
+    })
+}
+
+/// The mean of `look(uv)` over `k x k` sub-pixel positions of a flat pixel.
+#[inline(always)]
+fn flat_mean(k: u32, f: &FlatPixel, look: impl Fn(Vec2) -> Vec3) -> Vec3 {
     let [a, b, c, d] = f.uv;
     let mut sum = Vec3::ZERO;
     for j in 0..k {
@@ -190,10 +204,10 @@ fn flat_pixel(textures: &[Option<Texture>], k: u32, f: &FlatPixel) -> Option<Vec
         let (l, r) = (a.lerp(c, ty), b.lerp(d, ty));
         for i in 0..k {
             let tx = (i as f32 + 0.5) / k as f32;
-            sum += bilinear(tex.texels, l.lerp(r, tx));
+            sum += look(l.lerp(r, tx));
         }
     }
-    Some(sum / (k * k) as f32)
+    sum / (k * k) as f32
 }
 
 /// Apply a film's pixel filter to an image of pixel means (what [`render_view`] makes: a box
