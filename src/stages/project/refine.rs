@@ -9,7 +9,7 @@ use super::total_variation::tv_luminance;
 use super::view::View;
 use super::{
     apply_refinement, backproject_tile, shrink_residual_levels, Agreement, Lookups, Pair, Residual,
-    ResidualViews, Shard, TileLookups, ROW_BAND,
+    ResidualViews, Shard, TileLookups, ViewHits, ROW_BAND,
 };
 use crate::atlas::context::HitTable;
 use crate::atlas::store::TileStore;
@@ -20,7 +20,7 @@ use crate::atlas::RunContext;
 use crate::base::error::{Error, Result};
 use crate::base::progress::{Mode, Stage};
 use crate::physics::film_filter::render_filtered;
-use crate::physics::render::{render_view_with, Film, Plan, Texture};
+use crate::physics::render::{render_view_with, sub_hits, Film, Plan, Texture};
 use glam::Vec3;
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -194,14 +194,15 @@ impl Refine<'_> {
             }
             drop(textures);
             drop(maps);
-            let prepared: Vec<Prepared> = (self.views.par_iter().zip(&renders))
+            // each render dropped once its residual is made, but in the last pass
+            let prepared: Vec<Prepared> = (self.views.par_iter().zip(renders))
                 .map(|(view, render)| prepare(view, render, last))
                 .collect();
             let (step, gate) = (passes.step(pass), passes.gate(pass));
             let seen = self.backproject_and_apply(&prepared, state, (last, step, gate))?;
             (self.shard.sync)(state)?;
             residuals.push(prepared.iter().map(|v| v.mean).collect());
-            noise = self.noise(prepared, renders, seen, last);
+            noise = self.noise(prepared, seen);
             if tv > 0.0 {
                 let sigma = noise.iter().fold(0.0, |s, n| s + n.sigma);
                 let rel = tv * sigma / self.views.len() as f32;
@@ -227,8 +228,8 @@ impl Refine<'_> {
         stage: &Stage,
     ) -> Result<Vec<Vec<Option<Vec3>>>> {
         let mut renders = Vec::with_capacity(self.views.len());
-        for view in self.views {
-            renders.push(self.render(view, textures)?);
+        for (vi, view) in self.views.iter().enumerate() {
+            renders.push(self.render((vi, view), textures)?);
             stage.inc(1);
             crate::base::interrupt::check(crate::base::interrupt::NOTHING_SAVED)?;
         }
@@ -236,35 +237,60 @@ impl Refine<'_> {
     }
 
     /// One view rendered from the current maps, through its film's filter, at the pixels
-    /// that are clean or within the filter's reach of a clean one (`None` elsewhere).
-    fn render(&self, view: &View, textures: &[Option<Texture>]) -> Result<Vec<Option<Vec3>>> {
+    /// that are clean or within the filter's reach of a clean one (`None` elsewhere); pixels
+    /// that do not lie flat on one chart from their sub-pixel hits, found in the first pass
+    /// and kept ([`Lookups::with_hits`]).
+    fn render(
+        &self,
+        (vi, view): (usize, &View),
+        textures: &[Option<Texture>],
+    ) -> Result<Vec<Option<Vec3>>> {
         let p = self.p;
         let w = view.image.width;
         // A blurring film needs the neighbours of clean pixels within its reach too.
         let filter = view.camera.filter();
         let needed = view.near_clean(filter.reach());
         let owns = self.shard.owns;
-        let plan = |x: u32, y: u32| {
-            let i = (y * w + x) as usize;
-            if !needed[i] || !owns((y / ROW_BAND) as usize) {
-                return Plan::Skip;
-            }
-            view.flat(self.hits, x, y).map_or(Plan::Trace, Plan::Flat)
-        };
+        let wanted = |x: u32, y: u32| needed[(y * w + x) as usize] && owns((y / ROW_BAND) as usize);
         let k = REFINE_SUPERSAMPLE;
-        // The photo is the scene seen through the film's filter: so is what it is compared with.
-        match filter.is_box() {
-            true => {
-                let mut r =
-                    render_view_with(&p.accel, &view.camera, textures, k, Film::HitsOnly, &plan);
-                (self.shard.sync_pixels)(&mut r, (ROW_BAND * w) as usize)?;
-                Ok(r)
+        let traced = |x: u32, y: u32| wanted(x, y) && view.flat(self.hits, x, y).is_none();
+        let parts = (&p.accel, &view.camera, textures);
+        let size = (w, view.image.height);
+        let find = || {
+            ViewHits::find(size, (k * k) as usize, &traced, &|x, y| {
+                sub_hits(parts, k, (x, y))
+            })
+        };
+        self.lookups.with_hits(vi, find, |hits| {
+            let plan = |x: u32, y: u32| {
+                if !wanted(x, y) {
+                    return Plan::Skip;
+                }
+                match view.flat(self.hits, x, y) {
+                    Some(f) => Plan::Flat(f),
+                    None => (hits.and_then(|h| h.get((y * w + x) as usize)))
+                        .map_or(Plan::Trace, Plan::Hits),
+                }
+            };
+            // The photo is the scene seen through the film's filter: so is what it is compared with.
+            match filter.is_box() {
+                true => {
+                    let mut r = render_view_with(
+                        &p.accel,
+                        &view.camera,
+                        textures,
+                        k,
+                        Film::HitsOnly,
+                        &plan,
+                    );
+                    (self.shard.sync_pixels)(&mut r, (ROW_BAND * w) as usize)?;
+                    Ok(r)
+                }
+                false => {
+                    render_filtered(parts, k, filter, &plan, (self.shard.sync_pixels, ROW_BAND))
+                }
             }
-            false => {
-                let parts = (&p.accel, &view.camera, textures);
-                render_filtered(parts, k, filter, &plan, (self.shard.sync_pixels, ROW_BAND))
-            }
-        }
+        })
     }
 
     /// Every view's residual (`prepared`, in view order) back-projected into each tile and
@@ -337,19 +363,13 @@ impl Refine<'_> {
     /// Each view's noise as this pass estimated it (its relative level; in the `last` pass
     /// also its residual's local roughness per pixel and its check against its render, with
     /// `seen` its texels and disagreements).
-    fn noise(
-        &self,
-        prepared: Vec<Prepared>,
-        renders: Vec<Vec<Option<Vec3>>>,
-        seen: Vec<Agreement>,
-        last: bool,
-    ) -> Vec<ViewNoise> {
-        let all = self.views.iter().zip(prepared).zip(renders).zip(seen);
-        all.map(|(((view, v), render), a)| ViewNoise {
+    fn noise(&self, prepared: Vec<Prepared>, seen: Vec<Agreement>) -> Vec<ViewNoise> {
+        let all = self.views.iter().zip(prepared).zip(seen);
+        all.map(|((view, v), a)| ViewNoise {
             sigma: v.sigma,
             level: v.rough,
-            check: last.then(|| {
-                diagnose::check(view.image, &render, &view.pixels, (a.texels, a.disagreeing))
+            check: (v.render.as_ref()).map(|render| {
+                diagnose::check(view.image, render, &view.pixels, (a.texels, a.disagreeing))
             }),
         })
         .collect()
@@ -374,26 +394,27 @@ impl Refine<'_> {
 }
 
 /// One view's residual for a pass: raw and shrunk as [`Pair`]s, the photo's noise level and
-/// (in the last pass) its local roughness per pixel, and the residual's
+/// (in the last pass) its local roughness per pixel and its render, and the residual's
 /// [`mean_relative_residual`].
 struct Prepared {
     pairs: Vec<Pair>,
     sigma: f32,
     rough: Vec<f32>,
+    render: Option<Vec<Option<Vec3>>>,
     mean: f64,
 }
 
 /// `photo - render` over a view's clean pixels (0 elsewhere), judged and shrunk
 /// ([`shrink_residual_levels`]).
-fn prepare(view: &View, render: &[Option<Vec3>], last: bool) -> Prepared {
+fn prepare(view: &View, render: Vec<Option<Vec3>>, last: bool) -> Prepared {
     let photo = view.image;
-    let mut residual: Vec<Vec3> = (photo.pixels.iter().zip(render).zip(&view.pixels))
+    let mut residual: Vec<Vec3> = (photo.pixels.iter().zip(&render).zip(&view.pixels))
         .map(|((ph, r), px)| match r {
             Some(r) if px.clean => *ph - *r,
             _ => Vec3::ZERO,
         })
         .collect();
-    let mean = mean_relative_residual(&residual, render, &photo.pixels, &view.pixels);
+    let mean = mean_relative_residual(&residual, &render, &photo.pixels, &view.pixels);
     let raw = residual.clone();
     let w = photo.width as usize;
     let levels = shrink_residual_levels(&mut residual, &photo.pixels, &view.pixels, w);
@@ -408,6 +429,7 @@ fn prepare(view: &View, render: &[Option<Vec3>], last: bool) -> Prepared {
         pairs,
         sigma: levels.sigma,
         rough: if last { levels.rough } else { Vec::new() },
+        render: last.then_some(render),
         mean,
     }
 }
