@@ -382,6 +382,8 @@ struct Run<'a> {
     /// Peak RSS after loading the scene (MiB).
     load_rss: f64,
     atlas_s: f64,
+    /// Rays the atlas cast (this process).
+    atlas_rays: u64,
 }
 
 /// A reconstruction under way: its state store, report and checkpoint writer.
@@ -494,6 +496,11 @@ impl<'a> Run<'a> {
             load_s,
             load_rss,
             atlas_s: t.elapsed().as_secs_f64(),
+            atlas_rays: 0,
+        })
+        .map(|mut run| {
+            run.atlas_rays = run.p.accel.rays();
+            run
         })
     }
 
@@ -532,6 +539,9 @@ impl<'a> Run<'a> {
         let mut report = Report::new(cfg.clone());
         report.timings.load = self.load_s;
         report.timings.atlas = self.atlas_s;
+        report.rays.atlas = world.sum(self.atlas_rays);
+        report.rays.cores = world.size() * rayon::current_num_threads();
+        let rays = p.accel.rays();
         report.atlas = self.atlas.clone();
         report.resources.memory_budget_mib = cfg.memory_budget_mib;
         let res = &mut report.resources;
@@ -552,6 +562,7 @@ impl<'a> Run<'a> {
             true,
         )?;
         report.timings.projection = t.elapsed().as_secs_f64();
+        report.rays.projection = self.rays_since(rays);
         report.timings.noise_probe = ps.probe_seconds;
         report.timings.calibration = ps.calibration_seconds;
         let ids = p
@@ -584,13 +595,15 @@ impl<'a> Run<'a> {
             denoised_texels: dn.averaged,
             denoise_sigma_ratio: dn.sigma_ratio,
         };
-        let t = Instant::now();
+        let (t, rays) = (Instant::now(), p.accel.rays());
         let direct = self.direct(&mut state)?;
         report.timings.direct = t.elapsed().as_secs_f64();
+        report.rays.direct = self.rays_since(rays);
         report.resources.after("direct");
-        let t = Instant::now();
+        let (t, rays) = (Instant::now(), p.accel.rays());
         let caustic = self.caustics(&mut state)?;
         report.timings.caustics = t.elapsed().as_secs_f64();
+        report.rays.caustics = self.rays_since(rays);
         report.counts.caustic_photons = caustic.photons;
         report.counts.dense_direct_texels = direct.dense;
         report.counts.direct_first_pass_texels = direct.first_pass;
@@ -797,10 +810,12 @@ impl<'a> Run<'a> {
                 }
             }
         };
+        let rays = self.p.accel.rays();
         let (est, rule) = match cfg.method {
             Method::Photons => (self.photon_estimate(r, n, &mut pass, sampler)?, cfg.update),
             Method::Gather => (self.gather_estimate(r)?, UpdateRule::FixedPoint),
         };
+        r.report.rays.estimate += self.rays_since(rays);
         if cfg.method == Method::Photons {
             crate::stages::indirect::through_coats(&self.p, &self.geom, (&mut r.state, window))?;
         }
@@ -1314,10 +1329,19 @@ impl<'a> Run<'a> {
             &|k| stage.inc(k),
         )?;
         stage.finish();
+        if let Some(line) = r.report.rays.summary(&r.report.timings) {
+            note(self.mode, &line);
+        }
         for line in crate::report::summary::fold_lines(&r.report.uv_fold) {
             note(self.mode, &line);
         }
         Ok(())
+    }
+
+    /// Rays this run's processes cast since this process had cast `before` (a collective:
+    /// every process calls it at the same point).
+    fn rays_since(&self, before: u64) -> u64 {
+        self.world.sum(self.p.accel.rays() - before)
     }
 
     /// What the run wrote and held: checkpoints, memory, and under MPI the ranks' traffic.

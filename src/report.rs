@@ -77,6 +77,73 @@ pub struct Timings {
     pub total: f64,
 }
 
+/// Rays cast per stage (every process of the run together): with the stage's wall time and
+/// the run's cores, how close each stage comes to the ray-casting limit
+/// ([`StageRays::per_core_second`]). A stage casting few rays for its time spends it
+/// elsewhere (look-ups, filters, I/O).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct StageRays {
+    /// The atlas (texel geometry and hit tables).
+    pub atlas: u64,
+    /// The projection with its calibration and noise probe.
+    pub projection: u64,
+    pub direct: u64,
+    pub caustics: u64,
+    /// Every iteration's gather, or photons (method `photons`).
+    pub estimate: u64,
+    pub output: u64,
+    /// Worker threads per process times processes: the cores the rays were cast on.
+    pub cores: usize,
+}
+
+impl StageRays {
+    /// Per stage with rays, `(name, rays, rays per second per core)` from the stages' wall
+    /// times `t`.
+    pub fn per_core_second(&self, t: &Timings) -> Vec<(&'static str, u64, f64)> {
+        let est = t.gather + t.photons;
+        [
+            ("atlas", self.atlas, t.atlas),
+            ("projection", self.projection, t.projection),
+            ("direct", self.direct, t.direct),
+            ("caustics", self.caustics, t.caustics),
+            ("estimate", self.estimate, est),
+            ("output", self.output, t.output),
+        ]
+        .into_iter()
+        .filter(|(_, n, _)| *n > 0)
+        .map(|(k, n, s)| (k, n, n as f64 / (s * self.cores.max(1) as f64).max(1e-9)))
+        .collect()
+    }
+
+    /// One line for the console: each stage's rays and rays per second per core.
+    pub fn summary(&self, t: &Timings) -> Option<String> {
+        let parts: Vec<String> = (self.per_core_second(t).into_iter())
+            .map(|(k, n, r)| format!("{k} {} ({}/s per core)", si(n as f64), si(r)))
+            .collect();
+        (!parts.is_empty()).then(|| format!("rays cast: {}", parts.join(", ")))
+    }
+}
+
+/// `v` with a k / M / G suffix, three significant digits.
+fn si(v: f64) -> String {
+    let (d, u) = match v {
+        v if v >= 1e9 => (1e9, "G"),
+        v if v >= 1e6 => (1e6, "M"),
+        v if v >= 1e3 => (1e3, "k"),
+        _ => (1.0, ""),
+    };
+    let x = v / d;
+    let p = if x >= 100.0 {
+        0
+    } else if x >= 10.0 {
+        1
+    } else {
+        2
+    };
+    format!("{x:.p$}{u}")
+}
+
 /// Counts that describe the problem size.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct Counts {
@@ -156,6 +223,9 @@ pub struct Report {
     /// Why the solver stopped: "tolerance" or "max_iterations".
     pub stopped_by: String,
     pub timings: Timings,
+    /// Rays cast per stage.
+    #[serde(default)]
+    pub rays: StageRays,
     pub counts: Counts,
     /// Per reconstructed shape, its texel density and how it was chosen.
     pub atlas: Vec<ShapeTexels>,
@@ -429,6 +499,7 @@ impl Report {
             iterations: Vec::new(),
             stopped_by: String::new(),
             timings: Timings::default(),
+            rays: StageRays::default(),
             counts: Counts::default(),
             atlas: Vec::new(),
             table: Vec::new(),
@@ -466,6 +537,39 @@ pub struct Confidence {
 
 #[cfg(test)]
 mod tests {
+    /// Rays per second per core: a stage's rays over its wall time and the run's cores; the
+    /// estimate over the gather and the photons together; stages without rays left out.
+    #[test]
+    fn stage_rays_per_core_second() {
+        let rays = StageRays {
+            projection: 6_000_000,
+            estimate: 9_000_000,
+            cores: 2,
+            ..Default::default()
+        };
+        let t = Timings {
+            projection: 3.0,
+            gather: 1.0,
+            photons: 0.5,
+            ..Default::default()
+        };
+        let got = rays.per_core_second(&t);
+        assert_eq!(
+            got,
+            vec![("projection", 6_000_000, 1e6), ("estimate", 9_000_000, 3e6)]
+        );
+        assert_eq!(
+            rays.summary(&t).as_deref(),
+            Some(
+                "rays cast: projection 6.00M (1.00M/s per core), estimate 9.00M (3.00M/s per core)"
+            )
+        );
+        assert_eq!(StageRays::default().summary(&t), None);
+        assert_eq!(si(999.0), "999");
+        assert_eq!(si(12_345.0), "12.3k");
+        assert_eq!(si(2.5e9), "2.50G");
+    }
+
     use super::*;
 
     /// Each decision of the fold reads as what happened, and an unfolded shape quotes no

@@ -228,6 +228,7 @@ def run_scene(scene, args, kdmap, logs):
                                              "update", "smoothing_radius", "refine_passes")}
     rec["settings"]["texels_per_unit"] = s.get("atlas", {}).get("texels_per_unit")
     rec["timings"] = report["timings"]
+    rec["rays"] = report.get("rays")
     rec["counts"] = report["counts"]
     res = report.get("resources", {})
     # what the run wrote to disk: its working tile stores (geometry + state, scratch

@@ -145,6 +145,18 @@ class Pages(unittest.TestCase):
         self.assertEqual(by_scene(stages)["cbox"]["caustics"], "0.00")
         self.assertEqual(by_scene(stages)["cbox"]["total"], "12.49")
 
+    def test_rays_per_stage_with_their_rate_per_core(self):
+        self.assertNotIn("## Rays per stage", dp.performance_page(self.entries), "no rays: none")
+        entries = copy.deepcopy(self.entries)
+        # 12 M rays over 6.18 s on 2 cores: 0.97 M/s per core; the estimate over gather + photons
+        entries[0]["rays"] = {"projection": 12_000_000, "estimate": 3_520_000, "direct": 0,
+                              "cores": 2}
+        rows = by_scene(section_table(dp.performance_page(entries), "Rays per stage"))
+        self.assertEqual(list(rows["cbox"]), ["scene", "cores", "projection", "estimate"])
+        self.assertEqual(rows["cbox"]["projection"], "12.00 (0.97)")
+        self.assertEqual(rows["cbox"]["estimate"], "3.52 (1.00)")
+        self.assertNotIn("lights", rows, "a scene without rays has no row")
+
     def test_anchor_columns_only_with_an_anchor(self):
         acc, perf = dp.accuracy_page(self.entries), dp.performance_page(self.entries)
         self.assertNotIn("anchor", acc)

@@ -98,7 +98,7 @@ fn view_pixels(p: &RunContext, si: usize) -> u64 {
 
 /// Write the whole output directory for a finished run (see the module doc): textures and
 /// maps per reconstructed shape, meshes, `scene.xml`, the re-rendered views, the convergence
-/// plot; then fill `report.table` and `report.timings.output`, write the report page and
+/// plot; then fill `report.table`, `report.timings.output` and `report.rays.output`, write the report page and
 /// `report.json` last.
 /// The caller sets the other report fields (including `timings.total`) before calling.
 /// `tick` gets each shape's texels once its textures and maps are written, and each view's
@@ -113,7 +113,7 @@ pub fn write_outputs(
     scratch: &Scratch,
     tick: Tick,
 ) -> Result<()> {
-    let t0 = Instant::now();
+    let (t0, rays) = (Instant::now(), p.accel.rays());
     fsio::create_dir(out)?;
     // every file but report.json, made durable together before report.json says they are done
     let unsynced = fsio::Unsynced::begin(out);
@@ -206,6 +206,7 @@ pub fn write_outputs(
     convergence::write_convergence(out, &report.iterations)?;
 
     report.timings.output = t0.elapsed().as_secs_f64();
+    report.rays.output = p.accel.rays() - rays;
     report.resources.after("output");
     report.timings.total += report.timings.output;
     page::write_page(out, Some(report), &facts)?;

@@ -14,6 +14,7 @@ use obvhs::{
     triangle::Triangle,
     BvhBuildParams,
 };
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;
 
 /// A closest-hit record.
@@ -34,6 +35,8 @@ pub struct Hit {
 
 /// The scene's acceleration structure. Immutable and `Sync`: share it across threads.
 pub struct Accel {
+    /// Rays cast so far (see [`Accel::rays`]).
+    rays: RayCount,
     bvh: CwBvh,
     /// Triangles in BVH primitive order.
     tris: Vec<Triangle>,
@@ -65,6 +68,7 @@ impl Accel {
         assert_eq!(tris.len(), ids.len());
         if tris.is_empty() {
             return Accel {
+                rays: RayCount::default(),
                 bvh: CwBvh::default(),
                 tris,
                 ids,
@@ -79,10 +83,17 @@ impl Accel {
         let tris_o = order.iter().map(|&i| tris[i as usize]).collect();
         let ids_o = order.iter().map(|&i| ids[i as usize]).collect();
         Accel {
+            rays: RayCount::default(),
             bvh,
             tris: tris_o,
             ids: ids_o,
         }
+    }
+
+    /// Rays cast so far by this process ([`Accel::intersect`] and [`Accel::occluded`] calls
+    /// alike): what a stage cast is the difference across it.
+    pub fn rays(&self) -> u64 {
+        self.rays.total()
     }
 
     pub fn triangle_count(&self) -> usize {
@@ -98,6 +109,7 @@ impl Accel {
     /// Closest hit along `origin + t * dir` for `t` in `(0, tmax)`. `dir` must be unit length.
     #[inline]
     pub fn intersect(&self, origin: Vec3, dir: Vec3, tmax: f32) -> Option<Hit> {
+        self.rays.add();
         if self.tris.is_empty() {
             return None;
         }
@@ -128,6 +140,7 @@ impl Accel {
     /// Whether anything blocks the segment from `origin` along unit `dir` before `tmax`.
     #[inline]
     pub fn occluded(&self, origin: Vec3, dir: Vec3, tmax: f32) -> bool {
+        self.rays.add();
         if self.tris.is_empty() {
             return false;
         }
@@ -136,6 +149,40 @@ impl Accel {
         !self
             .bvh
             .ray_traverse_miss(ray, |r, id| tris[id].intersect(r))
+    }
+}
+
+/// Counters of rays cast, one per worker thread on its own cache line (a shared counter
+/// would bounce between the cores on every ray); rayon's threads take slots 1.., any other
+/// thread slot 0. Relaxed: a stage reads the total after its threads have joined.
+struct RayCount {
+    slots: [Slot; RAY_SLOTS],
+}
+
+/// Counter slots (threads beyond share them, still correctly: the adds are atomic).
+const RAY_SLOTS: usize = 64;
+
+#[repr(align(128))]
+#[derive(Default)]
+struct Slot(AtomicU64);
+
+impl Default for RayCount {
+    fn default() -> Self {
+        RayCount {
+            slots: std::array::from_fn(|_| Slot::default()),
+        }
+    }
+}
+
+impl RayCount {
+    #[inline(always)]
+    fn add(&self) {
+        let i = rayon::current_thread_index().map_or(0, |i| 1 + i % (RAY_SLOTS - 1));
+        self.slots[i].0.fetch_add(1, Ordering::Relaxed);
+    }
+
+    fn total(&self) -> u64 {
+        self.slots.iter().map(|s| s.0.load(Ordering::Relaxed)).sum()
     }
 }
 
@@ -191,6 +238,30 @@ mod tests {
         }
         let ids = (0..n as u32).map(|i| (0, i)).collect();
         (tris, ids)
+    }
+
+    /// Every ray is counted once, closest-hit and shadow rays alike, from the calling thread
+    /// and from rayon's workers, on an empty scene too.
+    #[test]
+    fn rays_are_counted_from_every_thread() {
+        use rayon::prelude::*;
+        let (tris, ids) = soup(50, 3);
+        let accel = Accel::from_triangles(tris, ids);
+        let (o, d) = (Vec3::splat(-3.0), Vec3::ONE.normalize());
+        assert_eq!(accel.rays(), 0);
+        accel.intersect(o, d, f32::INFINITY);
+        accel.occluded(o, d, 1.0);
+        assert_eq!(accel.rays(), 2);
+        (0..10_000).into_par_iter().for_each(|i| {
+            match i % 2 {
+                0 => drop(accel.intersect(o, d, f32::INFINITY)),
+                _ => drop(accel.occluded(o, d, 1.0)),
+            };
+        });
+        assert_eq!(accel.rays(), 10_002);
+        let empty = Accel::from_triangles(Vec::new(), Vec::new());
+        empty.occluded(o, d, 1.0);
+        assert_eq!(empty.rays(), 1);
     }
 
     /// The BVH's closest hit and occlusion agree with testing every triangle.

@@ -29,11 +29,11 @@ pub type SyncRows<'a> = dyn Fn(&mut [Option<Vec3>], usize) -> Result<()> + 'a;
 /// of the pixels within the filter's reach, each weighted by the filter at its offset from the
 /// pixel's center, normalized by the weights of the samples that see a texture. `sync` makes
 /// the per-row sums whole in units of `band` rows (see `Shard::sync_pixels`).
-pub fn render_filtered(
+pub fn render_filtered<'h>(
     parts: (&Accel, &Camera, &[Option<Texture>]),
     k: u32,
     filter: PixelFilter,
-    plan: &(dyn Fn(u32, u32) -> Plan + Sync),
+    plan: &(dyn Fn(u32, u32) -> Plan<'h> + Sync),
     (sync, band): (&SyncRows, u32),
 ) -> Result<Vec<Option<Vec3>>> {
     let camera = parts.1;
@@ -66,10 +66,10 @@ fn columns(
 
 /// One row's `k x k` sub-pixel samples per pixel (pixel-major, row-major within a pixel) and
 /// which pixels the plan skips.
-fn row_samples(
+fn row_samples<'h>(
     parts: (&Accel, &Camera, &[Option<Texture>]),
     k: u32,
-    plan: &(dyn Fn(u32, u32) -> Plan + Sync),
+    plan: &(dyn Fn(u32, u32) -> Plan<'h> + Sync),
     y: u32,
 ) -> (Vec<Option<Vec3>>, Vec<bool>) {
     let w = parts.1.width() as usize;

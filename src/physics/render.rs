@@ -5,7 +5,7 @@
 
 use crate::base::rng::Rng;
 use crate::image::Image;
-use crate::physics::accel::{offset_origin, Accel};
+use crate::physics::accel::{offset_origin, Accel, Hit};
 use crate::physics::bsdf_sampling;
 use crate::physics::camera::Camera;
 use crate::scene::{Emitter, PixelFilter, Scene, Sides};
@@ -86,7 +86,8 @@ pub fn bilinear(texels: &dyn Texels, uv: Vec2) -> Vec3 {
 fn bilinear_with(width: u32, height: u32, uv: Vec2, g: impl Fn(u32, u32) -> Vec3) -> Vec3 {
     let fx = (uv.x - 0.5).clamp(0.0, (width - 1) as f32);
     let fy = (uv.y - 0.5).clamp(0.0, (height - 1) as f32);
-    let (x0, y0) = (fx.floor() as u32, fy.floor() as u32);
+    // non-negative after the clamp (or NaN, which both casts make 0): truncation is the floor
+    let (x0, y0) = (fx as u32, fy as u32);
     let (x1, y1) = ((x0 + 1).min(width - 1), (y0 + 1).min(height - 1));
     let (tx, ty) = (fx - x0 as f32, fy - y0 as f32);
     let top = g(x0, y0) * (1.0 - tx) + g(x1, y0) * tx;
@@ -143,9 +144,12 @@ pub fn render_view(
 
 /// How [`render_view_with`] renders one pixel.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub enum Plan {
+pub enum Plan<'a> {
     /// Sub-pixel rays.
     Trace,
+    /// No rays: what the sub-pixel rays hit, found before ([`sub_hits`]); for
+    /// [`Film::HitsOnly`] (another film traces the pixel).
+    Hits(&'a [SubHit]),
     /// No rays: the pixel lies wholly on one chart of a textured shape (texture coordinates
     /// interpolated from its corners).
     Flat(FlatPixel),
@@ -156,15 +160,16 @@ pub enum Plan {
 /// [`render_view`] where `plan(x, y)` says how to render each pixel: flat pixels read the
 /// texture at the same `k x k` sub-pixel positions with their texture coordinates
 /// interpolated from the pixel's corners instead of traced.
-pub fn render_view_with(
+pub fn render_view_with<'h>(
     accel: &Accel,
     camera: &Camera,
     textures: &[Option<Texture>],
     k: u32,
     film: Film,
-    plan: &(dyn Fn(u32, u32) -> Plan + Sync),
+    plan: &(dyn Fn(u32, u32) -> Plan<'h> + Sync),
 ) -> Vec<Option<Vec3>> {
     let (w, h) = (camera.width(), camera.height());
+    let hits_only = matches!(film, Film::HitsOnly);
     let k = k.max(1);
     (0..h)
         .into_par_iter()
@@ -173,16 +178,105 @@ pub fn render_view_with(
                 Plan::Skip => None,
                 Plan::Flat(f) => flat_pixel(textures, k, &f)
                     .or_else(|| pixel(accel, camera, textures, k, film, x, y)),
-                Plan::Trace => pixel(accel, camera, textures, k, film, x, y),
+                Plan::Hits(h) if hits_only => hits_pixel(textures, h),
+                Plan::Trace | Plan::Hits(_) => pixel(accel, camera, textures, k, film, x, y),
             })
         })
         .collect()
+}
+
+/// What one sub-pixel ray of a [`Film::HitsOnly`] render hits: a textured shape at texture
+/// coordinates `uv`, or no texture (`shape` [`SubHit::NONE`]). It depends on the camera and
+/// on which shapes have a texture, not on the textures' values: a caller that re-renders a
+/// view from changing maps finds them once ([`sub_hits`]) and renders the pixel from them
+/// ([`Plan::Hits`]), with the same result as tracing it again.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SubHit {
+    pub shape: u32,
+    pub uv: Vec2,
+}
+
+impl SubHit {
+    /// The `shape` of a sub-pixel ray that sees no texture.
+    pub const NONE: u32 = u32::MAX;
+}
+
+/// The `k x k` sub-pixel rays of pixel `(x, y)` (row-major), traced as a
+/// [`Film::HitsOnly`] render traces them.
+pub fn sub_hits(
+    (accel, camera, textures): (&Accel, &Camera, &[Option<Texture>]),
+    k: u32,
+    (x, y): (u32, u32),
+) -> Vec<SubHit> {
+    let mut out = Vec::with_capacity((k * k) as usize);
+    for j in 0..k {
+        for i in 0..k {
+            let px = x as f32 + (i as f32 + 0.5) / k as f32;
+            let py = y as f32 + (j as f32 + 0.5) / k as f32;
+            let (o, d) = camera.ray(px, py);
+            let hit = accel.intersect(o, d, f32::INFINITY);
+            let seen = hit.and_then(|h| Some((h.shape, textured_uv(textures, &h)?.1)));
+            out.push(match seen {
+                Some((shape, uv)) => SubHit { shape, uv },
+                None => SubHit {
+                    shape: SubHit::NONE,
+                    uv: Vec2::ZERO,
+                },
+            });
+        }
+    }
+    out
+}
+
+/// A sub-pixel hit's texture value (`None`: no texture).
+#[inline]
+fn hit_value(textures: &[Option<Texture>], h: &SubHit) -> Option<Vec3> {
+    let tex = textures.get(h.shape as usize)?.as_ref()?;
+    Some(bilinear(tex.texels, h.uv))
+}
+
+/// A pixel from its sub-pixel hits as [`pixel`] makes it for [`Film::HitsOnly`]: the mean
+/// over the hits that see a texture, `None` if none does.
+fn hits_pixel(textures: &[Option<Texture>], hits: &[SubHit]) -> Option<Vec3> {
+    let (mut sum, mut n) = (Vec3::ZERO, 0u32);
+    for v in hits.iter().filter_map(|h| hit_value(textures, h)) {
+        sum += v;
+        n += 1;
+    }
+    (n > 0).then(|| sum / n as f32)
+}
+
+/// The texture a hit lands on and its texture coordinates there, if its shape has one.
+#[inline]
+fn textured_uv<'t>(
+    textures: &'t [Option<Texture<'t>>],
+    hit: &Hit,
+) -> Option<(&'t Texture<'t>, Vec2)> {
+    let tex = textures.get(hit.shape as usize)?.as_ref()?;
+    let c = tex.corner_uv[hit.tri as usize];
+    Some((
+        tex,
+        c[0] * (1.0 - hit.b1 - hit.b2) + c[1] * hit.b1 + c[2] * hit.b2,
+    ))
 }
 
 /// The mean of the texture over `k x k` sub-pixel positions of a flat pixel (`None` if its
 /// shape has no texture).
 fn flat_pixel(textures: &[Option<Texture>], k: u32, f: &FlatPixel) -> Option<Vec3> {
     let tex = textures.get(f.shape as usize)?.as_ref()?;
+    let (w, h) = (tex.texels.width(), tex.texels.height());
+    // the texture resolved once per pixel, not per sub-pixel look-up
+    Some(match tex.texels.row_major() {
+        Some(v) => flat_mean(k, f, |uv| {
+            bilinear_with(w, h, uv, |x, y| v[(y * w + x) as usize])
+        }),
+        None => flat_mean(k, f, |uv| bilinear(tex.texels, uv)),
+    })
+}
+
+/// The mean of `look(uv)` over `k x k` sub-pixel positions of a flat pixel.
+#[inline(always)]
+fn flat_mean(k: u32, f: &FlatPixel, look: impl Fn(Vec2) -> Vec3) -> Vec3 {
     let [a, b, c, d] = f.uv;
     let mut sum = Vec3::ZERO;
     for j in 0..k {
@@ -190,10 +284,10 @@ fn flat_pixel(textures: &[Option<Texture>], k: u32, f: &FlatPixel) -> Option<Vec
         let (l, r) = (a.lerp(c, ty), b.lerp(d, ty));
         for i in 0..k {
             let tx = (i as f32 + 0.5) / k as f32;
-            sum += bilinear(tex.texels, l.lerp(r, tx));
+            sum += look(l.lerp(r, tx));
         }
     }
-    Some(sum / (k * k) as f32)
+    sum / (k * k) as f32
 }
 
 /// Apply a film's pixel filter to an image of pixel means (what [`render_view`] makes: a box
@@ -298,6 +392,12 @@ pub fn pixel_samples(
     out.fill(None);
     let flat = match plan {
         Plan::Skip => return,
+        Plan::Hits(h) => {
+            for (o, h) in out.iter_mut().zip(h) {
+                *o = hit_value(textures, h);
+            }
+            return;
+        }
         Plan::Flat(f) => textures
             .get(f.shape as usize)
             .and_then(|t| t.as_ref().map(|t| (t, f))),
@@ -356,9 +456,7 @@ fn trace(
             };
         };
         let si = hit.shape as usize;
-        if let Some(tex) = textures.get(si).and_then(|t| t.as_ref()) {
-            let c = tex.corner_uv[hit.tri as usize];
-            let uv = c[0] * (1.0 - hit.b1 - hit.b2) + c[1] * hit.b1 + c[2] * hit.b2;
+        if let Some((tex, uv)) = textured_uv(textures, &hit) {
             let v = bilinear(tex.texels, uv) * weight;
             return match bounce {
                 0 => Seen::Texture(v),
@@ -495,6 +593,111 @@ mod tests {
             trace(&accel, &cam, &[], Some(&scene), (1.3, 2.6), 0),
             Seen::Nothing
         ));
+    }
+
+    /// Pixels rendered from their kept sub-pixel hits ([`sub_hits`], [`Plan::Hits`]) are the
+    /// traced ones bit for bit, pixel means and filtered samples alike, whatever the texture
+    /// holds: a textured quad partly covered by an untextured triangle, some pixels half off
+    /// both.
+    #[test]
+    fn kept_sub_pixel_hits_render_as_tracing_does() {
+        use crate::scene::{FovAxis, Sensor};
+        let sensor = Sensor::simple(
+            "c",
+            glam::Mat4::IDENTITY,
+            50.0,
+            FovAxis::X,
+            (12, 9),
+            PixelFilter::Box,
+        );
+        let shape = |id: &str, positions: Vec<Vec3>, triangles| crate::scene::Shape {
+            id: id.into(),
+            kind: "test".into(),
+            file: None,
+            mesh: crate::scene::Mesh {
+                positions,
+                triangles,
+                ..Default::default()
+            },
+            sides: crate::scene::Sides::Both,
+            emission: None,
+            reflectance: None,
+            material: Default::default(),
+        };
+        let quad = [(-1.0, -0.7), (0.9, -0.8), (1.1, 0.6), (-0.8, 0.9)]
+            .map(|(x, y)| Vec3::new(x, y, 3.0))
+            .to_vec();
+        let tri = [(-0.2, -0.1), (0.6, 0.0), (0.1, 0.5)]
+            .map(|(x, y)| Vec3::new(x, y, 2.0))
+            .to_vec();
+        let scene = Scene {
+            path: "t.xml".into(),
+            shapes: vec![
+                shape("quad", quad, vec![[0, 1, 2], [0, 2, 3]]),
+                shape("tri", tri, vec![[0, 1, 2]]),
+            ],
+            emitters: vec![],
+            sensors: vec![sensor.clone()],
+            files: vec![],
+        };
+        let accel = Accel::build(&scene);
+        let cam = Camera::from_sensor(&sensor);
+        let texels: Vec<Vec3> = (0..20)
+            .map(|i| Vec3::new(i as f32, (i * 7 % 5) as f32, 0.3 * i as f32))
+            .collect();
+        let map = RowMajor {
+            width: 5,
+            height: 4,
+            texels: &texels,
+        };
+        let corner_uv = [
+            [
+                Vec2::new(0.2, 0.3),
+                Vec2::new(4.9, 0.1),
+                Vec2::new(4.7, 3.8),
+            ],
+            [
+                Vec2::new(0.2, 0.3),
+                Vec2::new(4.7, 3.8),
+                Vec2::new(0.1, 3.9),
+            ],
+        ];
+        let textures = [
+            Some(Texture {
+                texels: &map,
+                corner_uv: &corner_uv,
+            }),
+            None,
+        ];
+        let k = 3;
+        let parts = (&accel, &cam, &textures[..]);
+        let hits: Vec<Vec<SubHit>> = (0..9 * 12)
+            .map(|i| sub_hits(parts, k, (i % 12, i / 12)))
+            .collect();
+        let seen = |h: &Vec<SubHit>| h.iter().filter(|h| h.shape != SubHit::NONE).count();
+        assert!(
+            hits.iter().any(|h| seen(h) == 0),
+            "some pixel sees no texture"
+        );
+        assert!(
+            hits.iter().any(|h| (1..9).contains(&seen(h))),
+            "some pixel is mixed"
+        );
+        let traced = render_view_with(&accel, &cam, &textures, k, Film::HitsOnly, &|_, _| {
+            Plan::Trace
+        });
+        let kept = render_view_with(&accel, &cam, &textures, k, Film::HitsOnly, &|x, y| {
+            Plan::Hits(&hits[(y * 12 + x) as usize])
+        });
+        assert_eq!(kept, traced);
+        assert!(traced.iter().flatten().count() > 50);
+        let (mut a, mut b) = (vec![None; 9], vec![None; 9]);
+        for (i, h) in hits.iter().enumerate() {
+            let xy = (i as u32 % 12, i as u32 / 12);
+            pixel_samples(parts, k, Plan::Trace, xy, &mut a);
+            pixel_samples(parts, k, Plan::Hits(h), xy, &mut b);
+            assert_eq!(a, b, "pixel {xy:?}");
+        }
     }
 
     #[test]

@@ -251,6 +251,20 @@ impl<V: Pod + Send + Sync> SlotTexture<V> {
         })
     }
 
+    /// Slot `slot`'s texture `f(record)` per texel, from `store` alone (no geometry read).
+    pub fn read_store<S: Pod + Send + Sync>(
+        (layout, slot, store): (&Layout, usize, &TileStore<S>),
+        scratch: &Scratch,
+        name: &str,
+        f: impl Fn(&S) -> V + Sync,
+    ) -> Result<Self> {
+        let grid = Grid::of(layout, slot);
+        Self::build(grid, scratch, name, |t| {
+            let recs = store.read_tile((grid.first_tile + t) as usize)?;
+            Ok(recs.iter().map(&f).collect())
+        })
+    }
+
     /// Whether the texture is held whole in memory.
     pub fn is_whole(&self) -> bool {
         matches!(self.data, Data::Whole(_))

@@ -56,6 +56,17 @@ pub fn figures(r: &Report) -> String {
         bar_chart("time per stage", "s", &stage_times(r)),
         "Wall time per stage (the projection includes its noise probe and the calibration).",
     );
+    let rays: Vec<(String, f64)> = (r.rays.per_core_second(&r.timings).into_iter())
+        .map(|(k, _, v)| (k.to_string(), v / 1e6))
+        .collect();
+    if !rays.is_empty() {
+        s += &fig(
+            bar_chart("rays cast per second per core", "M rays/s", &rays),
+            "Each stage's rays over its wall time and the run's cores. Ray casting alone runs at \
+             about 5-10 M rays/s per core on small scenes: a stage far below spends its time \
+             elsewhere.",
+        );
+    }
     let mem: Vec<(String, f64)> = r.resources.peak_rss_mib.clone();
     if !mem.is_empty() {
         s += &fig(

@@ -75,7 +75,7 @@ mod view;
 mod visible;
 
 pub use diagnose::notes as capture_notes;
-pub use lookups::{Lookups, TileLookups};
+pub use lookups::{Lookups, TileLookups, ViewHits};
 pub use refine::{Refine, REFINE_SUPERSAMPLE};
 pub use shrinkage::{shrink_residual, shrink_residual_levels, NoiseLevels};
 pub use view::{classify_pixels, Pair, PixelInfo, Value, View};

@@ -438,7 +438,7 @@ impl Reference {
         let path = ctx.scratch.dir.join("pose-loo.tiles");
         let loo = leave_one_out(ctx, sums, view, &path)?;
         let half = ctx.scratch.share(1, 2);
-        let maps = current_maps(ctx.p, ctx.geom, &loo, &half)?;
+        let maps = current_maps(ctx.p, &loo, &half)?;
         let seen = observed_maps(ctx, &loo, &half)?;
         let blank = Image {
             width: view.image.width,

@@ -8,11 +8,11 @@ use super::shrinkage::relative;
 use super::total_variation::tv_luminance;
 use super::view::View;
 use super::{
-    apply_refinement, backproject_tile, shrink_residual_levels, Lookups, Pair, Residual,
-    ResidualViews, Shard, TileLookups, ROW_BAND,
+    apply_refinement, backproject_tile, shrink_residual_levels, Agreement, Lookups, Pair, Residual,
+    ResidualViews, Shard, TileLookups, ViewHits, ROW_BAND,
 };
 use crate::atlas::context::HitTable;
-use crate::atlas::store::{map_tiles, TileStore};
+use crate::atlas::store::TileStore;
 use crate::atlas::store::{TexelGeom, TexelState};
 use crate::atlas::texture::{Scratch, SlotTexture};
 use crate::atlas::uv::Charts;
@@ -20,9 +20,10 @@ use crate::atlas::RunContext;
 use crate::base::error::{Error, Result};
 use crate::base::progress::{Mode, Stage};
 use crate::physics::film_filter::render_filtered;
-use crate::physics::render::{render_view_with, Film, Plan, Texture};
+use crate::physics::render::{render_view_with, sub_hits, Film, Plan, Texture};
 use glam::Vec3;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use rayon::prelude::*;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Mutex;
 
 /// Sub-pixel rays per side when a view is re-rendered for refinement (pixel means, then the
@@ -36,7 +37,6 @@ const REFINE_DILATE: u32 = 4;
 /// (each its share), the rest in tiles.
 pub(super) fn current_maps(
     p: &RunContext,
-    geom: &TileStore<TexelGeom>,
     state: &TileStore<TexelState>,
     scratch: &Scratch,
 ) -> Result<Vec<Option<SlotTexture<Vec3>>>> {
@@ -49,13 +49,9 @@ pub(super) fn current_maps(
         .map(|s| s.width as u64 * s.height as u64)
         .sum();
     for (slot, st) in p.layout.slots.iter().enumerate() {
-        let l = &p.layout;
-        let vals = SlotTexture::read(l, slot, state, geom, scratch, "lum", |s, _| {
-            Vec3::from_array(s.l_orig)
-        })?;
-        let mask = SlotTexture::read(l, slot, state, geom, scratch, "obs", |s, _| {
-            (s.weight > 0.0) as u8
-        })?;
+        let from = (&p.layout, slot, state);
+        let vals = SlotTexture::read_store(from, scratch, "lum", |s| Vec3::from_array(s.l_orig))?;
+        let mask = SlotTexture::read_store(from, scratch, "obs", |s| (s.weight > 0.0) as u8)?;
         let keep = scratch.share(st.width as u64 * st.height as u64, total);
         maps[st.shape] = Some(vals.dilated(&mask, REFINE_DILATE, &keep)?);
     }
@@ -159,13 +155,6 @@ pub struct Refine<'a> {
     pub lookups: &'a Lookups,
 }
 
-/// The residuals of a pass, per texel, summed over the views: a scratch tile store (mapped a
-/// window at a time), and which tiles some view could see.
-struct Delta {
-    store: TileStore<Residual>,
-    touched: Vec<AtomicBool>,
-}
-
 impl Refine<'_> {
     /// `passes.count` times: re-render every view from the current maps, back-project the
     /// residuals `photo - render` (clean pixels only) and add `step` times their weighted
@@ -195,46 +184,27 @@ impl Refine<'_> {
         }
         let total = count as u64 * self.views.len() as u64;
         let stage = Stage::new(mode, self.label, total, "views");
-        let path = self.scratch.dir.join("refine-delta.tiles");
         for pass in 0..count {
-            let maps = current_maps(self.p, self.geom, state, self.scratch)?;
+            let maps = current_maps(self.p, state, self.scratch)?;
             let textures = self.textures(&maps);
-            let n = self.p.layout.tile_count as usize;
-            let mut delta = Delta {
-                store: TileStore::create(
-                    &path,
-                    n,
-                    self.p.layout.tile_texels(),
-                    Residual::default(),
-                )?,
-                touched: (0..n).map(|_| AtomicBool::new(false)).collect(),
-            };
-            let mut sigma = 0.0;
-            noise.clear();
-            let mut pass_residuals = Vec::with_capacity(self.views.len());
             let last = pass + 1 == count;
-            for (i, view) in self.views.iter().enumerate() {
-                let (n, r) = self.backproject((i, view), &textures, state, &mut delta, last)?;
-                sigma += n.sigma;
-                noise.push(n);
-                pass_residuals.push(r);
-                stage.inc(1);
-                crate::base::interrupt::check(crate::base::interrupt::NOTHING_SAVED)?;
-            }
+            let renders = self.render_all(&textures, &stage)?;
             for m in maps.iter().flatten() {
                 m.check()?;
             }
             drop(textures);
             drop(maps);
-            residuals.push(pass_residuals);
+            // each render dropped once its residual is made, but in the last pass
+            let prepared: Vec<Prepared> = (self.views.par_iter().zip(renders))
+                .map(|(view, render)| prepare(view, render, last))
+                .collect();
             let (step, gate) = (passes.step(pass), passes.gate(pass));
-            map_tiles(state, &delta.store, self.window, |t, d, st| {
-                if delta.touched[t].load(Ordering::Relaxed) {
-                    apply_refinement(st, d, last, step, gate);
-                }
-            })?;
+            let seen = self.backproject_and_apply(&prepared, state, (last, step, gate))?;
             (self.shard.sync)(state)?;
+            residuals.push(prepared.iter().map(|v| v.mean).collect());
+            noise = self.noise(prepared, seen);
             if tv > 0.0 {
+                let sigma = noise.iter().fold(0.0, |s, n| s + n.sigma);
                 let rel = tv * sigma / self.views.len() as f32;
                 tv_luminance(
                     &self.p.layout,
@@ -246,9 +216,163 @@ impl Refine<'_> {
                 )?;
             }
         }
-        std::fs::remove_file(&path).map_err(|e| Error::io(&path, e))?;
         stage.finish();
         Ok((noise, residuals))
+    }
+
+    /// Every view rendered from the current maps (`textures`), one after the other (each
+    /// render is parallel over its rows, and a shared run syncs each as a whole).
+    fn render_all(
+        &self,
+        textures: &[Option<Texture>],
+        stage: &Stage,
+    ) -> Result<Vec<Vec<Option<Vec3>>>> {
+        let mut renders = Vec::with_capacity(self.views.len());
+        for (vi, view) in self.views.iter().enumerate() {
+            renders.push(self.render((vi, view), textures)?);
+            stage.inc(1);
+            crate::base::interrupt::check(crate::base::interrupt::NOTHING_SAVED)?;
+        }
+        Ok(renders)
+    }
+
+    /// One view rendered from the current maps, through its film's filter, at the pixels
+    /// that are clean or within the filter's reach of a clean one (`None` elsewhere); pixels
+    /// that do not lie flat on one chart from their sub-pixel hits, found in the first pass
+    /// and kept ([`Lookups::with_hits`]).
+    fn render(
+        &self,
+        (vi, view): (usize, &View),
+        textures: &[Option<Texture>],
+    ) -> Result<Vec<Option<Vec3>>> {
+        let p = self.p;
+        let w = view.image.width;
+        // A blurring film needs the neighbours of clean pixels within its reach too.
+        let filter = view.camera.filter();
+        let needed = view.near_clean(filter.reach());
+        let owns = self.shard.owns;
+        let wanted = |x: u32, y: u32| needed[(y * w + x) as usize] && owns((y / ROW_BAND) as usize);
+        let k = REFINE_SUPERSAMPLE;
+        let traced = |x: u32, y: u32| wanted(x, y) && view.flat(self.hits, x, y).is_none();
+        let parts = (&p.accel, &view.camera, textures);
+        let size = (w, view.image.height);
+        let find = || {
+            ViewHits::find(size, (k * k) as usize, &traced, &|x, y| {
+                sub_hits(parts, k, (x, y))
+            })
+        };
+        self.lookups.with_hits(vi, find, |hits| {
+            let plan = |x: u32, y: u32| {
+                if !wanted(x, y) {
+                    return Plan::Skip;
+                }
+                match view.flat(self.hits, x, y) {
+                    Some(f) => Plan::Flat(f),
+                    None => (hits.and_then(|h| h.get((y * w + x) as usize)))
+                        .map_or(Plan::Trace, Plan::Hits),
+                }
+            };
+            // The photo is the scene seen through the film's filter: so is what it is compared with.
+            match filter.is_box() {
+                true => {
+                    let mut r = render_view_with(
+                        &p.accel,
+                        &view.camera,
+                        textures,
+                        k,
+                        Film::HitsOnly,
+                        &plan,
+                    );
+                    (self.shard.sync_pixels)(&mut r, (ROW_BAND * w) as usize)?;
+                    Ok(r)
+                }
+                false => {
+                    render_filtered(parts, k, filter, &plan, (self.shard.sync_pixels, ROW_BAND))
+                }
+            }
+        })
+    }
+
+    /// Every view's residual (`prepared`, in view order) back-projected into each tile and
+    /// the tile's texels updated at once ([`apply_refinement`] with `(stats, step, gate)`),
+    /// tile by tile: each texel sums its views in view order, as one view after the other
+    /// would, and no tile of residuals is stored. Each view's residual is judged against the
+    /// tile's state before the update. Returns per view the texels it saw and at how many it
+    /// disagreed, summed over the processes.
+    fn backproject_and_apply(
+        &self,
+        prepared: &[Prepared],
+        state: &mut TileStore<TexelState>,
+        (stats, step, gate): (bool, f32, f32),
+    ) -> Result<Vec<Agreement>> {
+        let p = self.p;
+        let err: Mutex<Option<Error>> = Mutex::new(None);
+        let counts: Vec<(AtomicU64, AtomicU64)> = (self.views.iter())
+            .map(|_| (AtomicU64::new(0), AtomicU64::new(0)))
+            .collect();
+        state.for_each_tile_mut(self.window, |t, st| {
+            let Some((lo, hi)) = self.bounds[t].filter(|_| (self.shard.owns)(t)) else {
+                return;
+            };
+            let slot = p.layout.slot_of_tile(t as u32);
+            let shape = p.shape_ref(slot);
+            let mut acc = vec![Residual::default(); st.len()];
+            let mut touched = false;
+            for (vi, (view, rv)) in self.views.iter().zip(prepared).enumerate() {
+                if !view.camera.may_see(lo, hi) {
+                    continue;
+                }
+                let rv = ResidualViews {
+                    view,
+                    residual: &rv.pairs,
+                    sigma: rv.sigma,
+                };
+                let find = || Ok(TileLookups::find(view, &shape, &self.geom.read_tile(t)?));
+                let found = (self.lookups).with(vi, t, find, |looks| {
+                    backproject_tile(&rv, looks, st, &mut acc)
+                });
+                match found {
+                    Ok(a) => {
+                        counts[vi].0.fetch_add(a.texels, Ordering::Relaxed);
+                        counts[vi].1.fetch_add(a.disagreeing, Ordering::Relaxed);
+                        touched = true;
+                    }
+                    Err(e) => {
+                        *err.lock().unwrap_or_else(|e| e.into_inner()) = Some(e);
+                        return;
+                    }
+                }
+            }
+            if touched {
+                apply_refinement(st, &acc, stats, step, gate);
+            }
+        })?;
+        if let Some(e) = err.into_inner().unwrap_or_else(|e| e.into_inner()) {
+            return Err(e);
+        }
+        let sum = self.shard.sum;
+        Ok(counts
+            .into_iter()
+            .map(|(a, b)| Agreement {
+                texels: sum(a.into_inner()),
+                disagreeing: sum(b.into_inner()),
+            })
+            .collect())
+    }
+
+    /// Each view's noise as this pass estimated it (its relative level; in the `last` pass
+    /// also its residual's local roughness per pixel and its check against its render, with
+    /// `seen` its texels and disagreements).
+    fn noise(&self, prepared: Vec<Prepared>, seen: Vec<Agreement>) -> Vec<ViewNoise> {
+        let all = self.views.iter().zip(prepared).zip(seen);
+        all.map(|((view, v), a)| ViewNoise {
+            sigma: v.sigma,
+            level: v.rough,
+            check: (v.render.as_ref()).map(|render| {
+                diagnose::check(view.image, render, &view.pixels, (a.texels, a.disagreeing))
+            }),
+        })
+        .collect()
     }
 
     /// The maps as textures by shape.
@@ -267,114 +391,46 @@ impl Refine<'_> {
             })
             .collect()
     }
+}
 
-    /// One view's residual, back-projected into `delta` (per tile, allocated on first use),
-    /// judged against the current `state`; returns the photo's noise (its relative level, and
-    /// in the `last` pass the residual's local roughness per pixel) and the residual's
-    /// [`mean_relative_residual`].
-    fn backproject(
-        &self,
-        (vi, view): (usize, &View),
-        textures: &[Option<Texture>],
-        state: &TileStore<TexelState>,
-        delta: &mut Delta,
-        last: bool,
-    ) -> Result<(ViewNoise, f64)> {
-        let (p, photo) = (self.p, view.image);
-        let w = photo.width;
-        // A blurring film needs the neighbours of clean pixels within its reach too.
-        let filter = view.camera.filter();
-        let needed = view.near_clean(filter.reach());
-        let owns = self.shard.owns;
-        let plan = |x: u32, y: u32| {
-            let i = (y * w + x) as usize;
-            if !needed[i] || !owns((y / ROW_BAND) as usize) {
-                return Plan::Skip;
-            }
-            view.flat(self.hits, x, y).map_or(Plan::Trace, Plan::Flat)
-        };
-        let k = REFINE_SUPERSAMPLE;
-        // The photo is the scene seen through the film's filter: so is what it is compared with.
-        let render = match filter.is_box() {
-            true => {
-                let mut r =
-                    render_view_with(&p.accel, &view.camera, textures, k, Film::HitsOnly, &plan);
-                (self.shard.sync_pixels)(&mut r, (ROW_BAND * w) as usize)?;
-                r
-            }
-            false => {
-                let parts = (&p.accel, &view.camera, textures);
-                render_filtered(parts, k, filter, &plan, (self.shard.sync_pixels, ROW_BAND))?
-            }
-        };
-        let mut residual: Vec<Vec3> = photo
-            .pixels
-            .iter()
-            .zip(&render)
-            .zip(&view.pixels)
-            .map(|((ph, r), px)| match r {
-                Some(r) if px.clean => *ph - *r,
-                _ => Vec3::ZERO,
-            })
-            .collect();
-        let mean = mean_relative_residual(&residual, &render, &photo.pixels, &view.pixels);
-        let raw = residual.clone();
-        let levels = shrink_residual_levels(&mut residual, &photo.pixels, &view.pixels, w as usize);
-        let (sigma, level, keep) = (levels.sigma, levels.level, levels.keep);
-        let rough = if last { levels.rough } else { Vec::new() };
-        let both: Vec<Pair> = raw
-            .into_iter()
-            .zip(residual)
-            .zip(level)
-            .zip(keep)
-            .map(|(((a, b), s), k)| Pair(a, b, s, k))
-            .collect();
-        let rv = ResidualViews {
-            view,
-            residual: &both,
-            sigma,
-        };
-        let err: Mutex<Option<Error>> = Mutex::new(None);
-        let touched = &delta.touched;
-        let (texels, disagreeing) = (AtomicU64::new(0), AtomicU64::new(0));
-        delta.store.for_each_tile_mut(self.window, |t, d| {
-            if !(self.shard.owns)(t)
-                || !self.bounds[t].is_some_and(|(lo, hi)| view.camera.may_see(lo, hi))
-            {
-                return;
-            }
-            let slot = p.layout.slot_of_tile(t as u32);
-            let shape = p.shape_ref(slot);
-            let find = || Ok(TileLookups::find(view, &shape, &self.geom.read_tile(t)?));
-            let found = state.read_tile(t).and_then(|st| {
-                (self.lookups).with(vi, t, find, |looks| backproject_tile(&rv, looks, &st, d))
-            });
-            let a = match found {
-                Ok(a) => a,
-                Err(e) => {
-                    *err.lock().unwrap_or_else(|e| e.into_inner()) = Some(e);
-                    return;
-                }
-            };
-            touched[t].store(true, Ordering::Relaxed);
-            texels.fetch_add(a.texels, Ordering::Relaxed);
-            disagreeing.fetch_add(a.disagreeing, Ordering::Relaxed);
-        })?;
-        match err.into_inner().unwrap_or_else(|e| e.into_inner()) {
-            Some(e) => Err(e),
-            None => Ok((
-                ViewNoise {
-                    sigma,
-                    level: rough,
-                    check: last.then(|| {
-                        let sum = self.shard.sum;
-                        let seen = (sum(texels.into_inner()), sum(disagreeing.into_inner()));
-                        diagnose::check(photo, &render, &view.pixels, seen)
-                    }),
-                },
-                mean,
-            )),
-        }
+/// One view's residual for a pass: raw and shrunk as [`Pair`]s, the photo's noise level and
+/// (in the last pass) its local roughness per pixel and its render, and the residual's
+/// [`mean_relative_residual`].
+struct Prepared {
+    pairs: Vec<Pair>,
+    sigma: f32,
+    rough: Vec<f32>,
+    render: Option<Vec<Option<Vec3>>>,
+    mean: f64,
+}
+
+/// `photo - render` over a view's clean pixels (0 elsewhere), judged and shrunk
+/// ([`shrink_residual_levels`]).
+fn prepare(view: &View, render: Vec<Option<Vec3>>, last: bool) -> Prepared {
+    let photo = view.image;
+    let mut residual: Vec<Vec3> = (photo.pixels.iter().zip(&render).zip(&view.pixels))
+        .map(|((ph, r), px)| match r {
+            Some(r) if px.clean => *ph - *r,
+            _ => Vec3::ZERO,
+        })
+        .collect();
+    let mean = mean_relative_residual(&residual, &render, &photo.pixels, &view.pixels);
+    let raw = residual.clone();
+    let w = photo.width as usize;
+    let levels = shrink_residual_levels(&mut residual, &photo.pixels, &view.pixels, w);
+    let pairs = (raw
+        .into_iter()
+        .zip(residual)
+        .zip(levels.level)
+        .zip(levels.keep))
+    .map(|(((a, b), s), k)| Pair(a, b, s, k))
+    .collect();
+    Prepared {
+        pairs,
+        sigma: levels.sigma,
+        rough: if last { levels.rough } else { Vec::new() },
+        render: last.then_some(render),
+        mean,
     }
 }
 
