@@ -621,7 +621,8 @@ pub const DISAGREE_Z: f32 = 3.0;
 /// between views is taken for disagreement and textured walls lose detail.
 pub const MODEL_FLOOR: f32 = 0.25;
 
-/// Per texel, one refinement pass's residuals summed over the views (a scratch tile store).
+/// Per texel, one refinement pass's residuals summed over the views (per tile, while the tile
+/// is updated).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct Residual {

@@ -144,7 +144,7 @@ pub struct Refine<'a> {
     /// Per tile, the bounds of its texels (see [`super::tile_bounds`]).
     pub bounds: &'a [Option<(Vec3, Vec3)>],
     pub window: usize,
-    /// Where the maps and the residual store live, and their memory.
+    /// Where the maps live, and their memory.
     pub scratch: &'a Scratch,
     /// The tiles refined here, and how the others' reach this process after each pass.
     pub shard: &'a Shard<'a>,
