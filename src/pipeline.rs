@@ -476,6 +476,7 @@ impl<'a> Run<'a> {
         let atlas = p.texel_report(&geom, p.window::<TexelGeom>(cfg))?;
         let covered = atlas.iter().map(|a| a.covered_texels).sum();
         let cfg = cfg.with_photon_budget_for(covered);
+        let atlas_rays = p.accel.rays();
         Ok(Run {
             charts,
             scratch,
@@ -496,11 +497,7 @@ impl<'a> Run<'a> {
             load_s,
             load_rss,
             atlas_s: t.elapsed().as_secs_f64(),
-            atlas_rays: 0,
-        })
-        .map(|mut run| {
-            run.atlas_rays = run.p.accel.rays();
-            run
+            atlas_rays,
         })
     }
 

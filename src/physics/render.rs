@@ -211,8 +211,7 @@ pub fn sub_hits(
     let mut out = Vec::with_capacity((k * k) as usize);
     for j in 0..k {
         for i in 0..k {
-            let px = x as f32 + (i as f32 + 0.5) / k as f32;
-            let py = y as f32 + (j as f32 + 0.5) / k as f32;
+            let (px, py) = sub_pixel(k, (x, y), (i, j));
             let (o, d) = camera.ray(px, py);
             let hit = accel.intersect(o, d, f32::INFINITY);
             let seen = hit.and_then(|h| Some((h.shape, textured_uv(textures, &h)?.1)));
@@ -226,6 +225,15 @@ pub fn sub_hits(
         }
     }
     out
+}
+
+/// The continuous pixel coordinates of sub-pixel `(i, j)` of pixel `(x, y)` on a `k x k`
+/// grid: where [`pixel`], [`pixel_samples`] and [`sub_hits`] all cast their rays.
+#[inline]
+fn sub_pixel(k: u32, (x, y): (u32, u32), (i, j): (u32, u32)) -> (f32, f32) {
+    let px = x as f32 + (i as f32 + 0.5) / k as f32;
+    let py = y as f32 + (j as f32 + 0.5) / k as f32;
+    (px, py)
 }
 
 /// A sub-pixel hit's texture value (`None`: no texture).
@@ -351,8 +359,7 @@ fn pixel(
     let (mut sum, mut hits, mut on_emitter) = (Vec3::ZERO, 0u32, 0u32);
     for j in 0..k {
         for i in 0..k {
-            let px = x as f32 + (i as f32 + 0.5) / k as f32;
-            let py = y as f32 + (j as f32 + 0.5) / k as f32;
+            let (px, py) = sub_pixel(k, (x, y), (i, j));
             let stream = ((y as u64 * camera.width() as u64 + x as u64) * k as u64 + j as u64)
                 * k as u64
                 + i as u64;
@@ -418,8 +425,8 @@ pub fn pixel_samples(
                         + j as u64)
                         * k as u64
                         + i as u64;
-                    let (px, py) = (x as f32 + tx, y as f32 + ty);
-                    match trace(accel, camera, textures, None, (px, py), stream) {
+                    let at = sub_pixel(k, (x, y), (i, j));
+                    match trace(accel, camera, textures, None, at, stream) {
                         Seen::Texture(v) => Some(v),
                         _ => None,
                     }
@@ -513,6 +520,20 @@ fn environment(scene: &Scene, d: Vec3) -> Seen {
 mod tests {
     use super::*;
 
+    /// A plain shape of `mesh` seen from `sides`: no emission, no known material.
+    fn test_shape(id: &str, mesh: crate::scene::Mesh, sides: Sides) -> crate::scene::Shape {
+        crate::scene::Shape {
+            id: id.into(),
+            kind: "test".into(),
+            file: None,
+            mesh,
+            sides,
+            emission: None,
+            reflectance: None,
+            material: Default::default(),
+        }
+    }
+
     /// A one-pixel impulse spreads by the tent's per-pixel weights (1/8, 3/4, 1/8 per
     /// axis); a box leaves it alone; missing pixels drop out of the weighted mean.
     #[test]
@@ -560,16 +581,7 @@ mod tests {
             triangles: vec![[0, 1, 2]],
             ..Default::default()
         };
-        let shape = crate::scene::Shape {
-            id: "t".into(),
-            kind: "test".into(),
-            file: None,
-            mesh,
-            sides: crate::scene::Sides::Front,
-            emission: None,
-            reflectance: None,
-            material: Default::default(),
-        };
+        let shape = test_shape("t", mesh, Sides::Front);
         let mut scene = Scene {
             path: "t.xml".into(),
             shapes: vec![shape],
@@ -610,19 +622,13 @@ mod tests {
             (12, 9),
             PixelFilter::Box,
         );
-        let shape = |id: &str, positions: Vec<Vec3>, triangles| crate::scene::Shape {
-            id: id.into(),
-            kind: "test".into(),
-            file: None,
-            mesh: crate::scene::Mesh {
+        let shape = |id: &str, positions: Vec<Vec3>, triangles| {
+            let mesh = crate::scene::Mesh {
                 positions,
                 triangles,
                 ..Default::default()
-            },
-            sides: crate::scene::Sides::Both,
-            emission: None,
-            reflectance: None,
-            material: Default::default(),
+            };
+            test_shape(id, mesh, Sides::Both)
         };
         let quad = [(-1.0, -0.7), (0.9, -0.8), (1.1, 0.6), (-0.8, 0.9)]
             .map(|(x, y)| Vec3::new(x, y, 3.0))

@@ -132,9 +132,7 @@ impl Lookups {
         };
         if slot.get().is_none() {
             let found = find()?;
-            let bytes = found.bytes();
-            if self.used.fetch_add(bytes, Ordering::Relaxed) + bytes > self.budget {
-                self.used.fetch_sub(bytes, Ordering::Relaxed);
+            if !self.admit(found.bytes()) {
                 let _ = slot.set(None);
                 return Ok(use_them(&found));
             }
@@ -159,15 +157,22 @@ impl Lookups {
         };
         if slot.get().is_none() {
             let found = find();
-            let bytes = found.bytes();
-            if self.used.fetch_add(bytes, Ordering::Relaxed) + bytes > self.budget {
-                self.used.fetch_sub(bytes, Ordering::Relaxed);
+            if !self.admit(found.bytes()) {
                 let _ = slot.set(None);
                 return use_them(Some(&found));
             }
             let _ = slot.set(Some(found));
         }
         use_them(slot.get().and_then(Option::as_ref))
+    }
+
+    /// Whether `bytes` more fit the budget: if so they are counted as kept, else nothing is.
+    fn admit(&self, bytes: u64) -> bool {
+        if self.used.fetch_add(bytes, Ordering::Relaxed) + bytes > self.budget {
+            self.used.fetch_sub(bytes, Ordering::Relaxed);
+            return false;
+        }
+        true
     }
 
     /// Bytes kept.
