@@ -171,6 +171,7 @@ mod tests {
                 normals: Some(vec![Vec3::Z; 4]),
                 uvs: None,
                 triangles: vec![[0, 1, 2], [0, 2, 3]],
+                flipped: Vec::new(),
             },
             sides: Sides::Front,
             emission: None,

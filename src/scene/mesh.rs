@@ -661,6 +661,7 @@ pub fn rectangle() -> Mesh {
         normals: None,
         uvs: Some(uvs),
         triangles: vec![[0, 1, 2], [0, 2, 3]],
+        flipped: Vec::new(),
     }
 }
 

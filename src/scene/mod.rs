@@ -83,6 +83,9 @@ pub struct Mesh {
     /// Per-vertex texture coordinates, if the file had them.
     pub uvs: Option<Vec<Vec2>>,
     pub triangles: Vec<[u32; 3]>,
+    /// Triangles whose normals are turned (empty: none): a two-sided shape's texels stand
+    /// for the side the photos see (`atlas::uv::orient`). Positions and winding are kept.
+    pub flipped: Vec<bool>,
 }
 
 impl Mesh {
@@ -109,10 +112,19 @@ impl Mesh {
         ((d22 * p1 - d12 * p2) / den, (d11 * p2 - d12 * p1) / den)
     }
 
-    /// Unnormalized geometric normal of triangle `t` (length = 2 x area).
+    /// Unnormalized geometric normal of triangle `t` (length = 2 x area), turned if the
+    /// triangle is [`Mesh::flipped`].
     pub fn face_normal_raw(&self, t: usize) -> Vec3 {
         let [p0, p1, p2] = self.triangle(t);
-        (p1 - p0).cross(p2 - p0)
+        self.side(t) * (p1 - p0).cross(p2 - p0)
+    }
+
+    /// -1 for a [`Mesh::flipped`] triangle, else 1.
+    pub fn side(&self, t: usize) -> f32 {
+        match self.flipped.get(t) {
+            Some(true) => -1.0,
+            _ => 1.0,
+        }
     }
 
     pub fn triangle_area(&self, t: usize) -> f32 {
@@ -146,7 +158,7 @@ impl Mesh {
             let v = n[a as usize] * (1.0 - b1 - b2) + n[b as usize] * b1 + n[c as usize] * b2;
             let l = v.length();
             if l > 0.0 {
-                return v / l;
+                return self.side(t) * (v / l);
             }
         }
         self.face_normal_raw(t).normalize_or_zero()

@@ -104,7 +104,14 @@ const FOLDERS: &[(&str, &[Layer])] = &[
     (
         "atlas::uv",
         &[(
-            &["shape_atlas", "density", "texels", "unwrap", "charts"],
+            &[
+                "shape_atlas",
+                "density",
+                "orient",
+                "texels",
+                "unwrap",
+                "charts",
+            ],
             Listed,
         )],
     ),

@@ -143,7 +143,7 @@ fn prim(p: &RunContext, charts: &Charts, shape: usize, tri: usize) -> Prim {
     let m = &s.mesh;
     let ng = m.face_normal_raw(tri).normalize_or_zero();
     let n = match &m.normals {
-        Some(ns) => m.triangles[tri].map(|i| ns[i as usize]),
+        Some(ns) => m.triangles[tri].map(|i| ns[i as usize] * m.side(tri)),
         None => [ng; 3],
     };
     let slot = charts.slot_of_shape(shape);

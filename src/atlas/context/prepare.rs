@@ -11,7 +11,8 @@
 use crate::atlas::store::{window_tiles_for_budget, TileStore};
 use crate::atlas::store::{Layout, TexelGeom};
 use crate::atlas::uv::density::{self, DensityPlan, ShapeDensity};
-use crate::atlas::uv::{build_atlas_with_progress, AtlasSettings, ShapeAtlas};
+use crate::atlas::uv::orient;
+use crate::atlas::uv::{build_atlas_with_progress, AtlasSettings, ShapeAtlas, TexelMap};
 use crate::base::error::{Error, Result};
 use crate::base::fsio::Fnv;
 use crate::base::progress::{note, Mode, Stage};
@@ -132,17 +133,39 @@ fn prepare_scene(
         use_mesh_uvs: cfg.atlas.use_mesh_uvs,
         max_size: cfg.atlas.max_texture_size,
     };
-    if cfg.atlas.texels_per_unit != Density::Auto {
-        let plan = DensityPlan::fixed(&scene, settings.texels_per_unit);
-        return RunContext::build(scene, views, &settings, plan, cfg.atlas.tile_size, mode);
-    }
     let accel = Accel::build(&scene);
-    let plan = plan_density(cfg, &scene, &accel, &views);
+    orient(&mut scene, &accel, &views, mode);
+    let auto = cfg.atlas.texels_per_unit == Density::Auto;
+    let plan = match auto {
+        true => plan_density(cfg, &scene, &accel, &views),
+        false => DensityPlan::fixed(&scene, settings.texels_per_unit),
+    };
     for n in &plan.notes {
         note(mode, n);
     }
-    let atlases = build_atlases(&scene, &settings, &plan, true, mode)?;
+    let atlases = build_atlases(&scene, &settings, &plan, auto, mode)?;
     RunContext::assemble(scene, accel, views, atlases, plan, cfg.atlas.tile_size)
+}
+
+/// Turns two-sided shapes' triangles to the side the photos of `views` see
+/// ([`orient::orient_two_sided`]), with a note when any turned.
+fn orient(scene: &mut Scene, accel: &Accel, views: &[(usize, PathBuf)], mode: Mode) {
+    let sensors: Vec<usize> = views.iter().map(|v| v.0).collect();
+    let o = orient::orient_two_sided(scene, accel, &sensors);
+    if o.flipped > 0 {
+        let first: Vec<String> = o.shapes.iter().take(3).map(|s| format!("'{s}'")).collect();
+        let more = if o.shapes.len() > 3 { ", ..." } else { "" };
+        note(
+            mode,
+            &format!(
+                "two-sided shapes: {} triangles of {} shapes ({}{more}) turned to the side the \
+                 photos see (their normals pointed away from it)",
+                o.flipped,
+                o.shapes.len(),
+                first.join(", ")
+            ),
+        );
+    }
 }
 
 /// Marks the run config's `[shapes.<id>] reconstruct = false` shapes as known diffuse
@@ -674,11 +697,16 @@ fn shape_atlas(
         true
     };
     let mut tries = 0;
+    let mut finer = 0;
     let r = loop {
         match build_atlas_with_progress(mesh, &s, &d.levels, report) {
             Err(Error::Config { .. }) if refit && tries < 3 => {
                 s.texels_per_unit *= 0.7;
                 tries += 1;
+            }
+            Ok(a) if finer < MAX_FINER && !covers_a_texel(mesh, &a) => {
+                s.texels_per_unit *= 2.0;
+                finer += 1;
             }
             r => break r,
         }
@@ -687,9 +715,65 @@ fn shape_atlas(
     r
 }
 
+/// Doublings of the density a shape thinner than its texels may take until some texel centre
+/// falls on it: 8 (x256). A stair nosing a few millimetres tall, unwrapped at a room's
+/// density, covers no texel centre: without texels it would render black and reflect nothing.
+const MAX_FINER: u32 = 8;
+
+/// Whether some texel of `atlas` stands for a point of `mesh` (checked on small atlases only:
+/// a large one always has covered texels unless the mesh has no area).
+fn covers_a_texel(mesh: &Mesh, atlas: &ShapeAtlas) -> bool {
+    const SMALL: usize = 1 << 16;
+    atlas.texel_count() > SMALL || mesh.area() == 0.0 || TexelMap::new(mesh, atlas).covered() > 0
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A `w x h` rectangle in z = 0 (two triangles).
+    fn strip(w: f32, h: f32) -> Mesh {
+        Mesh {
+            positions: vec![
+                Vec3::new(0.0, 0.0, 0.0),
+                Vec3::new(w, 0.0, 0.0),
+                Vec3::new(w, h, 0.0),
+                Vec3::new(0.0, h, 0.0),
+            ],
+            triangles: vec![[0, 1, 2], [0, 2, 3]],
+            ..Default::default()
+        }
+    }
+
+    fn atlas_at(mesh: &Mesh, texels_per_unit: f32) -> ShapeAtlas {
+        let d = ShapeDensity {
+            texels_per_unit,
+            finest_footprint: None,
+            limited_by: Some("unseen".into()),
+            levels: Vec::new(),
+        };
+        let stage = Stage::new(Mode::Quiet, "unwrap", 2, "triangles");
+        shape_atlas(mesh, &AtlasSettings::default(), &d, true, &stage).unwrap()
+    }
+
+    #[test]
+    fn a_shape_thinner_than_its_texels_still_gets_texels() {
+        // 1 x 0.004 units at 13 texels per unit: a fifth of a texel tall, no texel centre on it
+        let thin = strip(1.0, 0.004);
+        let a = atlas_at(&thin, 13.0);
+        let covered = TexelMap::new(&thin, &a).covered();
+        assert!(covered > 0, "{a:?}");
+        assert!(
+            a.texel_density > 13.0 && a.texel_density <= 13.0 * 256.0,
+            "{}",
+            a.texel_density
+        );
+        // a shape wide enough keeps the density asked for
+        let wide = strip(1.0, 0.5);
+        let b = atlas_at(&wide, 13.0);
+        assert!((b.texel_density - 13.0).abs() < 1e-3, "{}", b.texel_density);
+        assert!(TexelMap::new(&wide, &b).covered() > 0);
+    }
 
     #[test]
     fn jacobian_maps_texel_steps_to_world_steps() {
@@ -702,6 +786,7 @@ mod tests {
             normals: None,
             uvs: None,
             triangles: vec![[0, 1, 2]],
+            flipped: Vec::new(),
         };
         // 10 texels along x cover 2 units; 30 texels along y cover 3 units
         let uv = [

@@ -4,6 +4,7 @@
 
 mod charts;
 pub mod density;
+pub mod orient;
 mod shape_atlas;
 mod texels;
 mod unwrap;

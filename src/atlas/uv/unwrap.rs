@@ -260,6 +260,7 @@ fn piece_mesh(mesh: &Mesh, tris: &[u32]) -> Mesh {
             .iter()
             .map(|&t| mesh.triangles[t as usize].map(at))
             .collect(),
+        flipped: Vec::new(),
     }
 }
 
@@ -550,6 +551,7 @@ pub(crate) mod testutil {
                 .chunks_exact(3)
                 .map(|t| [t[0], t[1], t[2]])
                 .collect(),
+            flipped: Vec::new(),
         }
     }
 
@@ -611,6 +613,7 @@ pub(crate) mod testutil {
             normals: None,
             uvs: None,
             triangles,
+            flipped: Vec::new(),
         };
         // Make the winding outward whatever the conventions above.
         let [p0, ..] = mesh.triangle(1);

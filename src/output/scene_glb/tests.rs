@@ -22,6 +22,7 @@ fn quad(id: &str, emission: Option<Vec3>, sides: Sides) -> Shape {
             normals: None,
             uvs: None,
             triangles: vec![[0, 1, 2], [0, 2, 3]],
+            flipped: Vec::new(),
         },
         sides,
         emission,

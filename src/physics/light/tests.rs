@@ -13,6 +13,7 @@ pub(super) fn quad(c: Vec3, u: Vec3, v: Vec3) -> Mesh {
         normals: None,
         uvs: None,
         triangles: vec![[0, 1, 2], [0, 2, 3]],
+        flipped: Vec::new(),
     }
 }
 
@@ -22,6 +23,7 @@ pub(super) fn tri(a: Vec3, b: Vec3, c: Vec3) -> Mesh {
         normals: None,
         uvs: None,
         triangles: vec![[0, 1, 2]],
+        flipped: Vec::new(),
     }
 }
 

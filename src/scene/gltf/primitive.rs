@@ -202,6 +202,7 @@ fn read_mesh(b: &Builder, prim: &::gltf::Primitive, here: &str) -> Result<Mesh> 
         normals,
         uvs,
         triangles,
+        flipped: Vec::new(),
     })
 }
 
