@@ -114,6 +114,10 @@ def pct(v):
     return f"{100 * v:.2f}%" if _num(v) else "-"
 
 
+def db(v):
+    return f"{v:.2f} dB" if _num(v) else "-"
+
+
 def fixed(v, digits=1):
     return f"{v:.{digits}f}" if _num(v) else "-"
 
@@ -203,11 +207,12 @@ def accuracy_page(entries, order=()):
     out.append("## Held-out views (Mitsuba 3)\n")
     out.append("The recovered scene rendered from the held-out cameras `cam_test_*`. Albedo: "
                "the albedo AOV against the true one over the pixels some training camera saw, "
-               "mean relative error per pixel and relative L1. Images: relative error of the "
+               "mean relative error per pixel, relative L1 and PSNR (peak 1, the k_d PSNR "
+               "inverse-rendering papers report). Images: relative error of the "
                "8x8-block mean luminance (`8x8`) and relative L1 of the image, under the "
                "original light and under the other light of `relit.xml`.\n")
     floors = any(get(e, "mitsuba", "floor") for e in latest.values())
-    head = ["scene", "spp", "albedo mean rel.", "albedo rel. L1", "pixels seen",
+    head = ["scene", "spp", "albedo mean rel.", "albedo rel. L1", "albedo PSNR", "pixels seen",
             "relit 8x8", "relit rel. L1", "original 8x8", "original rel. L1"]
     if floors:
         head += ["floor: relit 8x8", "floor: original 8x8"]
@@ -218,7 +223,8 @@ def accuracy_page(entries, order=()):
             continue
         seen = get(m, "albedo", "masked_fraction")
         r = [label(s, e), str(m.get("spp", "-")), pct(get(m, "albedo", "albedo_mean_rel_error")),
-             pct(get(m, "albedo", "albedo_rel_l1")), pct(seen),
+             pct(get(m, "albedo", "albedo_rel_l1")), db(get(m, "albedo", "albedo_psnr_db")),
+             pct(seen),
              pct(get(m, "relit", "block8_rel_lum_error")), pct(get(m, "relit", "rel_l1_error")),
              pct(get(m, "original", "block8_rel_lum_error")),
              pct(get(m, "original", "rel_l1_error"))]

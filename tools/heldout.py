@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Score a kdmap reconstruction with an independent renderer (Mitsuba 3) on held-out views.
 
-    .venv/bin/python tools/heldout.py <out dir> <scene dir> [--spp 64] [--floor]
+    .venv/bin/python tools/heldout.py <out dir> <scene dir> [--spp 64] [--floor] [--llvm]
 
 Loads the recovered scene `<out>/scene.xml`, swaps its (training) sensors for the held-out
 sensors `cam_test_*` of `<scene>/truth.xml` and renders them under the original lighting; then
@@ -27,13 +27,16 @@ training camera saw"), which judges the texture itself rather than images it lig
   its near plane, and the ray from that camera's position to the point hits it first, within
   1e-3 x distance + 1e-4); pixels with true albedo sum <= 1e-6 are skipped;
 - `albedo_mean_rel_error`: mean over masked pixels of sum_c |a_c - t_c| / sum_c t_c;
-  `albedo_rel_l1`: sum |a - t| / sum t over them; `masked_pixels`, `masked_fraction` (of all
+  `albedo_rel_l1`: sum |a - t| / sum t over them; `albedo_psnr_db`: 10 log10(1 / mean of
+  (a_c - t_c)^2) over them (the k_d PSNR inverse-rendering papers report); `masked_pixels`, `masked_fraction` (of all
   held-out pixels). Pooled over the views, also per view and per shape (first-hit shape).
 Its floor is the AOV's Monte Carlo noise alone, and small: both scenes are rendered with the
 same seed, so pixels see the same sub-pixel positions, and the AOV has no lighting noise (only
 the box-filter mix of surfaces and texels inside a pixel, identical for a perfect
-reconstruction up to its texture resampling). Writes `<out>/heldout/<view>_albedo.exr`,
-`<view>_albedo_true.exr` and `<view>_albedo_mask.png`. `--albedo-only` runs just this judge.
+reconstruction up to its texture resampling). Renders use scalar_rgb, or with `--llvm`
+Mitsuba's LLVM variant when libLLVM is found (large interiors: minutes instead of hours).
+Writes `<out>/heldout/<view>_albedo.exr`, `<view>_albedo_true.exr` and
+`<view>_albedo_mask.png`. `--albedo-only` runs just this judge.
 
 With the albedo judge, the image figures also get `block8_rel_lum_error_seen`: the block figure
 over the 8x8 blocks whose every pixel is in that mask. It leaves out what no training photo
@@ -130,23 +133,25 @@ def errors(render, truth):
             "nonblack_pixels": int(m.sum())}
 
 
-def _render_all(xml_text, base_dir, save_dir, suffix, spp, truth_dir):
+def _variant(llvm):
+    """The renders' variant: scalar_rgb, or with `llvm` the LLVM variant when it works (many
+    times faster on interiors of hundreds of thousands of pixels; its own sampler, the same
+    seed in the recovered and the true scene)."""
     mi = mitsuba()
-    fr = mi.file_resolver()
-    saved = [fr[i] for i in range(len(fr))]
-    fr.prepend(os.path.abspath(base_dir))
-    try:
-        scene = mi.load_string(xml_text)
-    finally:
-        fr.clear()
-        for p in saved:
-            fr.append(p)
+    return mi.variant_context(LLVM_VARIANT if llvm and _llvm_available() else mi.variant())
+
+
+def _render_all(xml_text, base_dir, save_dir, suffix, spp, truth_dir, llvm=False):
+    mi = mitsuba()
     views = {}
-    for i, sensor in enumerate(scene.sensors()):
-        sid = sensor.id()
-        t0 = time.perf_counter()
-        img = np.array(mi.render(scene, sensor=i, spp=spp))[..., :3]
-        secs = time.perf_counter() - t0
+    with _variant(llvm):
+        scene = _load(xml_text, base_dir, optimize=True)
+        imgs = []
+        for i, sensor in enumerate(scene.sensors()):
+            t0 = time.perf_counter()
+            img = np.array(mi.render(scene, sensor=i, spp=spp))[..., :3]
+            imgs.append((sensor.id(), img, time.perf_counter() - t0))
+    for sid, img, secs in imgs:
         if save_dir is not None:
             os.makedirs(save_dir, exist_ok=True)
             mi.Bitmap(img.astype(np.float32)).write(os.path.join(save_dir, f"{sid}{suffix}.exr"))
@@ -427,14 +432,16 @@ def _albedo_scene(root, spp):
     return ET.tostring(root, encoding="unicode")
 
 
-def _render_albedo(xml_text, base_dir, spp):
-    """{sensor id: albedo AOV (h, w, 3) float64}, scalar_rgb, seed 0 (the same sample positions
-    in the recovered and the true scene: their difference is the albedo's, not the sampler's)."""
+def _render_albedo(xml_text, base_dir, spp, llvm=False):
+    """{sensor id: albedo AOV (h, w, 3) float64}, scalar_rgb (or `_variant(llvm)`), seed 0 (the
+    same sample positions in the recovered and the true scene: their difference is the
+    albedo's, not the sampler's)."""
     mi = mitsuba()
-    scene = _load(xml_text, base_dir)
-    return {s.id(): np.array(mi.render(scene, sensor=i, spp=spp, seed=0),
-                             dtype=np.float64)[..., -3:]
-            for i, s in enumerate(scene.sensors())}
+    with _variant(llvm):
+        scene = _load(xml_text, base_dir)
+        return {s.id(): np.array(mi.render(scene, sensor=i, spp=spp, seed=0),
+                                 dtype=np.float64)[..., -3:]
+                for i, s in enumerate(scene.sensors())}
 
 
 def albedo_errors(a, t, mask):
@@ -443,18 +450,28 @@ def albedo_errors(a, t, mask):
     st = t.sum(axis=-1)
     m = mask & (st > BLACK)
     num = np.abs(a - t).sum(axis=-1)
+    sq = float(((a - t)[m] ** 2).sum())
     n = int(m.sum())
     return {
         "albedo_mean_rel_error": float(np.mean(num[m] / st[m])) if n else float("nan"),
         "albedo_rel_l1": float(num[m].sum() / st[m].sum()) if n else float("nan"),
+        "albedo_psnr_db": psnr(sq, 3 * n),
         "masked_pixels": n,
         "masked_fraction": float(n / m.size),
         "_sums": (float((num[m] / st[m]).sum()), float(num[m].sum()), float(st[m].sum()), n,
-                  int(m.size)),
+                  int(m.size), sq),
     }
 
 
-def albedo_score(out, scene_dir, spp=64, save_dir=None, orig_xml=None, masks=None):
+def psnr(sq, count):
+    """PSNR in dB of albedo (peak 1) from a sum of squared errors over `count` values: the
+    k_d PSNR inverse-rendering papers (FIPT, ...) report; inf for an exact match."""
+    if count == 0:
+        return float("nan")
+    return float("inf") if sq == 0 else float(10 * np.log10(count / sq))
+
+
+def albedo_score(out, scene_dir, spp=64, save_dir=None, orig_xml=None, masks=None, llvm=False):
     """The held-out albedo judge: albedo AOVs of the recovered scene (`<out>/scene.xml` with the
     held-out sensors) and of the true scene (`truth.xml`) from every `cam_test_*` view,
     compared over the pixels whose first hit (pixel-centre ray) is a non-emitter shape that a
@@ -475,11 +492,11 @@ def albedo_score(out, scene_dir, spp=64, save_dir=None, orig_xml=None, masks=Non
             troot.remove(s)
     true_text = _albedo_scene(troot, spp)
     t0 = time.perf_counter()
-    rec = _render_albedo(rec_text, out, spp)
-    true = _render_albedo(true_text, scene_dir, spp)
+    rec = _render_albedo(rec_text, out, spp, llvm)
+    true = _render_albedo(true_text, scene_dir, spp, llvm)
     render_s = time.perf_counter() - t0
     views, shapes = {}, {}
-    tot = np.zeros(5)
+    tot = np.zeros(6)
     mask_s = 0.0
     for vid, t in true.items():
         t0 = time.perf_counter()
@@ -494,7 +511,7 @@ def albedo_score(out, scene_dir, spp=64, save_dir=None, orig_xml=None, masks=Non
         for k in np.unique(shape[seen]):
             sid = caster.shape_ids[k]
             se = albedo_errors(a, t, seen & (shape == k))
-            s = shapes.setdefault(sid, np.zeros(5))
+            s = shapes.setdefault(sid, np.zeros(6))
             s += np.array(se.pop("_sums"))
         if save_dir is not None:
             os.makedirs(save_dir, exist_ok=True)
@@ -507,6 +524,7 @@ def albedo_score(out, scene_dir, spp=64, save_dir=None, orig_xml=None, masks=Non
         n = int(s[3])
         return {"albedo_mean_rel_error": s[0] / n if n else float("nan"),
                 "albedo_rel_l1": s[1] / s[2] if s[2] > 0 else float("nan"),
+                "albedo_psnr_db": psnr(s[5], 3 * n),
                 "masked_pixels": n}
 
     res = pooled(tot)
@@ -522,7 +540,7 @@ def albedo_score(out, scene_dir, spp=64, save_dir=None, orig_xml=None, masks=Non
     return res
 
 
-def score(out, scene_dir, spp=64, floor=False, albedo=True):
+def score(out, scene_dir, spp=64, floor=False, albedo=True, llvm=False):
     """Render the held-out views of the recovered scene under the original and the relit
     lighting, and (`albedo`) judge its albedo from the same views (albedo_score); return
     {"spp", "original": {...}, "relit": {...}, "albedo": {...}[, "floor": {...}]} ("albedo"
@@ -537,13 +555,13 @@ def score(out, scene_dir, spp=64, floor=False, albedo=True):
         with open(os.path.join(out, name), "w") as f:
             f.write(text)
     save = os.path.join(out, "heldout")
-    res["original"] = _summary(_render_all(orig, out, save, "", spp, truth_dir))
+    res["original"] = _summary(_render_all(orig, out, save, "", spp, truth_dir, llvm))
     if os.path.exists(relit_xml):
-        res["relit"] = _summary(_render_all(relit, out, save, "_relit", spp, truth_dir))
+        res["relit"] = _summary(_render_all(relit, out, save, "_relit", spp, truth_dir, llvm))
     if albedo:
         masks = {}
         try:
-            res["albedo"] = albedo_score(out, scene_dir, spp, save, orig, masks)
+            res["albedo"] = albedo_score(out, scene_dir, spp, save, orig, masks, llvm)
             add_seen_figures(res, save, truth_dir, masks)
         except Exception as e:  # reported, the image figures above stand on their own
             res["albedo"] = {"error": f"{type(e).__name__}: {e}"}
@@ -559,7 +577,8 @@ def score(out, scene_dir, spp=64, floor=False, albedo=True):
                 else:
                     root.remove(s)
             text = ET.tostring(root, encoding="unicode")
-            res["floor"][key] = _summary(_render_all(text, scene_dir, None, suffix, spp, truth_dir))
+            res["floor"][key] = _summary(_render_all(text, scene_dir, None, suffix, spp, truth_dir,
+                                                     llvm))
     return res
 
 
@@ -574,13 +593,17 @@ def main():
     ap.add_argument("--no-albedo", action="store_true", help="skip the held-out albedo judge")
     ap.add_argument("--albedo-only", action="store_true",
                     help="only the held-out albedo judge (no image renders)")
+    ap.add_argument("--llvm", action="store_true",
+                    help="render with Mitsuba's LLVM variant when it works (large scenes; "
+                    "default scalar_rgb)")
     a = ap.parse_args()
     if a.albedo_only:
         res = {"spp": a.spp, "albedo": albedo_score(a.out, a.scene_dir, a.spp,
-                                                    os.path.join(a.out, "heldout"))}
+                                                    os.path.join(a.out, "heldout"),
+                                                    llvm=a.llvm)}
         print(json.dumps(res, indent=1))
         return 0
-    res = score(a.out, a.scene_dir, a.spp, a.floor, albedo=not a.no_albedo)
+    res = score(a.out, a.scene_dir, a.spp, a.floor, albedo=not a.no_albedo, llvm=a.llvm)
     print(json.dumps(res, indent=1))
     return 0
 

@@ -10,8 +10,11 @@ Creates (or reuses) the virtual environment `.venv/` in the repository root with
 tools/requirements.txt, and re-runs itself in it. Then:
 
 1. `cargo build --release`;
-2. per scene of tests/fixtures (cbox, cbox-tex, lights, envmap): `target/release/kdmap reconstruct
-   <scene>/input.xml --out <out>/<scene>` (kdmap's defaults, 1e7 photons x 6 iterations,
+1b. makes the published interiors (staircase, living-room: tools/bitterli_scene.py, from
+   cache/bitterli-src/<name>, cloned from GitHub when missing) into the cache, photos and
+   held-out views rendered by Mitsuba 3 once;
+2. per scene of tests/fixtures (cbox, cbox-tex, lights, envmap) and the interiors: `target/
+   release/kdmap reconstruct <scene>/input.xml --out <out>/<scene>` (kdmap's defaults, 1e7 photons x 6 iterations,
    unless --photons / --iterations / --quick), with its wall time and peak RSS (the child's
    max RSS from wait4); `kdmap accuracy <out>/<scene> <scene>/truth.xml` (albedo error);
 3. checks report.json's re-render table against a recomputation from the EXRs with
@@ -53,6 +56,10 @@ VENV = os.path.join(REPO, ".venv")
 VENV_PY = os.path.join(VENV, "bin", "python")
 REQUIREMENTS = os.path.join(TOOLS, "requirements.txt")
 SCENES = ["cbox", "cbox-tex", "lights", "mirror-cbox", "envmap", "open", "open-b"]
+# published interiors (Bitterli's rendering resources, tools/bitterli_scene.py), made into
+# --cache from their Mitsuba 0.6 form in cache/bitterli-src/<name>, cloned when missing
+INTERIORS = ["staircase", "living-room"]
+INTERIORS_REPO = "https://github.com/jgarciapueyo/mitsuba2-transient-scenes"
 ANCHOR_TIMED_ITERATIONS = 3  # --anchor without --anchor-full: warm-up + this many, extrapolated
 QUICK = {"photons": 200_000, "iterations": 2, "spp": 8}
 DEFAULT_SPP = 64
@@ -150,7 +157,7 @@ def scene_dir_of(scene, args):
     tools/gen_scene.py into the cache."""
     if scene in args.capture_dirs:
         return args.capture_dirs[scene]
-    if scene in args.generated:
+    if scene in args.generated or scene in INTERIORS:
         return os.path.join(args.cache, scene)
     return os.path.join(args.fixtures, scene)
 
@@ -165,6 +172,46 @@ def generate(scene, args, logs):
     code, wall, _ = run_measured(cmd, log_path)
     if code != 0:
         return f"{scene}: tools/gen_scene.py exited {code}: {tail(log_path)}"
+    log(f"{scene}: scene ready ({wall:.0f} s)")
+    return None
+
+
+def interior_source(scene, logs):
+    """cache/bitterli-src/<scene> (the published scene in Mitsuba 0.6 form), cloned from
+    INTERIORS_REPO when missing; returns (path, error string or None)."""
+    root = os.path.join(REPO, "cache", "bitterli-src")
+    src = os.path.join(root, scene)
+    if os.path.isfile(os.path.join(src, "scene.xml")):
+        return src, None
+    clone = os.path.join(root, "repo")
+    log_path = os.path.join(logs, f"{scene}-source.log")
+    cmds = [["git", "clone", "--depth", "1", "--filter=blob:none", "--sparse", INTERIORS_REPO,
+             clone]] if not os.path.isdir(clone) else []
+    cmds.append(["git", "-C", clone, "sparse-checkout", "add", scene])
+    for cmd in cmds:
+        code, _, _ = run_measured(cmd, log_path)
+        if code != 0:
+            return src, (f"{scene}: no {os.path.relpath(src, REPO)}/scene.xml and `git clone "
+                         f"{INTERIORS_REPO}` failed ({tail(log_path, 1)}); extract its "
+                         f"{scene}/ there (tools/bitterli_scene.py)")
+    if not os.path.exists(src):
+        os.symlink(os.path.join(clone, scene), src)
+    return src, None
+
+
+def generate_interior(scene, args, logs):
+    """Make the interior `scene` into the cache with tools/bitterli_scene.py (photos already
+    rendered are kept); returns an error string or None."""
+    src, err = interior_source(scene, logs)
+    if err:
+        return err
+    cmd = [sys.executable, os.path.join(TOOLS, "bitterli_scene.py"), "--src", src,
+           os.path.join(args.cache, scene)]
+    log(f"{scene}: {' '.join(os.path.relpath(c, REPO) if os.path.isabs(c) else c for c in cmd)}")
+    log_path = os.path.join(logs, f"{scene}-generate.log")
+    code, wall, _ = run_measured(cmd, log_path)
+    if code != 0:
+        return f"{scene}: tools/bitterli_scene.py exited {code}: {tail(log_path)}"
     log(f"{scene}: scene ready ({wall:.0f} s)")
     return None
 
@@ -287,7 +334,8 @@ def run_scene(scene, args, kdmap, logs):
 
         t0 = time.perf_counter()
         try:
-            m = heldout.score(out, scene_dir, spp=args.spp, floor=args.floor)
+            m = heldout.score(out, scene_dir, spp=args.spp, floor=args.floor,
+                              llvm=scene in INTERIORS)
             m["seconds"] = time.perf_counter() - t0
             rec["mitsuba"] = m
             def seen(k):
@@ -307,7 +355,8 @@ def run_scene(scene, args, kdmap, logs):
                 log(f"{scene}: held-out albedo over {alb['masked_pixels']} pixels seen in "
                     f"training ({100 * alb['masked_fraction']:.1f}%): mean rel. "
                     f"{100 * alb['albedo_mean_rel_error']:.2f}%, rel. L1 "
-                    f"{100 * alb['albedo_rel_l1']:.2f}%")
+                    f"{100 * alb['albedo_rel_l1']:.2f}%, PSNR "
+                    f"{alb.get('albedo_psnr_db', float('nan')):.2f} dB")
         except Exception as e:  # a Mitsuba failure is a finding, not a crash of the harness
             rec["failures"].append(f"{scene}: Mitsuba held-out scoring failed: "
                                    f"{type(e).__name__}: {e}")
@@ -459,10 +508,11 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter,
                                  epilog="\n".join(__doc__.splitlines()[1:]))
-    ap.add_argument("--scenes", default=",".join(SCENES),
-                    help="comma-separated scenes of --fixtures, or tools/gen_scene.py presets "
-                    "(e.g. room: 1.1M triangles, 16 views), generated into --cache unless "
-                    "there (default: %(default)s)")
+    ap.add_argument("--scenes", default=",".join(SCENES + INTERIORS),
+                    help="comma-separated scenes of --fixtures, tools/gen_scene.py presets "
+                    "(e.g. room: 1.1M triangles, 16 views) or published interiors ("
+                    + ", ".join(INTERIORS) + ": tools/bitterli_scene.py), made into --cache "
+                    "unless there (default: %(default)s)")
     ap.add_argument("--photons", help="photons per iteration (default: kdmap's, 1e7)")
     ap.add_argument("--iterations", type=int, help="iterations (default: kdmap's, 6)")
     ap.add_argument("--threads", type=int, help="kdmap --threads (default: all cores)")
@@ -539,7 +589,7 @@ def main():
     args.generated = []
     scenes = [s for s in args.scenes.split(",") if s]
     for s in scenes:
-        if os.path.exists(os.path.join(args.fixtures, s, "input.xml")):
+        if os.path.exists(os.path.join(args.fixtures, s, "input.xml")) or s in INTERIORS:
             continue
         if s not in gen_scene.PRESETS:
             ap.error(f"no scene {s} in {args.fixtures}, nor a tools/gen_scene.py preset "
@@ -575,8 +625,8 @@ def main():
     }
     records, failures = [], []
     args.capture_dirs, args.capture_info = {}, {}
-    for scene in args.generated:
-        err = generate(scene, args, logs)
+    for scene in args.generated + [s for s in scenes if s in INTERIORS]:
+        err = (generate_interior if scene in INTERIORS else generate)(scene, args, logs)
         if err:
             failures.append(err)
             scenes.remove(scene)
@@ -639,7 +689,7 @@ def write_pages(args):
     import docs_pages
 
     try:
-        written = docs_pages.write_pages(args.history, args.docs, SCENES)
+        written = docs_pages.write_pages(args.history, args.docs, SCENES + INTERIORS)
     except Exception as e:
         log(f"pages from {args.history}: {type(e).__name__}: {e}")
         return 1

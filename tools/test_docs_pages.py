@@ -46,6 +46,7 @@ def entry(scene, date, commit, quick=False, held=0.05, wall=10.0):
                     "original": {"rel_l1_error": 0.03, "block8_rel_lum_error": 0.0226},
                     "relit": {"rel_l1_error": 0.111, "block8_rel_lum_error": 0.0301},
                     "albedo": {"albedo_mean_rel_error": held, "albedo_rel_l1": 0.0302,
+                               "albedo_psnr_db": 31.456,
                                "masked_fraction": 0.92,
                                "shapes": {"floor": {"albedo_mean_rel_error": 0.021,
                                                     "albedo_rel_l1": 0.02,
@@ -117,9 +118,10 @@ class Pages(unittest.TestCase):
     def test_numbers_formatted_as_given(self):
         page = dp.accuracy_page(self.entries)
         held = by_scene(section_table(page, "Held-out views (Mitsuba 3)"))["cbox"]
-        self.assertEqual((held["spp"], held["albedo rel. L1"], held["pixels seen"],
-                          held["relit 8x8"], held["original 8x8"], held["relit rel. L1"]),
-                         ("64", "3.02%", "92.00%", "3.01%", "2.26%", "11.10%"))
+        self.assertEqual((held["spp"], held["albedo rel. L1"], held["albedo PSNR"],
+                          held["pixels seen"], held["relit 8x8"], held["original 8x8"],
+                          held["relit rel. L1"]),
+                         ("64", "3.02%", "31.46 dB", "92.00%", "3.01%", "2.26%", "11.10%"))
         truth = by_scene(section_table(page, "Albedo against the truth (observed texels)"))["cbox"]
         self.assertEqual((truth["texels"], truth["mean rel."], truth["rel. L1"],
                           truth["within 1 std. err."], truth["within 2"]),

@@ -42,6 +42,19 @@ class BlockErrorSeen(unittest.TestCase):
         self.assertAlmostEqual(heldout.block_error_seen(render, truth, seen), 0.0, places=12)
         self.assertTrue(np.isnan(heldout.block_error_seen(render, truth, ~seen)))
 
+    def test_albedo_psnr_is_the_closed_form_over_the_mask(self):
+        truth = np.full((4, 4, 3), 0.5)
+        rec = truth.copy()
+        rec[:2] += 0.1  # half the pixels off by 0.1 in every channel: MSE 0.005
+        rec[3, 3] = 9.0  # outside the mask: ignored
+        mask = np.ones((4, 4), bool)
+        mask[3, 3] = False
+        e = heldout.albedo_errors(rec, truth, mask)
+        mse = (8 * 3 * 0.01) / (15 * 3)
+        self.assertAlmostEqual(e["albedo_psnr_db"], 10 * np.log10(1 / mse), places=9)
+        self.assertEqual(heldout.albedo_errors(truth, truth, mask)["albedo_psnr_db"], float("inf"))
+        self.assertTrue(np.isnan(heldout.albedo_errors(rec, truth, ~mask & False)["albedo_psnr_db"]))
+
 
 if __name__ == "__main__":
     unittest.main()
