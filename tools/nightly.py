@@ -165,13 +165,19 @@ def scene_dir_of(scene, args):
 def generate(scene, args, logs):
     """Generate the preset `scene` into the cache unless it is there with the same parameters
     (gen_scene.py reuses a complete directory); returns an error string or None."""
-    cmd = [sys.executable, os.path.join(TOOLS, "gen_scene.py"), "--preset", scene,
-           os.path.join(args.cache, scene)]
+    return run_maker(scene, "gen_scene.py", ["--preset", scene, os.path.join(args.cache, scene)],
+                     logs)
+
+
+def run_maker(scene, tool, tool_args, logs):
+    """Run the scene maker `tools/<tool>` with `tool_args`, logged to
+    `<logs>/<scene>-generate.log`; returns an error string or None."""
+    cmd = [sys.executable, os.path.join(TOOLS, tool)] + tool_args
     log(f"{scene}: {' '.join(os.path.relpath(c, REPO) if os.path.isabs(c) else c for c in cmd)}")
     log_path = os.path.join(logs, f"{scene}-generate.log")
     code, wall, _ = run_measured(cmd, log_path)
     if code != 0:
-        return f"{scene}: tools/gen_scene.py exited {code}: {tail(log_path)}"
+        return f"{scene}: tools/{tool} exited {code}: {tail(log_path)}"
     log(f"{scene}: scene ready ({wall:.0f} s)")
     return None
 
@@ -205,15 +211,8 @@ def generate_interior(scene, args, logs):
     src, err = interior_source(scene, logs)
     if err:
         return err
-    cmd = [sys.executable, os.path.join(TOOLS, "bitterli_scene.py"), "--src", src,
-           os.path.join(args.cache, scene)]
-    log(f"{scene}: {' '.join(os.path.relpath(c, REPO) if os.path.isabs(c) else c for c in cmd)}")
-    log_path = os.path.join(logs, f"{scene}-generate.log")
-    code, wall, _ = run_measured(cmd, log_path)
-    if code != 0:
-        return f"{scene}: tools/bitterli_scene.py exited {code}: {tail(log_path)}"
-    log(f"{scene}: scene ready ({wall:.0f} s)")
-    return None
+    return run_maker(scene, "bitterli_scene.py", ["--src", src, os.path.join(args.cache, scene)],
+                     logs)
 
 
 def prepare_captures(args, logs, failures):
