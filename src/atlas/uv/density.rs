@@ -264,13 +264,22 @@ pub fn finest_footprints(scene: &Scene, accel: &Accel, views: &[usize]) -> Footp
 /// `(shape, triangle, footprint edge)` of every sampled pixel of `cam` whose primary ray hits
 /// a reconstructed shape, in pixel order.
 fn view_samples(scene: &Scene, accel: &Accel, cam: &Camera) -> Vec<(u32, u32, f32)> {
-    let rows: Vec<Vec<(u32, u32, f32)>> = (0..cam.height())
+    sampled_pixels(cam, |x, y| pixel_footprint(scene, accel, cam, x, y))
+}
+
+/// `f(x, y)` of every `STRIDE`-th pixel of `cam` in x and y where it gives a value, in pixel
+/// order (rows in parallel).
+pub(super) fn sampled_pixels<T: Send>(
+    cam: &Camera,
+    f: impl Fn(u32, u32) -> Option<T> + Sync,
+) -> Vec<T> {
+    let rows: Vec<Vec<T>> = (0..cam.height())
         .into_par_iter()
         .step_by(STRIDE as usize)
         .map(|y| {
             (0..cam.width())
                 .step_by(STRIDE as usize)
-                .filter_map(|x| pixel_footprint(scene, accel, cam, x, y))
+                .filter_map(|x| f(x, y))
                 .collect()
         })
         .collect();

@@ -7,7 +7,7 @@
 //! out of the room, so the photos record the lit inner side while the texel's irradiance is
 //! that of the dark outer one, and `K_d = L / E` comes out white. Each triangle of a two-sided
 //! reconstructed shape is therefore turned (`Mesh::flipped`) to face the side its photos see:
-//! the primary rays of every [`STRIDE`]-th pixel of every view vote with the sign of the
+//! the primary rays of every `density::STRIDE`-th pixel of every view vote with the sign of the
 //! shading normal along the ray. Triangles no photo sees take the side of the seen triangles
 //! they connect to across shared edges (two triangles wound the same way around a shared edge
 //! traverse it in opposite directions and keep each other's side; otherwise the side turns).
@@ -15,11 +15,10 @@
 //!
 //! Deterministic: votes are integer counts and the spread visits triangles in index order.
 
-use super::density::STRIDE;
+use super::density::sampled_pixels;
 use crate::physics::accel::Accel;
 use crate::physics::camera::Camera;
 use crate::scene::{Scene, Sides};
-use rayon::prelude::*;
 use std::collections::{HashMap, VecDeque};
 
 /// What [`orient_two_sided`] did, for the user.
@@ -69,27 +68,20 @@ fn side_votes(scene: &Scene, accel: &Accel, views: &[usize]) -> Vec<Vec<i32>> {
     }
     for &v in views {
         let cam = Camera::from_sensor(&scene.sensors[v]);
-        let rows: Vec<Vec<(u32, u32, i32)>> = (0..cam.height())
-            .into_par_iter()
-            .step_by(STRIDE as usize)
-            .map(|y| {
-                (0..cam.width())
-                    .step_by(STRIDE as usize)
-                    .filter_map(|x| {
-                        let (o, d) = cam.ray(x as f32 + 0.5, y as f32 + 0.5);
-                        let hit = accel.intersect(o, d, f32::INFINITY)?;
-                        let s = &scene.shapes[hit.shape as usize];
-                        if !turnable(s) {
-                            return None;
-                        }
-                        let n = s.mesh.shading_normal(hit.tri as usize, hit.b1, hit.b2);
-                        let c = n.dot(d);
-                        (c != 0.0).then_some((hit.shape, hit.tri, if c < 0.0 { 1 } else { -1 }))
-                    })
-                    .collect()
-            })
-            .collect();
-        for (s, t, vote) in rows.into_iter().flatten() {
+        let seen = sampled_pixels(&cam, |x, y| {
+            let (o, d) = cam.ray(x as f32 + 0.5, y as f32 + 0.5);
+            let hit = accel.intersect(o, d, f32::INFINITY)?;
+            let s = &scene.shapes[hit.shape as usize];
+            if !turnable(s) {
+                return None;
+            }
+            let c = s
+                .mesh
+                .shading_normal(hit.tri as usize, hit.b1, hit.b2)
+                .dot(d);
+            (c != 0.0).then_some((hit.shape, hit.tri, if c < 0.0 { 1 } else { -1 }))
+        });
+        for (s, t, vote) in seen {
             votes[s as usize][t as usize] += vote;
         }
     }
