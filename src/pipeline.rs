@@ -234,6 +234,7 @@ pub fn run_projection(
     if !world.is_root() {
         return Ok((p, stats));
     }
+    gain_notes(mode, &stats.gains);
     let maps = out.join("maps");
     let mut facts = projection_facts(cfg, &stats);
     for slot in 0..p.layout.slots.len() {
@@ -265,6 +266,19 @@ pub fn run_projection(
     }
     page::write_page(out, None, &facts)?;
     Ok((p, stats))
+}
+
+/// The photos' gains and what the capture check found, as notes.
+fn gain_notes(mode: Mode, capture: &[crate::report::ViewCapture]) {
+    for line in crate::stages::project::exposure::notes(capture) {
+        note(mode, &line);
+    }
+    let (ids, checks): (Vec<String>, Vec<_>) = (capture.iter())
+        .filter_map(|c| Some((c.view.clone(), c.check.clone()?)))
+        .unzip();
+    for line in project::capture_notes(&ids, &checks) {
+        note(mode, &line);
+    }
 }
 
 /// The report page's summary of a projection on its own.
@@ -569,15 +583,7 @@ impl<'a> Run<'a> {
         report.refinement = Refinement::new(ids.collect(), ps.refine_residual.clone());
         report.poses = ps.pose.clone();
         report.capture = ps.gains.clone();
-        for line in crate::stages::project::exposure::notes(&report.capture) {
-            note(mode, &line);
-        }
-        let (ids, checks): (Vec<String>, Vec<_>) = (report.capture.iter())
-            .filter_map(|c| Some((c.view.clone(), c.check.clone()?)))
-            .unzip();
-        for line in project::capture_notes(&ids, &checks) {
-            note(mode, &line);
-        }
+        gain_notes(mode, &report.capture);
         if let Some(line) = report.refinement.summary() {
             note(mode, &line);
         }

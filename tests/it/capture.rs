@@ -15,7 +15,14 @@ const GAINS: [[f32; 3]; 3] = [[0.62, 0.6, 0.55], [1.7, 1.8, 1.9], [1.0, 0.94, 1.
 /// A copy of the cbox fixture whose photo `i` is scaled by `GAINS[i]`, and a fast config for
 /// it with `extra` appended (settings of `[views]` first).
 fn scaled_cbox(dir: &Path, extra: &str) -> PathBuf {
-    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/cbox");
+    scaled("cbox", &GAINS, dir, extra)
+}
+
+/// [`scaled_cbox`] of fixture `name`, its photo `i` scaled by `gains[i]`.
+fn scaled(name: &str, gains: &[[f32; 3]], dir: &Path, extra: &str) -> PathBuf {
+    let src = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/fixtures")
+        .join(name);
     std::fs::create_dir_all(dir.join("images")).unwrap();
     std::fs::copy(src.join("input.xml"), dir.join("input.xml")).unwrap();
     let meshes = dir.join("meshes");
@@ -24,7 +31,7 @@ fn scaled_cbox(dir: &Path, extra: &str) -> PathBuf {
         let p = e.unwrap().path();
         std::fs::copy(&p, meshes.join(p.file_name().unwrap())).unwrap();
     }
-    for (i, g) in GAINS.iter().enumerate() {
+    for (i, g) in gains.iter().enumerate() {
         let name = format!("cam_train_{i}.exr");
         let img = read_exr(src.join("images").join(&name)).unwrap();
         let g = glam::Vec3::from_array(*g);
@@ -76,6 +83,28 @@ fn gains_are_estimated_against_the_light_the_photos_show() {
             "{check:?}"
         );
     }
+}
+
+#[test]
+fn varnish_does_not_pull_the_gains() {
+    // a coat mirrors the light and the walls differently into each camera: a texel of the
+    // varnished floor is brighter in one photo than in another at the same exposure, which
+    // the views' overlap would read as their gains' ratio
+    let gains = [
+        [0.7, 0.66, 0.6],
+        [1.5, 1.6, 1.7],
+        [1.0, 1.05, 0.92],
+        [1.2, 1.1, 1.25],
+    ];
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = scaled("coat-cbox", &gains, dir.path(), "exposure = \"estimate\"");
+    let stats = project(&cfg, &dir.path().join("out"));
+    let worst = (stats.gains.iter().zip(gains))
+        .flat_map(|(got, want)| (0..3).map(move |c| (got.gain[c] / want[c] - 1.0).abs()))
+        .fold(0.0f32, f32::max);
+    let got: Vec<_> = stats.gains.iter().map(|g| g.gain).collect();
+    // 0.05% here; 0.19% when the coated texels weigh as much as the matte ones
+    assert!(worst < 0.001, "worst {worst}: {got:?} vs {gains:?}");
 }
 
 #[test]

@@ -407,6 +407,26 @@ fn a_well_observed_run_has_no_warning_even_when_strict() {
     assert!(!err.contains("warning"), "{err}");
 }
 
+#[test]
+fn project_says_the_photos_gains_as_reconstruct_does() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = fixture("cbox").join("input.xml");
+    let out = tmp.path().join("out");
+    let o = kdmap(&[
+        "project",
+        scene.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    // estimated by default, from the light the photos show; cbox's photos are one exposure
+    let line = (err.lines())
+        .find(|l| l.starts_with("note: photo gains"))
+        .unwrap_or_else(|| panic!("no gains note: {err}"));
+    assert!(line.contains("cam_train_0 1.0"), "{line}");
+}
+
 /// A finely tessellated sphere (Mitsuba's built-in, 64 x 128 quads) seen by one 64 x 64 camera:
 /// its triangles are a few pixels wide, so one pixel in eight straddles two planes: read
 /// too (every visible texel observed), where clean pixels alone leave 87.5%.

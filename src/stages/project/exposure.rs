@@ -7,6 +7,9 @@
 //! channel, `p_vt = g_v L_t` over a sample of texels is solved by alternating weighted least
 //! squares (the texels' radiance given the gains, the gains given the radiance), robust to
 //! texels where views disagree for other reasons (Cauchy weights on the relative residual).
+//! Coated shapes' texels weigh little: their coat mirrors a different part of the scene into
+//! each view, a disagreement that is not the gains' and that a large varnished floor under a
+//! bright sky makes too common for the robust weights to set aside.
 //! The **absolute** scale is not in the diffuse surfaces at all: every albedo scaled by `s`
 //! with every photo explains the scene as well (the light they exchange scales with them). It
 //! comes from what the scene states in absolute units and a photo shows directly: emitters
@@ -38,6 +41,9 @@ const MIN_ANCHOR_PIXELS: usize = 9;
 /// An anchor ratio (photo / emitted radiance) below this is taken for emitters the photo does
 /// not show (hidden in a render): a real exposure 1000 times too dark would be black anyway.
 const DARK_ANCHOR: f32 = 1e-3;
+/// Weight of a coated shape's texels against a diffuse one's: its coat mirrors the scene, so
+/// its radiance changes with the view; it links views only where nothing diffuse does.
+const COATED_WEIGHT: f32 = 0.01;
 /// Fewest texels a view must share with the others for a relative gain.
 const MIN_SHARED: usize = 16;
 /// Largest spread of an environment map's radiance across one pixel (max / min luminance at
@@ -168,6 +174,10 @@ fn observations(
         .map(|t| -> Result<Vec<Vec<Obs>>> {
             let g = geom.read_tile(t)?;
             let shape = p.shape_ref(p.layout.slot_of_tile(t as u32));
+            let damp = match p.scene.shapes[shape.index as usize].coated() {
+                Some(_) => COATED_WEIGHT,
+                None => 1.0,
+            };
             let mut out = Vec::new();
             for (i, tg) in g.iter().enumerate().filter(|(_, g)| g.covered()) {
                 if (t * g.len() + i) % stride != 0 {
@@ -179,7 +189,7 @@ fn observations(
                         Some(Obs {
                             view: v,
                             value,
-                            weight,
+                            weight: weight * damp,
                         })
                     })
                     .collect();
