@@ -33,12 +33,13 @@ fn rgb_off(a: &ShapeAccuracy) -> f64 {
         .fold(0.0, f64::max)
 }
 
-/// The bases' mean colour off by at most this much in any channel (measured: floor 1.1%, tall
-/// box 3.1% in red, its smallest channel at 0.15), and their per-texel error (measured: floor
-/// 7.6%, its texels in the boxes' shadows and beside them darkest under the coat's reflection;
+/// The bases' mean colour off by at most this much in any channel (measured: floor 1.2%, tall
+/// box 3.2% in red, its smallest channel at 0.15), and their per-texel error (measured: floor
+/// 5.7%, 7.1% with 16 lobe samples of the coat's reflection and 7.6% with them masked where
+/// they came out high; its texels in the boxes' shadows and beside them darkest under the coat's reflection;
 /// tall box 3.5%). The matte surfaces' mean colours: 0.9% at most.
 const COATED_MEAN: f64 = 0.04;
-const COATED_TEXEL: [(&str, f64); 2] = [("floor", 0.085), ("tall_box", 0.04)];
+const COATED_TEXEL: [(&str, f64); 2] = [("floor", 0.065), ("tall_box", 0.04)];
 const MATTE_MEAN: f64 = 0.02;
 
 /// The bases under the coats near the truth (treated as known materials with the scene's

@@ -95,10 +95,13 @@ fn shape_means(p: &RunContext, cameras: &[Camera], photos: &[Image]) -> Vec<Vec3
         .collect()
 }
 
-/// A pixel whose predicted coat reflection is more than this share of its value is left out
-/// (masked): its base is a small difference of two large numbers, and the prediction, made
-/// at the pixel's centre, misses where a sharp reflection (a lamp's image in a gloss coat)
-/// covers only part of the pixel.
+/// A smooth coat's pixel whose predicted reflection is more than this share of its value is
+/// left out (masked): its base is a small difference of two large numbers, and the
+/// prediction, made at the pixel's centre, misses where a sharp reflection (a lamp's image in
+/// a gloss coat) covers only part of the pixel. A rough coat's pixels are never masked: its
+/// prediction is a few lobe samples, and masking the pixels where it came out high keeps
+/// those where it came out low (a bright window the samples missed), whose base then reads
+/// too bright: a varnished floor under a sky came out speckled white.
 const DOMINANT: f32 = 0.5;
 
 /// One view's photo with the coat's reflection removed from its coated pixels.
@@ -117,11 +120,12 @@ fn view(seen: &Seen, coats: &[Option<Coat>], v: usize, seed: u64) -> Image {
                 }
                 let key = (y * w + x) as u64;
                 let mut rng = Rng::new(seed ^ COAT_TAG, v as u64, 0, key);
-                let Some((l_coat, t_o)) = base(seen, coats, cam, (x as u32, y as u32), &mut rng)
+                let Some((l_coat, t_o, smooth)) =
+                    base(seen, coats, cam, (x as u32, y as u32), &mut rng)
                 else {
                     continue;
                 };
-                if luminance(l_coat) > DOMINANT * luminance(*px) {
+                if smooth && luminance(l_coat) > DOMINANT * luminance(*px) {
                     (*px, *ok) = (Vec3::ZERO, false);
                 } else {
                     *px = (*px - l_coat).max(Vec3::ZERO) / t_o;
@@ -132,15 +136,15 @@ fn view(seen: &Seen, coats: &[Option<Coat>], v: usize, seed: u64) -> Image {
     out
 }
 
-/// The coat's reflection and `T_o` at pixel `(x, y)`, if its centre sees the front of a
-/// coated shape.
+/// The coat's reflection, `T_o` and whether the coat is smooth at pixel `(x, y)`, if its
+/// centre sees the front of a coated shape.
 fn base(
     seen: &Seen,
     coats: &[Option<Coat>],
     cam: &Camera,
     (x, y): (u32, u32),
     rng: &mut Rng,
-) -> Option<(Vec3, f32)> {
+) -> Option<(Vec3, f32, bool)> {
     let (o, d, hit) = centre_hit(seen.p, cam, x, y);
     let hit = hit?;
     let c = coats[hit.shape as usize].as_ref()?;
@@ -160,7 +164,7 @@ fn base(
     if rough {
         l_coat += lights(seen, c, (at, ng, ns), wi);
     }
-    Some((l_coat, c.base_out(wi.dot(ns)).max(1e-3)))
+    Some((l_coat, c.base_out(wi.dot(ns)).max(1e-3), !rough))
 }
 
 /// The radiance arriving at `o` from direction `dir`: an emitter's (zero with `no_area`: it is
