@@ -1055,7 +1055,7 @@ impl<'a> Run<'a> {
             &self.charts,
             &self.geom,
             (&mut r.state, self.window),
-            &p.pinned(),
+            (&p.pinned(), &p.material_groups()),
             &self.scratch,
             &|k| stage.inc(k),
         )?;
@@ -1241,6 +1241,13 @@ impl<'a> Run<'a> {
         r.state.flush()?;
         debug_check(&self.geom, &r.state)?;
         r.report.counts = self.counts(&r, &filled, &uniform);
+        if filled.shared_shapes > 0 {
+            let line = format!(
+                "{} shapes no photo saw took the mean albedo of the seen shapes of their material",
+                filled.shared_shapes
+            );
+            note(self.mode, &line);
+        }
         let c = &r.report.counts;
         r.report.warnings = crate::report::summary::coverage_warning(
             c.covered_texels,
@@ -1305,6 +1312,7 @@ impl<'a> Run<'a> {
             uniform_texels: uniform.texels,
             filled_texels: filled.texels,
             fill_unrelaxed_texels: filled.unrelaxed,
+            material_filled_shapes: filled.shared_shapes,
             dense_direct_texels: before.dense_direct_texels,
             caustic_photons: before.caustic_photons,
             direct_first_pass_texels: before.direct_first_pass_texels,

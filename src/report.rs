@@ -184,6 +184,10 @@ pub struct Counts {
     /// relaxation did not fit in the scratch budget (`run.memory_budget_mib / 4`).
     #[serde(default)]
     pub fill_unrelaxed_texels: u64,
+    /// Shapes no view saw whose `K_d` is the mean of the observed shapes of their material
+    /// (the shapes the scene gives one named material).
+    #[serde(default)]
+    pub material_filled_shapes: u64,
     /// Covered texels whose direct light was estimated densely (a shadow edge or penumbra
     /// crosses them or a neighbour).
     #[serde(default)]

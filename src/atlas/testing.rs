@@ -62,6 +62,7 @@ impl Built {
             emission: None,
             reflectance: None,
             material: Default::default(),
+            material_name: None,
         };
         Built::new(vec![shape], vec![], texels_per_unit, vec![])
     }

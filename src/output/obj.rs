@@ -177,6 +177,7 @@ mod tests {
             emission: None,
             reflectance: None,
             material: Default::default(),
+            material_name: None,
         }
     }
 

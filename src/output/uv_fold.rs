@@ -687,6 +687,7 @@ mod tests {
                 emission: None,
                 reflectance: None,
                 material: Default::default(),
+                material_name: None,
             }
         };
         let shapes = vec![rect("once", 1.0), rect("tiled", 16.0), rect("coarse", 2.0)];
@@ -736,6 +737,7 @@ mod tests {
             emission: None,
             reflectance: None,
             material: Default::default(),
+            material_name: None,
         };
         let tex = UvTexture {
             res: 16,

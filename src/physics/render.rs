@@ -531,6 +531,7 @@ mod tests {
             emission: None,
             reflectance: None,
             material: Default::default(),
+            material_name: None,
         }
     }
 

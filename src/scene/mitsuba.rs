@@ -284,6 +284,8 @@ struct ShapeMaterial {
     reflectance: Option<ReflectanceSpec>,
     emission: Option<Rgb>,
     material: Material,
+    /// The id of the bsdf the shape refers to (`<ref id="..."/>`).
+    name: Option<String>,
 }
 
 /// What kdmap reads of a bsdf: which sides reflect, and the reflectance it states.
@@ -888,6 +890,7 @@ impl<'a, 'i> Parser<'a, 'i> {
             emission: mat.emission,
             reflectance: mat.reflectance,
             material: mat.material,
+            material_name: mat.name,
         })
     }
 
@@ -917,6 +920,10 @@ impl<'a, 'i> Parser<'a, 'i> {
         emitters: &mut Vec<Emitter>,
     ) -> Result<ShapeMaterial> {
         let (bsdf, emission) = self.shape_objects(objects)?;
+        let name = (bsdf.as_ref())
+            .filter(|(_, at)| at.tag_name().name() == "ref")
+            .and_then(|(_, at)| at.attribute("id"))
+            .map(String::from);
         if let Some((b, at)) = &bsdf {
             if let Some(kind) = &b.unsupported {
                 return Err(self.err(
@@ -948,6 +955,7 @@ impl<'a, 'i> Parser<'a, 'i> {
             reflectance: bsdf.reflectance,
             emission,
             material,
+            name,
         })
     }
 

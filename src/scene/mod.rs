@@ -204,6 +204,10 @@ pub struct Shape {
     pub reflectance: Option<ReflectanceSpec>,
     /// Whether kdmap recovers this shape's albedo or knows its material.
     pub material: Material,
+    /// The name of the material the scene file gives the shape when shapes can share it: the
+    /// id of the Mitsuba bsdf it refers to (`<ref id="..."/>`), or `material <i>` for glTF
+    /// material `i`. Shapes of one name are one material to the fill of shapes no photo saw.
+    pub material_name: Option<String>,
 }
 
 /// What a shape's surface is to kdmap.

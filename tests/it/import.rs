@@ -218,6 +218,13 @@ fn default_parameters_refs_and_builtins() {
     assert_eq!(ids, ["a", "shape_1", "shape_2", "shape_3", "shape_4"]);
     assert_eq!(s.shapes[0].sides, Sides::Both);
     assert_eq!(s.shapes[1].sides, Sides::Both);
+    // the two that refer to one bsdf share its name; the others have none of their own
+    let names: Vec<_> = s
+        .shapes
+        .iter()
+        .map(|s| s.material_name.as_deref())
+        .collect();
+    assert_eq!(names, [Some("paint"), Some("paint"), None, None, None]);
     assert!(
         s.shapes[1].mesh.normals.is_none(),
         "face_normals drops them"

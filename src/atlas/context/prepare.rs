@@ -435,6 +435,23 @@ impl RunContext {
             .collect()
     }
 
+    /// Per layout slot, its material's index among the material names of the reconstructed
+    /// slots (`Shape::material_name`, numbered in slot order; `None`: unnamed, or pinned).
+    pub fn material_groups(&self) -> Vec<Option<u32>> {
+        let mut names: std::collections::HashMap<&str, u32> = Default::default();
+        (self.layout.slots.iter())
+            .map(|st| {
+                let shape = &self.scene.shapes[st.shape];
+                let name = shape.material_name.as_deref()?;
+                if shape.pinned_albedo().is_some() {
+                    return None;
+                }
+                let next = names.len() as u32;
+                Some(*names.entry(name).or_insert(next))
+            })
+            .collect()
+    }
+
     fn assemble(
         scene: Scene,
         accel: Accel,

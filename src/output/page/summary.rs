@@ -212,6 +212,15 @@ pub fn notes(r: &Report) -> Vec<(bool, String)> {
     if k.texels_with_disagreement > 0 {
         n.push((false, format!("{} texels had a view that disagreed with the others; that view was down-weighted there.", k.texels_with_disagreement)));
     }
+    if c.material_filled_shapes > 0 {
+        n.push((
+            false,
+            format!(
+                "{} shapes no photo saw took the mean albedo of the seen shapes of their material.",
+                c.material_filled_shapes
+            ),
+        ));
+    }
     if c.fill_unrelaxed_texels > 0 {
         n.push((true, format!("{} filled texels were not smoothed: their texture did not fit in the memory budget.", c.fill_unrelaxed_texels)));
     }

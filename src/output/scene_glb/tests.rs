@@ -28,6 +28,7 @@ fn quad(id: &str, emission: Option<Vec3>, sides: Sides) -> Shape {
         emission,
         reflectance: None,
         material: Default::default(),
+        material_name: None,
     }
 }
 

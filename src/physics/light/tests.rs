@@ -37,6 +37,7 @@ pub(super) fn shape(mesh: Mesh, emission: Option<Vec3>) -> Shape {
         emission,
         reflectance: None,
         material: Default::default(),
+        material_name: None,
     }
 }
 

@@ -60,6 +60,7 @@ pub(super) fn shape(
         emission,
         reflectance,
         material: Material::Unknown,
+        material_name: material.index().map(|i| format!("material {i}")),
     })
 }
 

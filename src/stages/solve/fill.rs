@@ -115,13 +115,14 @@ fn wave_fill(
 }
 
 /// Charts with no observed texel at all: the shape's mean (0.5 if nothing is observed).
+/// Returns the observed texels' sum and count.
 fn fill_with_mean(
     kd: &mut [Vec3],
     observed: &[bool],
     chart: &[Option<u32>],
     known: &[bool],
     filled: &mut [bool],
-) {
+) -> Observed {
     let (mut sum, mut n) = (Vec3::ZERO, 0u32);
     for (i, &o) in observed.iter().enumerate() {
         if o {
@@ -129,15 +130,30 @@ fn fill_with_mean(
             n += 1;
         }
     }
-    let mean = if n > 0 {
-        sum / n as f32
-    } else {
-        Vec3::splat(0.5)
-    };
+    let obs = Observed { sum, n };
+    let mean = obs.mean();
     for i in 0..kd.len() {
         if chart[i].is_some() && !known[i] {
             kd[i] = mean;
             filled[i] = true;
+        }
+    }
+    obs
+}
+
+/// The sum and count of a texture's observed `K_d`, summed in row-major order.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Observed {
+    pub sum: Vec3,
+    pub n: u32,
+}
+
+impl Observed {
+    /// The observed texels' mean, 0.5 when there are none.
+    fn mean(&self) -> Vec3 {
+        match self.n {
+            0 => Vec3::splat(0.5),
+            n => self.sum / n as f32,
         }
     }
 }
@@ -163,13 +179,16 @@ pub struct Filled {
     /// Of those, the ones in textures whose harmonic relaxation did not fit in the scratch
     /// budget (they keep the wave's values).
     pub unrelaxed: u64,
+    /// Shapes no photo saw that took the mean of their material's observed shapes.
+    pub shared_shapes: u64,
 }
 
 /// [`fill_unobserved`] over every texture of the layout, one texture at a time: unobserved
 /// covered texels get `K_d` from observed neighbours of their chart (else the shape's mean)
 /// and the `FILLED` flag, a texture whole if it fits in `scratch`'s budget, else tile by tile
 /// (the same values), then the harmonic relaxation. `tick` gets every tile read and every
-/// tile written back (two per tile in all; the waves between are not counted).
+/// tile written back (two per tile in all; the waves between are not counted). Returns what
+/// was filled and, per slot, its observed texels (see [`shared_fill`]).
 #[inline(never)] // a stage entry tools/icount.py measures
 pub fn fill_unobserved_all(
     layout: &Layout,
@@ -178,13 +197,14 @@ pub fn fill_unobserved_all(
     state: &mut TileStore<TexelState>,
     scratch: &Scratch,
     tick: Tick,
-) -> Result<Filled> {
+) -> Result<(Filled, Vec<Observed>)> {
     // A texture filled whole is copied about five times over (its records, K_d, masks,
     // charts, the result); the budget is for all of them, the tiled path keeps three caches.
     // The relaxation's system lives beside the texture: it may take the whole scratch budget.
     let relax_budget = scratch.budget;
     let scratch = &scratch.share(1, FILL_COPIES);
     let mut filled = Filled::default();
+    let mut observed = Vec::with_capacity(layout.slots.len());
     for slot in 0..layout.slots.len() {
         let c = &charts.slots[slot];
         let sources = (layout, slot, &*state, geom);
@@ -197,10 +217,11 @@ pub fn fill_unobserved_all(
             }
         };
         let tex = SlotTexture::read_ticking(sources, scratch, "fill", read, tick)?;
-        let (out, relaxed) = match tex.is_whole() {
+        let (out, relaxed, obs) = match tex.is_whole() {
             true => fill_whole(&tex, scratch, relax_budget)?,
             false => fill_tiled(tex, scratch, relax_budget)?,
         };
+        observed.push(obs);
         let write = |r: &mut TexelState, v: &FillTexel| match v.round {
             FILLED_MARK | MEAN_MARK => {
                 r.k_d = v.kd.to_array();
@@ -215,7 +236,30 @@ pub fn fill_unobserved_all(
             filled.unrelaxed += n;
         }
     }
-    Ok(filled)
+    Ok((filled, observed))
+}
+
+/// Per slot, the `K_d` a shape no photo saw takes from the shapes of its material: `groups`
+/// gives each slot's material (shapes the scene gives one named material, see
+/// `Shape::material_name`), `observed` each slot's observed texels. A slot with no observed
+/// texel whose material has some gets their mean (summed in slot order, in f64); every other
+/// slot `None`. One material is one colour more often than not, and its mean is a better
+/// guess than the grey the shape's own (empty) mean leaves.
+pub fn shared_fill(groups: &[Option<u32>], observed: &[Observed]) -> Vec<Option<Vec3>> {
+    let mut by_group: BTreeMap<u32, (glam::DVec3, u64)> = BTreeMap::new();
+    for (g, o) in groups.iter().zip(observed) {
+        if let Some(g) = g {
+            let e = by_group.entry(*g).or_default();
+            e.0 += o.sum.as_dvec3();
+            e.1 += o.n as u64;
+        }
+    }
+    (groups.iter().zip(observed))
+        .map(|(g, o)| {
+            let (sum, n) = by_group.get(g.as_ref()?)?;
+            (o.n == 0 && *n > 0).then(|| (*sum / *n as f64).as_vec3())
+        })
+        .collect()
 }
 
 /// Share of the scratch budget a texture may take as one copy in [`fill_unobserved_all`]:
@@ -234,7 +278,7 @@ fn fill_whole(
     tex: &SlotTexture<FillTexel>,
     scratch: &Scratch,
     relax_budget: u64,
-) -> Result<(SlotTexture<FillTexel>, bool)> {
+) -> Result<(SlotTexture<FillTexel>, bool, Observed)> {
     let g = tex.grid;
     let v = tex.to_vec();
     let mut kd: Vec<Vec3> = v.iter().map(|t| t.kd).collect();
@@ -244,7 +288,7 @@ fn fill_whole(
         .map(|t| (t.chart != NONE).then_some(t.chart))
         .collect();
     let (known, mut filled) = wave_fill(&mut kd, &observed, &chart, g.width, g.height);
-    fill_with_mean(&mut kd, &observed, &chart, &known, &mut filled);
+    let obs = fill_with_mean(&mut kd, &observed, &chart, &known, &mut filled);
     let result: Vec<FillTexel> = (0..v.len())
         .map(|i| FillTexel {
             kd: kd[i],
@@ -264,7 +308,7 @@ fn fill_whole(
         Ok(out)
     })?;
     let relaxed = harmonic::relax(&mut out, relax_budget)?;
-    Ok((out, relaxed))
+    Ok((out, relaxed, obs))
 }
 
 /// A texture held in tiles: passes over the tiles whose ring changed until nothing changes,
@@ -274,9 +318,10 @@ pub fn fill_tiled(
     mut cur: SlotTexture<FillTexel>,
     scratch: &Scratch,
     relax_budget: u64,
-) -> Result<(SlotTexture<FillTexel>, bool)> {
+) -> Result<(SlotTexture<FillTexel>, bool, Observed)> {
     let g = cur.grid;
-    let mean = observed_mean(&cur);
+    let obs = observed_sum(&cur);
+    let mean = obs.mean();
     let mut next = SlotTexture::build(g, scratch, "fill-next", |_| {
         Ok(vec![FillTexel::default(); g.tile_texels()])
     })?;
@@ -333,11 +378,11 @@ pub fn fill_tiled(
     })?;
     cur.check()?;
     let relaxed = harmonic::relax(&mut out, relax_budget)?;
-    Ok((out, relaxed))
+    Ok((out, relaxed, obs))
 }
 
-/// The mean `K_d` of the observed texels in row-major order (as [`fill_with_mean`] sums).
-fn observed_mean(tex: &SlotTexture<FillTexel>) -> Vec3 {
+/// The observed texels' `K_d` summed in row-major order (as [`fill_with_mean`] sums).
+fn observed_sum(tex: &SlotTexture<FillTexel>) -> Observed {
     let (mut sum, mut n) = (Vec3::ZERO, 0u32);
     for y in 0..tex.grid.height {
         for v in tex.row(y) {
@@ -347,11 +392,7 @@ fn observed_mean(tex: &SlotTexture<FillTexel>) -> Vec3 {
             }
         }
     }
-    if n > 0 {
-        sum / n as f32
-    } else {
-        Vec3::splat(0.5)
-    }
+    Observed { sum, n }
 }
 
 /// Tile `t` recomputed from its observed texels and the ring of `block` (halo 1): rounds by a
@@ -502,6 +543,31 @@ mod tests {
         }
         fill_with_mean(kd, observed, chart, &known, &mut filled);
         filled
+    }
+
+    #[test]
+    fn a_shape_no_photo_saw_takes_its_materials_mean() {
+        let o = |sum: f32, n: u32| Observed {
+            sum: Vec3::new(sum, 2.0 * sum, 0.0),
+            n,
+        };
+        // material 0: slots 0, 3 and 5 observed (texel sums 1, 1 and 3 over 4, 1 and 3
+        // texels), slot 1 unseen: it takes their texels' mean, 5 / 8; slot 2 has no name,
+        // slot 4's material has nothing observed, and the observed keep their own
+        let groups = [Some(0), Some(0), None, Some(0), Some(1), Some(0)];
+        let observed = [
+            o(1.0, 4),
+            o(0.0, 0),
+            o(0.0, 0),
+            o(1.0, 1),
+            o(0.0, 0),
+            o(3.0, 3),
+        ];
+        let got = shared_fill(&groups, &observed);
+        assert_eq!(got.len(), 6);
+        let want = Vec3::new(0.625, 1.25, 0.0);
+        assert!(got[1].unwrap().abs_diff_eq(want, 1e-7), "{:?}", got[1]);
+        assert_eq!([got[0], got[2], got[3], got[4], got[5]], [None; 5]);
     }
 
     #[test]
@@ -662,7 +728,7 @@ mod tests {
             let tick = |k: u64| {
                 ticks.fetch_add(k, Ordering::Relaxed);
             };
-            let filled =
+            let (filled, _) =
                 fill_unobserved_all(&p.layout, &charts, &geom, &mut state, &scratch, &tick)
                     .unwrap();
             assert_eq!(ticks.load(Ordering::Relaxed), 2 * tiles, "budget {budget}");

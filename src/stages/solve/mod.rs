@@ -206,13 +206,14 @@ pub fn alpha(alpha0: f32, n: u32) -> f32 {
 
 /// Steps 3-5 over every tile, then the fill of unobserved texels: `K_d` from the current
 /// `E_i` everywhere, except in the slots `pinned` gives an albedo (known diffuse shapes),
-/// which keep it. Returns `(clamped texels, what the fill filled)`.
+/// which keep it; a slot no photo saw takes the mean of the observed slots of its material
+/// (`groups`, see [`fill::shared_fill`]). Returns `(clamped texels, what the fill filled)`.
 pub fn kd_step(
     layout: &Layout,
     charts: &Charts,
     geom: &TileStore<TexelGeom>,
     (state, window): (&mut TileStore<TexelState>, usize),
-    pinned: &[Option<Vec3>],
+    (pinned, groups): (&[Option<Vec3>], &[Option<u32>]),
     scratch: &Scratch,
     tick: Tick,
 ) -> Result<(u64, Filled)> {
@@ -223,10 +224,15 @@ pub fn kd_step(
     })?
     .iter()
     .sum();
-    let filled = fill_unobserved_all(layout, charts, geom, state, scratch, tick)?;
-    if pinned.iter().any(Option::is_some) {
+    let (mut filled, observed) = fill_unobserved_all(layout, charts, geom, state, scratch, tick)?;
+    let shared = fill::shared_fill(groups, &observed);
+    filled.shared_shapes = shared.iter().flatten().count() as u64;
+    let set: Vec<Option<Vec3>> = (pinned.iter().zip(&shared))
+        .map(|(p, s)| p.or(*s))
+        .collect();
+    if set.iter().any(Option::is_some) {
         map_tiles(state, geom, window, |t, g, s| {
-            if let Some(k) = pinned[layout.slot_of_tile(t as u32)] {
+            if let Some(k) = set[layout.slot_of_tile(t as u32)] {
                 for (g, s) in g.iter().zip(s.iter_mut()) {
                     if g.covered() {
                         s.k_d = k.to_array();

@@ -20,6 +20,7 @@ fn shape(id: &str, mesh: Mesh, emission: Option<Vec3>) -> Shape {
         emission,
         reflectance: None,
         material: Default::default(),
+        material_name: None,
     }
 }
 

@@ -19,6 +19,7 @@ fn shape(id: &str, mesh: Mesh, sides: Sides) -> Shape {
         emission: None,
         reflectance: None,
         material: Default::default(),
+        material_name: None,
     }
 }
 

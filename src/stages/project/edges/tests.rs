@@ -74,6 +74,7 @@ fn a_smooth_surface_that_turns_fast_between_pixels_has_edges_only_on_its_outline
         emission: None,
         reflectance: None,
         material: Default::default(),
+        material_name: None,
     };
     let b = Built::new(vec![shape], vec![], 4.0, vec![]);
     let eye = Vec3::new(2.0, 2.5, 9.2);
