@@ -103,27 +103,31 @@ impl Coat {
     /// normal `ns` on the viewer's side: the mirror direction for a smooth coat, a
     /// `LOBE_GRID^2` stratified set (offset by `rng`) for a rough one.
     pub fn reflection(&self, wi: Vec3, ns: Vec3, rng: &mut Rng) -> Vec<Lobe> {
-        let all = self.reflection_marked(wi, ns, rng);
+        let all = self.reflection_split(wi, ns, rng);
         all.into_iter().map(|(lobe, _)| lobe).collect()
     }
 
-    /// [`Coat::reflection`], each sample marked when it lies on the coarse sub-grid (every
-    /// other row and column of the grid: a stratified quarter of the samples; the smooth
-    /// coat's one direction is marked too).
-    pub fn reflection_marked(&self, wi: Vec3, ns: Vec3, rng: &mut Rng) -> Vec<(Lobe, bool)> {
+    /// [`Coat::reflection`], each sample with its weight in an estimate made from the coarse
+    /// sub-grid alone (every other row and column of the grid, a stratified subset): the
+    /// grid's size over the sub-grid's on the sub-grid (4 for the 8x8 grid), 0 off it, 1 for
+    /// the smooth coat's one direction. What costs too much to read on every sample is read
+    /// on the sub-grid at that weight.
+    pub fn reflection_split(&self, wi: Vec3, ns: Vec3, rng: &mut Rng) -> Vec<(Lobe, f32)> {
         let Some(r) = self.rough else {
             let f = fresnel_dielectric(wi.dot(ns), self.eta);
-            return vec![((reflect(wi, ns), self.specular * f), true)];
+            return vec![((reflect(wi, ns), self.specular * f), 1.0)];
         };
         let (o1, o2) = (rng.f32(), rng.f32());
         let n = LOBE_GRID;
+        let coarse = (n * n) as f32 / n.div_ceil(2).pow(2) as f32;
         let mut out = Vec::with_capacity(n * n);
         for k in 0..n * n {
             let u1 = ((k / n) as f32 + o1) / n as f32;
             let u2 = ((k % n) as f32 + o2) / n as f32;
             if let Some((wo, w)) = rough_sample(wi, ns, r, self.eta, (u1, u2)) {
-                let coarse = (k / n) % 2 == 0 && (k % n) % 2 == 0;
-                out.push(((wo, self.specular * (w / (n * n) as f32)), coarse));
+                let on = (k / n) % 2 == 0 && (k % n) % 2 == 0;
+                let sub = if on { coarse } else { 0.0 };
+                out.push(((wo, self.specular * (w / (n * n) as f32)), sub));
             }
         }
         out

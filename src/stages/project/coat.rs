@@ -8,8 +8,7 @@
 //! view and pixel). Each direction sees an emitter (its radiance), the environment, or a
 //! surface, whose radiance is read from the photos: the mean of the (calibrated) pixels of the
 //! views that see that point unoccluded, else the mean of the pixels that see its shape (a
-//! rough coat reads surfaces on a stratified quarter of its samples, see
-//! [`SURFACE_SHARE_INV`]). A
+//! rough coat reads surfaces on a stratified quarter of its samples, see [`incoming`]). A
 //! rough coat's glossy image of the lights is integrated over them instead (the area lights'
 //! points of `physics::coat::patches` with shadow rays, point, spot and directional lights
 //! exactly), which a few lobe samples would make noisy. So the coat's reflection is predicted
@@ -160,13 +159,8 @@ fn base(
     let at = o + d * hit.t;
     let rough = c.rough.is_some();
     let mut l_coat = Vec3::ZERO;
-    for ((dir, w), coarse) in c.reflection_marked(wi, ns, rng) {
-        // surfaces are read on the coarse quarter of the samples only, weighted 4x
-        let surface = match (rough, coarse) {
-            (false, _) => 1.0,
-            (true, true) => SURFACE_SHARE_INV,
-            (true, false) => 0.0,
-        };
+    // surfaces cost a ray to each camera: read on the coarse sub-grid only, at its weight
+    for ((dir, w), surface) in c.reflection_split(wi, ns, rng) {
         l_coat += w * incoming(seen, offset_origin(at, ng, dir), dir, rough, surface);
     }
     if rough {
@@ -175,17 +169,13 @@ fn base(
     Some((l_coat, c.base_out(wi.dot(ns)).max(1e-3), !rough))
 }
 
-/// A rough coat's lobe samples that read a surface they meet from the photos: one in four
-/// (the coarse sub-grid, weighted by 4). The environment and the emitters are read on every
-/// sample: the bright sky through a window is what the samples must not miss, while a
-/// surface costs a ray to each camera. Living room: held-out albedo 22.9% with every sample
-/// reading surfaces, 23.1% with a quarter, for 334M and 133M projection rays (16 samples:
-/// 33.1%, 93M).
-const SURFACE_SHARE_INV: f32 = 4.0;
-
 /// The radiance arriving at `o` from direction `dir`: an emitter's (zero with `no_area`: it is
 /// integrated apart), the environment's, or a surface's as the photos saw it times `surface`
-/// (not read at all when 0).
+/// (not read at all when 0). A rough coat reads surfaces on the coarse quarter of its lobe
+/// samples ([`Coat::reflection_split`]), the environment and the emitters on all: the bright
+/// sky through a window is what the samples must not miss, while a surface costs a ray to
+/// each camera. Living room: held-out albedo 22.9% with every sample reading surfaces, 23.1%
+/// with a quarter, for 334M and 133M projection rays (16 samples: 33.1%, 93M).
 fn incoming(seen: &Seen, o: Vec3, dir: Vec3, no_area: bool, surface: f32) -> Vec3 {
     let scene = &seen.p.scene;
     let Some(hit) = seen.p.accel.intersect(o, dir, f32::INFINITY) else {
