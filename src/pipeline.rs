@@ -611,6 +611,7 @@ impl<'a> Run<'a> {
         report.counts.dense_direct_texels = direct.dense;
         report.counts.direct_first_pass_texels = direct.first_pass;
         report.counts.dense_direct_texels_per_emitter = direct.dense_per_emitter.clone();
+        report.counts.smoothed_direct_texels = direct.smoothed;
         let mean_e = direct.mean;
         let share = cfg.initial_indirect_share;
         map_tiles(&mut state, &self.geom, self.window, |_, g, s| {
@@ -643,11 +644,15 @@ impl<'a> Run<'a> {
         ranks::share_tiles(world, state)?;
         // every rank holds every tile now, and measures the same noise on it
         direct::sampling::estimate(p, &self.charts, &self.geom, state, &self.scratch)?;
+        let smoothed = direct::smooth::smooth(p, &self.charts, &self.geom, state, &self.scratch)?;
         let mine = sums.into_iter().enumerate().map(|(t, s)| (t as u64, s));
         let mine = mine.filter(|(t, _)| world.owns(*t)).collect();
         let all = ranks::share_serde(world, mine)?;
         let sums: Vec<_> = all.into_iter().map(|(_, s)| s).collect();
-        Ok(direct::DirectStats::from_tiles(&sums))
+        Ok(direct::DirectStats {
+            smoothed,
+            ..direct::DirectStats::from_tiles(&sums)
+        })
     }
 
     /// Light by way of mirrors and glass (caustics), added to `E_d`: a photon pass of
@@ -1317,6 +1322,7 @@ impl<'a> Run<'a> {
             caustic_photons: before.caustic_photons,
             direct_first_pass_texels: before.direct_first_pass_texels,
             dense_direct_texels_per_emitter: before.dense_direct_texels_per_emitter.clone(),
+            smoothed_direct_texels: before.smoothed_direct_texels,
         }
     }
 

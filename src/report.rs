@@ -199,6 +199,10 @@ pub struct Counts {
     /// Per emitter, the texels whose light from it was estimated densely.
     #[serde(default)]
     pub dense_direct_texels_per_emitter: Vec<u64>,
+    /// Covered texels whose environment light's sampled `E_d` was averaged with agreeing
+    /// neighbours of their chart (0 without an environment light).
+    #[serde(default)]
+    pub smoothed_direct_texels: u64,
 }
 
 /// One row of the paper's comparison table: one shape seen from one view, over the pixels

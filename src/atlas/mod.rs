@@ -3,6 +3,7 @@
 //! slot, the [`uv`] layout and texel geometry, and the run [`context`] built from them.
 
 pub mod context;
+pub mod sigma;
 pub mod store;
 #[cfg(test)]
 pub mod testing;

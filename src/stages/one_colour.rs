@@ -20,6 +20,7 @@
 //! Written here, not taken from a crate: it is `denoise::sigma_filter` (charts, tiles,
 //! budget) with a relative tolerance; the only new part is the gate.
 
+use crate::atlas::sigma::{sigma_filter, Noisy};
 use crate::atlas::store::TileStore;
 use crate::atlas::store::{Layout, TexelGeom, TexelState};
 use crate::atlas::texture::{Scratch, SlotTexture};
@@ -27,7 +28,6 @@ use crate::atlas::uv::Charts;
 use crate::atlas::uv::NONE;
 use crate::base::error::Result;
 use crate::scene::luminance;
-use crate::stages::denoise::{sigma_filter, Noisy};
 use glam::Vec3;
 
 /// A shape is uniform when the median absolute deviation of its observed texels' `K_d`

@@ -92,6 +92,7 @@ const FOLDERS: &[(&str, &[Layer])] = &[
             (&["store"], Listed),
             (&["texture"], Listed),
             (&["uv"], Listed),
+            (&["sigma"], Listed),
             (&["context"], Listed),
             (&["testing"], Listed),
         ],
@@ -150,6 +151,10 @@ const FOLDERS: &[(&str, &[Layer])] = &[
             ],
             Listed,
         )],
+    ),
+    (
+        "stages::direct",
+        &[(&["coat", "sampling"], Independent), (&["smooth"], Listed)],
     ),
     ("stages::indirect", &[(&["gather", "photon"], Independent)]),
     ("stages::indirect::gather", &[(&["budget"], Independent)]),

@@ -14,6 +14,7 @@
 
 mod coat;
 pub mod sampling;
+pub mod smooth;
 
 use crate::atlas::store::{map_tiles, TileStore};
 use crate::atlas::store::{TexelGeom, TexelState};
@@ -67,6 +68,9 @@ pub struct DirectStats {
     pub dense: u64,
     /// Per emitter, the texels estimated densely for it.
     pub dense_per_emitter: Vec<u64>,
+    /// Texels whose sampled environment light was averaged with neighbours
+    /// ([`smooth::smooth`]).
+    pub smoothed: u64,
 }
 
 /// `E_d` of the covered texels of the tiles `owns` accepts (the share of one process when
