@@ -390,6 +390,14 @@ impl Scene {
             .unwrap_or_else(|| PathBuf::from("."))
     }
 
+    /// Whether an environment light (`envmap`, `constant`) lights the scene: the one emitter
+    /// whose direct light is a sampled estimate everywhere.
+    pub fn has_environment(&self) -> bool {
+        self.emitters
+            .iter()
+            .any(|e| matches!(e, Emitter::Environment(_)))
+    }
+
     pub fn triangle_count(&self) -> usize {
         self.shapes.iter().map(|s| s.mesh.triangles.len()).sum()
     }

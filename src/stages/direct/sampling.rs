@@ -19,7 +19,7 @@ use crate::atlas::uv::NONE;
 use crate::atlas::uv::{ChartValue, Charts};
 use crate::atlas::RunContext;
 use crate::base::error::{Error, Result};
-use crate::scene::{luminance, Emitter};
+use crate::scene::luminance;
 use glam::Vec3;
 use rayon::prelude::*;
 
@@ -41,8 +41,7 @@ pub fn estimate(
     state: &mut TileStore<TexelState>,
     scratch: &Scratch,
 ) -> Result<()> {
-    let sky = |e: &Emitter| matches!(e, Emitter::Environment(_));
-    if !p.scene.emitters.iter().any(sky) {
+    if !p.scene.has_environment() {
         return Ok(());
     }
     let layout = &p.layout;

@@ -19,7 +19,6 @@ use crate::atlas::texture::{Scratch, SlotTexture};
 use crate::atlas::uv::{Charts, NONE};
 use crate::atlas::RunContext;
 use crate::base::error::Result;
-use crate::scene::Emitter;
 use glam::Vec3;
 
 /// Half the side of the window a texel averages over (5 x 5 texels): within the window the
@@ -44,8 +43,7 @@ pub fn smooth(
     state: &mut TileStore<TexelState>,
     scratch: &Scratch,
 ) -> Result<u64> {
-    let sky = |e: &Emitter| matches!(e, Emitter::Environment(_));
-    if !p.scene.emitters.iter().any(sky) {
+    if !p.scene.has_environment() {
         return Ok(0);
     }
     let layout = &p.layout;
