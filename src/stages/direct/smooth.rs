@@ -1,7 +1,7 @@
 //! The sampling noise of an environment light's `E_d` reduced without more shadow rays:
-//! irradiance changes slowly across a surface except at shadow edges, so each sampled texel becomes the mean of the texels of its chart nearby
-//! whose values agree with its own within their noise (the sigma filter of
-//! [`crate::atlas::sigma`], judged on `ed_var` as
+//! irradiance changes slowly across a surface except at shadow edges, so each sampled texel
+//! becomes the mean of the texels of its chart nearby whose values agree with its own within
+//! their noise (the sigma filter of [`crate::atlas::sigma`], judged on `ed_var` as
 //! [`super::sampling::estimate`] measured it). A shadow edge is a step larger than the noise
 //! and is kept. `ed_var` (what `K_d`'s standard error counts of `E_d`) is left as measured, as
 //! the denoised luminance's `l_var` is: the noise shrinks about `n` times over `n` texels, but
@@ -32,14 +32,14 @@ pub const RADIUS: u32 = 2;
 const _: () = assert!(RADIUS <= NOISE_RADIUS);
 
 /// Neighbours whose `E_d` lies within this many standard errors of their difference are
-/// averaged: 2.5 keeps 98.8% of the pairs of equal light (Gaussian noise) and a step of
-/// 3.5 standard errors apart.
+/// averaged: 2.5 averages 98.8% of the pairs of texels under equal light (Gaussian noise), and
+/// keeps apart texels across a step of more than 3.5 times one texel's standard error.
 pub const Z: f32 = 2.5;
 
 /// Every covered texel with a stated `E_d` noise (`ed_var > 0`: lit by an environment light)
 /// takes the sigma-filtered mean of its chart's texels within [`RADIUS`]. Texels with no stated
-/// noise are not changed and not averaged in.
-/// Returns how many texels averaged more than themselves.
+/// noise are not changed and not averaged in. Returns how many texels averaged more than
+/// themselves.
 pub fn smooth(
     p: &RunContext,
     charts: &Charts,
