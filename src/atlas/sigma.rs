@@ -2,8 +2,8 @@
 //! neighbours of its own chart whose values lie within `z` standard errors of its own, the
 //! standard errors being each texel's own. Uniform surfaces lose most of their noise; an edge
 //! is a step larger than the noise, so texels across it are not mixed. Used on the projected
-//! luminance (`stages::denoise`) and on an environment light's sampled `E_d`
-//! (`stages::direct::smooth`).
+//! luminance (`stages::denoise`), to judge a shape of one colour (`stages::one_colour`), and
+//! on an environment light's sampled `E_d` (`stages::direct::smooth`).
 //!
 //! Written by hand: image denoisers (bilateral, non-local means, OIDN) work on images with one
 //! noise level and know nothing of charts; here every texel has its own standard error and the

@@ -17,7 +17,7 @@
 //! ones (3.6% and up). A shape of one colour that is much noisier, such as a ceiling lit only
 //! by interreflection (12% relative standard error), is left as it is.
 //!
-//! Written here, not taken from a crate: it is `denoise::sigma_filter` (charts, tiles,
+//! Written here, not taken from a crate: it is `atlas::sigma::sigma_filter` (charts, tiles,
 //! budget) with a relative tolerance; the only new part is the gate.
 
 use crate::atlas::sigma::{sigma_filter, Noisy};
