@@ -46,7 +46,7 @@ static CHECKPOINT_WRITES: AtomicU64 = AtomicU64::new(0);
 /// what the state's fields mean and their size (92 bytes a texel), and the fields of the
 /// config and report it carries (bincode is not self-describing, so a checkpoint with other
 /// fields would not decode).
-pub const VERSION: u32 = 16;
+pub const VERSION: u32 = 17;
 const MAGIC: &str = "KDMCKPT";
 /// The current manifest.
 pub const MANIFEST: &str = "progress.kdm";
@@ -719,7 +719,7 @@ mod tests {
             colmap_to_world atlas atlas.texels_per_unit atlas.max_texels \
             atlas.padding atlas.use_mesh_uvs atlas.tile_size atlas.max_texture_size \
             refine_passes fine_geometry refine_step refine_gate refine_gated_from denoise_radius denoise_z \
-            tv_weight noise_probe area_samples env_samples method gather_rays gather_spacing \
+            tv_weight noise_probe area_samples env_samples unobserved_share method gather_rays gather_spacing \
             photons photons_per_texel batch_size max_depth smoothing_radius iterations \
             tolerance alpha0 update relaxation initial_indirect_share seed threads \
             checkpoint_every_batches checkpoint_every_seconds memory_budget_mib min_observed_share known_shapes kept_coats \
@@ -729,7 +729,7 @@ mod tests {
         want.sort();
         assert_eq!(
             (VERSION, got),
-            (16, want.iter().map(|s| s.to_string()).collect::<Vec<_>>()),
+            (17, want.iter().map(|s| s.to_string()).collect::<Vec<_>>()),
             "the config's fields changed: bump VERSION and update this list"
         );
     }

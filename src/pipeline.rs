@@ -1045,6 +1045,7 @@ impl<'a> Run<'a> {
             radiance,
             seed: self.cfg.seed,
             rays: self.gather_rays(pts),
+            lean_rays: gather::lean_rays(self.gather_rays(pts), self.cfg.unobserved_share),
         }
     }
 
@@ -1323,6 +1324,7 @@ impl<'a> Run<'a> {
             direct_first_pass_texels: before.direct_first_pass_texels,
             dense_direct_texels_per_emitter: before.dense_direct_texels_per_emitter.clone(),
             smoothed_direct_texels: before.smoothed_direct_texels,
+            lean_gather_points: self.points.get().map_or(0, |p| p.lean_points() as u64),
         }
     }
 

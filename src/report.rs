@@ -203,6 +203,10 @@ pub struct Counts {
     /// neighbours of their chart (0 without an environment light).
     #[serde(default)]
     pub smoothed_direct_texels: u64,
+    /// Gather points no observed texel reads, which cast `run.unobserved_share` of the rays
+    /// (0 with photons).
+    #[serde(default)]
+    pub lean_gather_points: u64,
 }
 
 /// One row of the paper's comparison table: one shape seen from one view, over the pixels

@@ -469,6 +469,15 @@ pub const KEYS: &[Key] = &[
         are more than the rest fill, ends with a warning (with --strict, exit code 3); 0 = never.",
         |c| float(c.min_observed_share),
     ),
+    key(
+        "run",
+        "unobserved_share",
+        "share",
+        "Share of the samples a texel no photo observed gets (the direct light's dense \
+        samples, gather rays of points no observed texel reads): its K_d is the fill and its \
+        light only feeds what it passes on (above 0, at most 1).",
+        |c| c.unobserved_share.to_string(),
+    ),
 ];
 
 /// The sections in file order.

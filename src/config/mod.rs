@@ -308,6 +308,14 @@ pub struct Config {
     /// are more than `1 -` this share fill) ends with a warning; 0 = never.
     #[serde(default)]
     pub min_observed_share: f64,
+    /// The share of the samples a texel no photo observed gets, against an observed one: the
+    /// direct light's dense samples (an environment light's pairs, an area light's penumbra
+    /// rays, a hard light's edge points) and the gather rays of points no observed texel reads.
+    /// Such a texel's `K_d` is the fill; its light only feeds what it passes on to others (see
+    /// `stages::direct`, `stages::indirect::gather`). Reports written before it existed read
+    /// as 1, the value they used.
+    #[serde(default = "one")]
+    pub unobserved_share: f32,
     /// Shapes not reconstructed, by id, with the diffuse reflectance the user gives them
     /// (linear RGB): they keep that albedo and take part in the light transport.
     #[serde(default)]
@@ -374,6 +382,7 @@ impl Config {
             noise_probe: true,
             area_samples: 16,
             env_samples: ENV_SAMPLES,
+            unobserved_share: UNOBSERVED_SHARE,
             method: Method::Gather,
             gather_rays: 1024,
             gather_spacing: 0.0,
@@ -516,3 +525,6 @@ pub const MAX_ENV_SAMPLES: u32 = 65536;
 fn default_env_samples() -> u32 {
     ENV_SAMPLES
 }
+
+/// Default share of the dense direct-light samples a texel no photo observed draws.
+pub const UNOBSERVED_SHARE: f32 = 0.25;

@@ -148,6 +148,7 @@ pub struct RawRun {
     pub checkpoint_every_seconds: Option<f64>,
     pub memory_budget_mib: Option<u64>,
     pub min_observed_share: Option<f64>,
+    pub unobserved_share: Option<f32>,
 }
 
 /// `texels_per_unit` as written in a run config: a number or `"auto"`.
@@ -374,6 +375,7 @@ impl RawRun {
         );
         set(&mut c.memory_budget_mib, self.memory_budget_mib);
         set(&mut c.min_observed_share, self.min_observed_share);
+        set(&mut c.unobserved_share, self.unobserved_share);
     }
 }
 

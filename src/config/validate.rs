@@ -208,6 +208,12 @@ impl Config {
                 self.min_observed_share
             ));
         }
+        let share = self.unobserved_share;
+        if !(share.is_finite() && share > 0.0 && share <= 1.0) {
+            return Err(format!(
+                "run.unobserved_share = {share}: must be a share in (0, 1] of the samples"
+            ));
+        }
         Ok(())
     }
 }

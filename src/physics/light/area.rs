@@ -58,7 +58,8 @@ pub(crate) fn irradiance_factor(
         let share = (mesh.triangle_area(t) as f64 / area).clamp(0.0, 1.0);
         let dense_n =
             ((params.penumbra_samples as f64 * share).ceil() as u32).max(params.area_samples);
-        let (vis, part) = tri.visibility(fp, (params.area_samples, dense_n), &mut rng, dense);
+        let budget = (params.area_samples, dense_n, params.fit_depth);
+        let (vis, part) = tri.visibility(fp, budget, &mut rng, dense);
         partial |= part;
         lit |= vis >= 1.0;
         dark |= vis <= 0.0;
@@ -185,7 +186,7 @@ const PERIMETER: u32 = 4;
 const LINE_CHECKS: u32 = 6;
 /// Most times an emitter triangle is split in four where its shadow boundary is not one
 /// straight line (a shadow corner lands in a piece 1/64 of the triangle at depth 3).
-const FIT_DEPTH: u32 = 3;
+pub const FIT_DEPTH: u32 = 3;
 
 /// Fewest rays that sample a piece of an emitter triangle where no shadow line fits.
 const LEAF_SAMPLES: u32 = 36;
@@ -367,7 +368,7 @@ impl Target<'_> {
     fn visibility(
         &self,
         fp: &Footprint,
-        (checks, dense_n): (u32, u32),
+        (checks, dense_n, fit_depth): (u32, u32, u32),
         rng: &mut Rng,
         dense: bool,
     ) -> (f64, bool) {
@@ -397,7 +398,7 @@ impl Target<'_> {
                 None => {}
             }
         }
-        let (lit, total) = self.fit(&r, tri, 0, dense_n, rng);
+        let (lit, total) = self.fit(&r, tri, (0, fit_depth), dense_n, rng);
         let v = if total > 0.0 {
             (lit / total).clamp(0.0, 1.0)
         } else {
@@ -410,13 +411,15 @@ impl Target<'_> {
     /// shadow boundary across it is one straight line (one occluder edge) or absent, as
     /// `(lit, total)` projected solid angles. The boundary is found by bisection along the
     /// two sides it cuts and checked against stratified points; where that fails the
-    /// triangle is split in four (shadow corners, curved boundaries) down to
-    /// [`FIT_DEPTH`], and a last failing piece is sampled with `samples` stratified rays.
+    /// triangle is split in four (shadow corners, curved boundaries) down to `max_depth`
+    /// ([`DirectParams::fit_depth`]), and a last failing piece is sampled with `samples`
+    /// stratified rays. With `max_depth` 0 the triangle is sampled at once (the first pass
+    /// already looked for a line).
     fn fit(
         &self,
         r: &Receiver,
         tri: [Vec3; 3],
-        depth: u32,
+        (depth, max_depth): (u32, u32),
         samples: u32,
         rng: &mut Rng,
     ) -> (f64, f64) {
@@ -433,15 +436,19 @@ impl Target<'_> {
             return (0.0, 0.0);
         }
         let seen = |y: Vec3| self.sees(r.q, r.ng, y);
-        if let Some(fit) = self.fit_line(r, tri, &seen, rng, EDGE_CHECKS >> depth.min(1)) {
+        let line = match max_depth {
+            0 => None,
+            _ => self.fit_line(r, tri, &seen, rng, EDGE_CHECKS >> depth.min(1)),
+        };
+        if let Some(fit) = line {
             return (fit.lit_part(&whole, nd, total), total);
         }
-        if depth < FIT_DEPTH {
+        if depth < max_depth {
             let [a, b, c] = tri;
             let (ab, bc, ca) = (a.lerp(b, 0.5), b.lerp(c, 0.5), c.lerp(a, 0.5));
             let mut acc = (0.0, 0.0);
             for t in [[a, ab, ca], [ab, b, bc], [ca, bc, c], [ab, bc, ca]] {
-                let (l, tt) = self.fit(r, t, depth + 1, samples / 4, rng);
+                let (l, tt) = self.fit(r, t, (depth + 1, max_depth), samples / 4, rng);
                 acc = (acc.0 + l, acc.1 + tt);
             }
             return acc;

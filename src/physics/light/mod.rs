@@ -147,9 +147,31 @@ pub struct DirectParams {
     /// texel for an environment light (rounded up to a square). 0 = no shadow test (the
     /// unoccluded irradiance).
     pub env_samples: u32,
+    /// Most times an area-emitter triangle is split in four where no straight shadow line
+    /// fits it ([`area::FIT_DEPTH`]); 0 samples such a triangle with the penumbra rays at once.
+    pub fit_depth: u32,
 }
 
 impl DirectParams {
+    /// These parameters with the dense samples (an environment light's pairs, an area light's
+    /// penumbra rays, a hard light's edge points) cut to `share` of theirs, at least one (0
+    /// stays 0), and below 1 an area light's penumbra sampled without fitting shadow lines in
+    /// its pieces (each fit costs tens of rays, and a complex shadow, balusters or chair legs,
+    /// tries up to 85 of them a triangle); the first pass, which tells lit from dark, is kept.
+    pub fn scaled(&self, share: f32) -> Self {
+        let cut = |n: u32| match n {
+            0 => 0,
+            n => ((n as f64 * share as f64).round() as u32).clamp(1, n),
+        };
+        DirectParams {
+            area_samples: self.area_samples,
+            penumbra_samples: cut(self.penumbra_samples),
+            edge_samples: cut(self.edge_samples),
+            env_samples: cut(self.env_samples),
+            fit_depth: if share < 1.0 { 0 } else { self.fit_depth },
+        }
+    }
+
     /// Previews: 9 rays per emitter triangle, 256 in penumbrae (~0.7% noise there).
     pub fn fast() -> Self {
         DirectParams {
@@ -157,6 +179,7 @@ impl DirectParams {
             penumbra_samples: 256,
             edge_samples: 16,
             env_samples: 36,
+            fit_depth: area::FIT_DEPTH,
         }
     }
     /// Wide penumbrae or thin occluders: 64 rays per emitter triangle, 4096 in penumbrae.
@@ -166,6 +189,7 @@ impl DirectParams {
             penumbra_samples: 4096,
             edge_samples: 256,
             env_samples: 1024,
+            fit_depth: area::FIT_DEPTH,
         }
     }
 }
@@ -180,6 +204,7 @@ impl Default for DirectParams {
             penumbra_samples: 2048,
             edge_samples: 64,
             env_samples: crate::config::ENV_SAMPLES,
+            fit_depth: area::FIT_DEPTH,
         }
     }
 }

@@ -11,12 +11,23 @@
 //! without rays, so on large scenes the rays follow the shadow boundaries rather than the
 //! texel count. A texel next to a hard shadow edge (point, spot, directional light) is
 //! estimated densely too, in case its own few rays missed an edge that just touches it.
+//!
+//! Dense samples where a photo needs them. A texel's `E_d` divides its photographed radiance
+//! into `K_d`; a texel no photo observed takes its `K_d` from the fill, and its `E_d` only feeds
+//! the light it passes on to others, an average over many texels in which its sampling noise
+//! washes out. Such texels draw `[run] unobserved_share` of the dense samples (an environment
+//! light's pairs, an area light's penumbra rays, a hard light's edge points), and an
+//! area-emitter triangle no shadow line fits is sampled at once rather than split and fitted
+//! again (`DirectParams::scaled`). The first pass's verdict, lit, dark or partly lit, is the
+//! same for all, so the lattice verdicts observed texels take do not change. On interiors and
+//! scenes of small parts most covered texels are unobserved, and the direct light costs in
+//! proportion to what the photos saw.
 
 mod coat;
 pub mod sampling;
 pub mod smooth;
 
-use crate::atlas::store::{map_tiles, TileStore};
+use crate::atlas::store::{flags, map_tiles, TileStore};
 use crate::atlas::store::{TexelGeom, TexelState};
 use crate::atlas::uv::Charts;
 use crate::atlas::uv::NONE;
@@ -53,6 +64,16 @@ pub fn coarse_spacing(density: f32, feature: f32, tile_size: u32) -> usize {
         s *= 2;
     }
     s
+}
+
+/// A texel's chart split by whether a photo observed it ([`NONE`] stays [`NONE`]): observed and
+/// unobserved texels draw different numbers of samples, so their noise is measured and smoothed
+/// apart ([`sampling`], [`smooth`]), and an observed texel never averages in a noisier one.
+pub fn sample_class(chart: u32, s: &TexelState) -> u32 {
+    match chart {
+        c if c >= NONE / 2 => NONE,
+        c => 2 * c + u32::from(s.flags & flags::OBSERVED != 0),
+    }
 }
 
 /// Statistics of the stage.
@@ -107,6 +128,7 @@ fn light_tiles(
         env_samples: cfg.env_samples,
         ..DirectParams::default()
     };
+    let lean = params.scaled(cfg.unobserved_share);
     let window = p.window::<TexelState>(cfg);
     let feature = crate::physics::light::bounding_sphere(&p.scene).1 * feature;
     let mine = (0..state.tile_count()).filter(|&t| owns(t)).count();
@@ -117,8 +139,9 @@ fn light_tiles(
         if !owns(t) || interrupt::requested() {
             return TileSums::default();
         }
-        let mut ctx = TileCtx::new(p, charts, (cfg.seed, feature), &params, t, g);
+        let mut ctx = TileCtx::new(p, charts, (cfg.seed, feature), [&params, &lean], t, g);
         ctx.coat = coats.of_shape(ctx.shape);
+        ctx.observed = st.iter().map(|s| s.flags & flags::OBSERVED != 0).collect();
         let s = ctx.run(st);
         stage.inc(1);
         s
@@ -167,7 +190,10 @@ pub struct TileSums {
 /// One tile being lit: its geometry, footprints, charts and random keys.
 struct TileCtx<'a> {
     p: &'a RunContext,
-    params: &'a DirectParams,
+    /// The samples of an observed texel, and of one no photo observed.
+    params: [&'a DirectParams; 2],
+    /// Per texel of the tile, whether a photo observed it (all, when not set).
+    observed: Vec<bool>,
     g: &'a [TexelGeom],
     /// Per texel of the tile, its footprint (centers only where uncovered) and chart.
     fps: Vec<Footprint>,
@@ -187,7 +213,7 @@ impl<'a> TileCtx<'a> {
         p: &'a RunContext,
         charts: &Charts,
         (seed, feature): (u64, f32),
-        params: &'a DirectParams,
+        params: [&'a DirectParams; 2],
         t: usize,
         g: &'a [TexelGeom],
     ) -> TileCtx<'a> {
@@ -223,6 +249,7 @@ impl<'a> TileCtx<'a> {
         TileCtx {
             p,
             params,
+            observed: Vec::new(),
             g,
             fps,
             chart,
@@ -422,15 +449,9 @@ impl<'a> TileCtx<'a> {
     fn estimate(&self, off: usize, k: usize, dense: bool) -> (Vec3, Reach, f32) {
         let key = (self.seed, self.first_key + off as u64);
         let p = self.p;
-        emitter_irradiance_var(
-            &p.scene,
-            &p.accel,
-            k,
-            &self.fps[off],
-            self.params,
-            key,
-            dense,
-        )
+        let seen = self.observed.get(off).copied().unwrap_or(true);
+        let params = self.params[usize::from(!seen)];
+        emitter_irradiance_var(&p.scene, &p.accel, k, &self.fps[off], params, key, dense)
     }
 
     fn first_pass(&self, off: usize, row: &mut [Option<(Vec3, Reach, f32)>]) {
@@ -557,6 +578,11 @@ mod tests {
 
     /// A 1 x 1 floor under a small box, lit by a point light and a square area light.
     fn scene() -> crate::scene::Scene {
+        scene_with("")
+    }
+
+    /// [`scene`] with the emitter `extra` added.
+    fn scene_with(extra: &str) -> crate::scene::Scene {
         let xml = "<scene version=\"3.0.0\">\
             <shape type=\"rectangle\" id=\"floor\"><transform name=\"to_world\">\
               <scale value=\"0.5\"/></transform></shape>\
@@ -568,27 +594,57 @@ mod tests {
               <translate x=\"-0.3\" z=\"0.9\"/></transform>\
               <emitter type=\"area\"><rgb name=\"radiance\" value=\"5\"/></emitter></shape>\
             <emitter type=\"point\"><point name=\"position\" x=\"0.4\" y=\"0.1\" z=\"0.8\"/>\
-              <rgb name=\"intensity\" value=\"1\"/></emitter></scene>";
-        parse(xml, Path::new("t/scene.xml")).unwrap()
+              <rgb name=\"intensity\" value=\"1\"/></emitter>"
+            .to_string()
+            + extra
+            + "</scene>";
+        parse(&xml, Path::new("t/scene.xml")).unwrap()
     }
 
     /// `E_d` of the floor's texels with the coarse lattices of `feature` (0: none).
     fn floor_e_d(feature: f32) -> (Vec<[f32; 3]>, DirectStats) {
+        let (e, stats, _) = floor_e_d_seen((scene(), 512.0), feature, 1.0, &|_| true);
+        (e.into_iter().map(|(e, _)| e).collect(), stats)
+    }
+
+    /// [`floor_e_d`] of `scene` at `density` texels per unit, where the texels at the points
+    /// `seen` accepts are observed by a photo and the others draw `share` of the dense samples;
+    /// per floor texel its `E_d` and whether it was observed, and the shadow rays cast.
+    fn floor_e_d_seen(
+        (scene, density): (crate::scene::Scene, f32),
+        feature: f32,
+        share: f32,
+        seen: &(dyn Fn(Vec3) -> bool + Sync),
+    ) -> (Vec<([f32; 3], bool)>, DirectStats, u64) {
         let settings = AtlasSettings {
-            texels_per_unit: 512.0,
+            texels_per_unit: density,
             ..Default::default()
         };
-        let p = RunContext::new(scene(), vec![], &settings, 64).unwrap();
+        let p = RunContext::new(scene, vec![], &settings, 64).unwrap();
         let dir = tempfile::tempdir().unwrap();
         let geom = build_geometry(&p, &dir.path().join("g"), Mode::Quiet).unwrap();
         let charts = Charts::new(&p.scene, &p.layout, &p.atlases).unwrap();
         let mut state = p
             .create_store(dir.path().join("s"), TexelState::default())
             .unwrap();
-        let cfg = Config::for_scene("t/scene.xml".into());
+        let cfg = Config {
+            unobserved_share: share,
+            ..Config::for_scene("t/scene.xml".into())
+        };
+        let window = p.window::<TexelState>(&cfg);
+        map_tiles(&mut state, &geom, window, |_, g, st| {
+            for (g, s) in g.iter().zip(st.iter_mut()) {
+                if g.covered() && seen(g.p()) {
+                    s.flags |= flags::OBSERVED;
+                }
+            }
+        })
+        .unwrap();
         let all = |_: usize| true;
         let shared = (&charts, &geom, &all as &(dyn Fn(usize) -> bool + Sync));
+        let rays = p.accel.rays();
         let sums = light_tiles(&p, &cfg, shared, &mut state, Mode::Quiet, feature).unwrap();
+        let rays = p.accel.rays() - rays;
         let stats = DirectStats::from_tiles(&sums);
         let mut e = Vec::new();
         for t in 0..state.tile_count() {
@@ -598,11 +654,41 @@ mod tests {
                     g.iter()
                         .zip(&s)
                         .filter(|(g, _)| g.covered())
-                        .map(|(_, s)| s.e_d),
+                        .map(|(_, s)| (s.e_d, s.flags & flags::OBSERVED != 0)),
                 );
             }
         }
-        (e, stats)
+        (e, stats, rays)
+    }
+
+    /// Texels no photo observed draw a quarter of the dense samples: the observed ones come out
+    /// bit-identical (their own samples and streams), the others close to the full estimate
+    /// on average (the area light's penumbra, the point light's shadow edge and the sky's
+    /// shadows fall on both halves of the floor), and the stage casts markedly fewer rays
+    /// (under the sky every texel is sampled densely).
+    #[test]
+    fn unobserved_texels_draw_a_share_of_the_dense_samples() {
+        let sky = "<emitter type=\"constant\"><rgb name=\"radiance\" value=\"0.2\"/></emitter>";
+        let left = |p: Vec3| p.x < 0.0;
+        let (full, _, full_rays) = floor_e_d_seen((scene_with(sky), 128.0), 0.0, 1.0, &left);
+        let (lean, stats, lean_rays) = floor_e_d_seen((scene_with(sky), 128.0), 0.0, 0.25, &left);
+        assert!(stats.dense > 100, "{} dense texels", stats.dense);
+        let observed = full.iter().filter(|(_, o)| *o).count();
+        assert!(observed > 100 && observed < full.len() - 100, "{observed}");
+        let lum = |e: &[f32; 3]| Vec3::from_array(*e).dot(Vec3::splat(1.0 / 3.0));
+        let (mut a, mut b) = (0.0f64, 0.0f64);
+        for ((fe, fo), (le, lo)) in full.iter().zip(&lean) {
+            assert_eq!(fo, lo);
+            match fo {
+                true => assert_eq!(fe, le, "an observed texel changed"),
+                false => (a, b) = (a + lum(fe) as f64, b + lum(le) as f64),
+            }
+        }
+        assert!((b / a - 1.0).abs() < 0.01, "unobserved mean E_d x{}", b / a);
+        assert!(
+            lean_rays * 10 < full_rays * 7,
+            "rays {full_rays} -> {lean_rays}"
+        );
     }
 
     #[test]

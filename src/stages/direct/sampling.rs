@@ -50,7 +50,7 @@ pub fn estimate(
         let cells = SlotTexture::read(layout, slot, state, geom, scratch, "ed", |s, g| {
             ChartValue {
                 v: luminance(Vec3::from_array(s.e_d)),
-                chart: if g.covered() { c.texel(g) } else { NONE },
+                chart: super::sample_class(c.texel(g), s),
             }
         })?;
         let var = cells.map_windows(RADIUS, scratch, "ed-var", |v, w, h| {

@@ -3,17 +3,21 @@
 //! becomes the mean of the texels of its chart nearby whose values agree with its own within
 //! their noise (the sigma filter of [`crate::atlas::sigma`], judged on `ed_var` as
 //! [`super::sampling::estimate`] measured it). A shadow edge is a step larger than the noise
-//! and is kept. `ed_var` (what `K_d`'s standard error counts of `E_d`) is left as measured, as
-//! the denoised luminance's `l_var` is: the noise shrinks about `n` times over `n` texels, but
-//! what the smoothing removes is no longer the larger part of a texel's error (`kdmap accuracy`
-//! on envmap: 49% of the texels within one predicted standard error of their true `K_d` with it
-//! left, 31% with it shrunk, 43% before the smoothing, where 68% is calibrated), so shrinking
-//! it would make the standard errors overconfident.
+//! and is kept. Observed texels and texels no photo observed are smoothed apart
+//! ([`super::sample_class`]): the latter draw fewer samples and are noisier. `ed_var` (what
+//! `K_d`'s standard error counts of `E_d`) is left as measured, as the denoised luminance's
+//! `l_var` is: the noise shrinks about `n` times over `n` texels, but what the smoothing
+//! removes is no longer the larger part of a texel's error (`kdmap accuracy` on envmap: 49% of
+//! the texels within one predicted standard error of their true `K_d` with it left, 31% with it
+//! shrunk, 43% before the smoothing, where 68% is calibrated), so shrinking it would make the
+//! standard errors overconfident.
 //!
-//! It does not license fewer samples per texel: a room lit by the sky through its windows gets
-//! a few bright samples among many dark ones, a spread the filter reads as disagreement.
-//! Drawing a quarter of the pairs inside flat charts kept envmap's held-out albedo below the
-//! unsmoothed run's (1.68% against 1.73%) but took the living room's from 20.5% to 27.2%.
+//! It does not license fewer samples per observed texel: a room lit by the sky through its
+//! windows gets a few bright samples among many dark ones, a spread the filter reads as
+//! disagreement. Drawing a quarter of the pairs inside flat charts kept envmap's held-out albedo
+//! below the unsmoothed run's (1.68% against 1.73%) but took the living room's from 20.5% to
+//! 27.2%. (Texels no photo observed draw fewer, `[run] unobserved_share`: their `E_d` divides
+//! no photo.)
 
 use super::sampling::RADIUS as NOISE_RADIUS;
 use crate::atlas::sigma::{sigma_filter, Noisy};
@@ -59,7 +63,11 @@ pub fn smooth(
             Noisy {
                 l: Vec3::from_array(s.e_d),
                 var: s.ed_var,
-                chart: if sampled { c.texel(g) } else { NONE },
+                chart: if sampled {
+                    super::sample_class(c.texel(g), s)
+                } else {
+                    NONE
+                },
             }
         })?;
         let filtered = tex.map_windows(RADIUS, scratch, "ed-smooth", |v, w, h| {

@@ -27,6 +27,13 @@
 //! (`atlas::density`) has one grid of cells per level, each `spacing` across on the charts of
 //! its level, so coarser texels do not spread the points further apart.
 //!
+//! Rays where a photo needs them. An observed texel's `E_i` divides its photographed radiance
+//! into `K_d`; an unobserved one's only feeds the light it passes on. A point none of whose
+//! chart's points within [`LEAN_REACH`] cells lies on an observed texel is *lean*: no observed
+//! texel reads it, through the interpolation or the points' filter, and it casts
+//! `[run] unobserved_share` of the rays ([`GatherContext::lean_rays`]). Observed texels gather
+//! exactly what they would with every point at full rays.
+//!
 //! Radiance at a hit is read bilinearly from the hit texel's neighbourhood, using only texels
 //! of the hit triangle's chart (so light never leaks across a chart seam or the gutter).
 //!
@@ -88,7 +95,15 @@ pub struct Point {
     pub n: Vec3,
     /// Unit geometric normal (ray origins are offset along it).
     pub ng: Vec3,
+    /// No observed texel's `E_i` depends on it ([`GatherPoints::mark_lean`]): it casts
+    /// [`GatherContext::lean_rays`].
+    pub lean: bool,
 }
+
+/// Cells around a point (each way) within which an observed texel's `E_i` may depend on it:
+/// a texel interpolates the points of the cells around it, and each of those is filtered with
+/// the points of the cells around its own.
+pub const LEAN_REACH: i64 = 2;
 
 /// One slot's cells: a grid per density level of its charts, each `spacing` scene units
 /// across on the charts of its level.
@@ -178,6 +193,7 @@ impl GatherPoints {
             });
             tick(st.width as u64 * st.height as u64);
         }
+        out.mark_lean();
         Ok(out)
     }
 
@@ -218,7 +234,7 @@ impl GatherPoints {
                     }
                 }
                 best.sort_by_key(|b| b.0);
-                for (c, _, x, y) in best {
+                for (c, (unobserved, _), x, y) in best {
                     let g = rd.get(x, y).g;
                     self.points.push(Point {
                         x,
@@ -228,6 +244,8 @@ impl GatherPoints {
                         p: g.p(),
                         n: g.n(),
                         ng: g.ng(),
+                        // on no observed texel so far; `mark_lean` looks at its neighbours
+                        lean: unobserved == 1,
                     });
                 }
             }
@@ -239,6 +257,38 @@ impl GatherPoints {
             cells_y,
             start,
         }
+    }
+
+    /// Keeps a point lean (on an unobserved texel) only where no point of its chart within
+    /// [`LEAN_REACH`] cells lies on an observed one: the texels whose `E_i` divides a photo's
+    /// radiance into `K_d` then never read a lean point, through the interpolation or the
+    /// points' filter.
+    fn mark_lean(&mut self) {
+        let mut lean = vec![false; self.points.len()];
+        for cells in self.slots.iter().flat_map(|s| &s.levels) {
+            for cell in 0..(cells.cells_x * cells.cells_y) as usize {
+                let cx = (cell as u32 % cells.cells_x) as i64;
+                let cy = (cell as u32 / cells.cells_x) as i64;
+                let range = cells.start[cell] as usize..cells.start[cell + 1] as usize;
+                for (l, p) in lean[range.clone()].iter_mut().zip(&self.points[range]) {
+                    let r = -LEAN_REACH..=LEAN_REACH;
+                    *l = r.clone().all(|dy| {
+                        r.clone().all(|dx| {
+                            self.point_in(cells, cx + dx, cy + dy, p.chart)
+                                .is_none_or(|j| self.points[j].lean)
+                        })
+                    });
+                }
+            }
+        }
+        for (p, l) in self.points.iter_mut().zip(lean) {
+            p.lean = l;
+        }
+    }
+
+    /// Points that cast [`GatherContext::lean_rays`].
+    pub fn lean_points(&self) -> usize {
+        self.points.iter().filter(|p| p.lean).count()
     }
 
     /// Texels per cell side in slot `slot` on its charts of density level 0.
@@ -590,6 +640,16 @@ pub struct GatherContext<'a> {
     pub seed: u64,
     /// Rays per point (rounded up to a square: stratified `k x k`).
     pub rays: u32,
+    /// Rays per lean point ([`Point::lean`]; rounded up to a square): its `E_i` reaches no
+    /// observed texel, only the light unobserved ones pass on.
+    pub lean_rays: u32,
+}
+
+impl GatherContext<'_> {
+    /// Strata per side of point `pt`.
+    fn strata_of(&self, pt: &Point) -> u32 {
+        strata(if pt.lean { self.lean_rays } else { self.rays })
+    }
 }
 
 /// What a gather ray pass did.
@@ -641,8 +701,8 @@ pub struct GatherCache {
     /// Per point, the squared luminance differences of its paired rays that both saw
     /// observed texels or nothing, summed (the rest come with the cached hits' mates).
     known_pairs: Vec<f32>,
-    /// `k`, the strata per side.
-    strata: u32,
+    /// Per point, its strata per side `k` (lean points have fewer).
+    strata: Vec<u32>,
     /// Per point, its cached hits: one exact-size slice each, kept as traced (concatenating
     /// them would hold every hit twice at the peak, and a `Vec` grown by pushes up to twice
     /// over).
@@ -650,8 +710,6 @@ pub struct GatherCache {
     /// Per point, whether its hits were left out of the cache (over its byte limit): its rays
     /// are cast again at every evaluation, with the same random numbers.
     retrace: Vec<bool>,
-    /// `pi / N`.
-    scale: f32,
     pub stats: GatherStats,
 }
 
@@ -677,15 +735,12 @@ pub fn trace_points_where(
 ) -> GatherCache {
     let t0 = Instant::now();
     let n = points.points.len();
-    let k = strata(ctx.rays);
-    let scale = PI / (k * k) as f32;
     let mut c = GatherCache {
         fixed: Vec::with_capacity(n),
         known_pairs: Vec::with_capacity(n),
-        strata: k,
+        strata: points.points.iter().map(|p| ctx.strata_of(p)).collect(),
         hits: Vec::with_capacity(n),
         retrace: vec![false; n],
-        scale,
         stats: GatherStats::default(),
     };
     let mut used = 0u64;
@@ -713,13 +768,14 @@ pub fn trace_points_where(
                 c.stats.retraced_points += 1;
                 c.hits.push(Box::default());
             }
-            c.fixed.push(f * scale);
+            let k = c.strata[i];
+            c.fixed.push(f * (PI / (k * k) as f32));
             c.known_pairs.push(pairs);
         }
     }
-    let traced = (0..n).filter(|&i| owns(i)).count() as u64;
-    c.stats.points = traced;
-    c.stats.rays = traced * (k * k) as u64;
+    let traced = (0..n).filter(|&i| owns(i));
+    c.stats.points = traced.clone().count() as u64;
+    c.stats.rays = traced.map(|i| (c.strata[i] * c.strata[i]) as u64).sum();
     c.stats.seconds = t0.elapsed().as_secs_f64();
     c
 }
@@ -756,8 +812,9 @@ impl GatherCache {
                         Mate::Unpaired => {}
                     }
                 }
-                let var = pair_variance(pairs, self.strata);
-                (*f + sum * self.scale, Vec3::new(var, 0.0, 0.0))
+                let k = self.strata[i];
+                let var = pair_variance(pairs, k);
+                (*f + sum * (PI / (k * k) as f32), Vec3::new(var, 0.0, 0.0))
             })
             .unzip()
     }
@@ -790,6 +847,11 @@ pub fn pair_variance(pairs: f32, k: u32) -> f32 {
     PI * PI * pairs * (n / (2 * paired) as f32) / (n * n)
 }
 
+/// Rays per lean point ([`GatherContext::lean_rays`]): `share` of `rays`, at least one.
+pub fn lean_rays(rays: u32, share: f32) -> u32 {
+    ((rays as f64 * share as f64).round() as u32).clamp(1, rays.max(1))
+}
+
 /// Strata per side for `rays` rays.
 fn strata(rays: u32) -> u32 {
     ((rays.max(1) as f64).sqrt().ceil() as u32).max(1)
@@ -801,7 +863,7 @@ fn strata(rays: u32) -> u32 {
 /// nothing, summed ([`pair_variance`]), and the hits on unobserved texels, each with its mate.
 fn trace_point(ctx: &GatherContext, index: u64, pt: &Point) -> (Vec3, f32, Vec<CachedHit>) {
     let mut rng = Rng::new(ctx.seed ^ STREAM_TAG, 0, index, 0);
-    let k = strata(ctx.rays);
+    let k = ctx.strata_of(pt);
     let (u, v) = pt.n.any_orthonormal_pair();
     // Rays must leave on the side of the geometric surface the shading normal is on.
     let side = pt.n.dot(pt.ng).signum();

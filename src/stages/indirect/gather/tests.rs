@@ -84,6 +84,7 @@ impl Fixture {
             radiance,
             seed: 5,
             rays,
+            lean_rays: rays,
         }
     }
 
@@ -120,11 +121,27 @@ impl Fixture {
     }
 
     fn observe(&mut self, id: &str, l: Vec3) {
-        self.set(id, |s| {
-            s.l_orig = l.to_array();
-            s.weight = 1.0;
-            s.flags |= flags::OBSERVED;
-        });
+        self.observe_where(id, l, &|_| true);
+    }
+
+    /// Observes the texels of shape `id` whose centres `at` accepts with radiance `l`.
+    fn observe_where(&mut self, id: &str, l: Vec3, at: &(dyn Fn(Vec3) -> bool + Sync)) {
+        let si = self.p.scene.shapes.iter().position(|s| s.id == id).unwrap();
+        let slot = self.p.layout.slot_of_shape(si).unwrap();
+        let layout = &self.p.layout;
+        map_tiles(&mut self.state, &self.geom, 4, |t, g, st| {
+            if layout.slot_of_tile(t as u32) != slot {
+                return;
+            }
+            for (g, s) in g.iter().zip(st.iter_mut()) {
+                if g.covered() && at(g.p()) {
+                    s.l_orig = l.to_array();
+                    s.weight = 1.0;
+                    s.flags |= flags::OBSERVED;
+                }
+            }
+        })
+        .unwrap();
     }
 
     fn gather(&self, spacing: f32, rays: u32) -> (GatherPoints, Vec<Vec3>) {
@@ -155,6 +172,18 @@ impl Fixture {
         seed: u64,
     ) -> (GatherPoints, Vec<Vec3>, Vec<f32>) {
         let points = self.points(spacing);
+        let (values, var, _) = self.gather_lean(&points, (rays, rays), seed);
+        (points, values, var)
+    }
+
+    /// The gather at `points` with `rays` per point and `lean` per lean point: `E_i`, its
+    /// variance and the rays cast.
+    fn gather_lean(
+        &self,
+        points: &GatherPoints,
+        (rays, lean_rays): (u32, u32),
+        seed: u64,
+    ) -> (Vec<Vec3>, Vec<f32>, u64) {
         let radiance = self.radiance(1 << 30);
         let ctx = GatherContext {
             accel: &self.p.accel,
@@ -162,11 +191,13 @@ impl Fixture {
             radiance: &radiance,
             seed,
             rays,
+            lean_rays,
         };
-        let cache = trace_points(&ctx, &points, &no_tick);
+        let cache = trace_points(&ctx, points, &no_tick);
         assert_eq!(cache.stats.points as usize, points.points.len());
-        let (values, var) = cache.evaluate(&ctx, &points);
-        (points, values, var.iter().map(|x| x.x).collect())
+        let (values, var) = cache.evaluate(&ctx, points);
+        let var = var.iter().map(|x| x.x).collect();
+        (values, var, cache.stats.rays)
     }
 
     /// Per point `(E_i, predicted variance of its luminance)` with gather seed `seed`.
@@ -1020,4 +1051,57 @@ fn the_points_of_many_small_shapes_are_capped() {
         "{} of {cap}",
         few.points.len()
     );
+}
+
+/// Points no observed texel reads (none of their chart within [`LEAN_REACH`] cells lies on an
+/// observed texel, by brute force over the points) are lean and cast the lean rays; the others
+/// gather bit-identically to a run where every point casts all its rays, and the lean ones
+/// agree with it on average.
+#[test]
+fn lean_points_are_those_no_observed_texel_reads() {
+    let mut fx = floor_under_square();
+    fx.set("floor", |s| {
+        (s.weight, s.flags) = (0.0, s.flags & !flags::OBSERVED);
+        (s.e_d, s.k_d) = ([1.0; 3], [0.5; 3]);
+    });
+    fx.observe_where("floor", Vec3::splat(0.1), &|p| p.x < -0.5);
+    fx.set("top", |s| (s.e_d, s.k_d) = ([1.0; 3], [2.0 * PI; 3]));
+    let pts = fx.points(0.25);
+    let stride = |p: &Point| pts.stride(fx.p.layout.slot_of_shape(p.shape as usize).unwrap());
+    let cell = |p: &Point| ((p.x / stride(p)) as i64, (p.y / stride(p)) as i64);
+    let on_observed = |p: &Point| p.shape == 0 && p.p.x < -0.5;
+    for p in &pts.points {
+        let read = pts.points.iter().any(|q| {
+            let ((a, b), (c, d)) = (cell(p), cell(q));
+            let near = (a - c).abs() <= LEAN_REACH && (b - d).abs() <= LEAN_REACH;
+            q.shape == p.shape && q.chart == p.chart && near && on_observed(q)
+        });
+        assert_eq!(p.lean, !read, "point at {} of shape {}", p.p, p.shape);
+    }
+    let lean = pts.lean_points();
+    assert!(
+        lean > 20 && lean + 20 < pts.points.len(),
+        "{lean} lean points"
+    );
+    let (full, full_var, full_rays) = fx.gather_lean(&pts, (64, 64), 3);
+    let (cut, cut_var, cut_rays) = fx.gather_lean(&pts, (64, 16), 3);
+    // the lean points' summed E_i (luminance: every channel alike here) and its variance
+    let (mut a, mut b, mut var) = (0.0f64, 0.0f64, 0.0f64);
+    for (i, p) in pts.points.iter().enumerate() {
+        match p.lean {
+            false => assert_eq!(full[i], cut[i], "a point an observed texel reads changed"),
+            true => {
+                (a, b) = (a + full[i].x as f64, b + cut[i].x as f64);
+                var += (full_var[i] + cut_var[i]) as f64;
+            }
+        }
+    }
+    assert!(a > 0.0 && var > 0.0, "{a} {var}");
+    let z = (b - a) / var.sqrt();
+    assert!(
+        z.abs() < 4.0,
+        "lean points' E_i {a} -> {b}: {z:.1} standard errors"
+    );
+    let want = full_rays - (lean as u64) * (64 - 16);
+    assert_eq!(cut_rays, want, "rays {full_rays} -> {cut_rays}");
 }
