@@ -1039,13 +1039,14 @@ impl<'a> Run<'a> {
         radiance: &'g Radiance,
         pts: &GatherPoints,
     ) -> GatherContext<'g> {
+        let rays = self.gather_rays(pts);
         GatherContext {
             accel: &self.p.accel,
             hits: self.hits(),
             radiance,
             seed: self.cfg.seed,
-            rays: self.gather_rays(pts),
-            lean_rays: gather::lean_rays(self.gather_rays(pts), self.cfg.unobserved_share),
+            rays,
+            lean_rays: gather::lean_rays(rays, self.cfg.unobserved_share),
         }
     }
 

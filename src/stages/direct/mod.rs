@@ -139,9 +139,8 @@ fn light_tiles(
         if !owns(t) || interrupt::requested() {
             return TileSums::default();
         }
-        let mut ctx = TileCtx::new(p, charts, (cfg.seed, feature), [&params, &lean], t, g);
+        let mut ctx = TileCtx::new(p, charts, (cfg.seed, feature), [&params, &lean], t, (g, st));
         ctx.coat = coats.of_shape(ctx.shape);
-        ctx.observed = st.iter().map(|s| s.flags & flags::OBSERVED != 0).collect();
         let s = ctx.run(st);
         stage.inc(1);
         s
@@ -192,7 +191,7 @@ struct TileCtx<'a> {
     p: &'a RunContext,
     /// The samples of an observed texel, and of one no photo observed.
     params: [&'a DirectParams; 2],
-    /// Per texel of the tile, whether a photo observed it (all, when not set).
+    /// Per texel of the tile, whether a photo observed it.
     observed: Vec<bool>,
     g: &'a [TexelGeom],
     /// Per texel of the tile, its footprint (centers only where uncovered) and chart.
@@ -215,7 +214,7 @@ impl<'a> TileCtx<'a> {
         (seed, feature): (u64, f32),
         params: [&'a DirectParams; 2],
         t: usize,
-        g: &'a [TexelGeom],
+        (g, st): (&'a [TexelGeom], &[TexelState]),
     ) -> TileCtx<'a> {
         let slot = p.layout.slot_of_tile(t as u32);
         let shape = p.shape_ref(slot);
@@ -249,7 +248,7 @@ impl<'a> TileCtx<'a> {
         TileCtx {
             p,
             params,
-            observed: Vec::new(),
+            observed: st.iter().map(|s| s.flags & flags::OBSERVED != 0).collect(),
             g,
             fps,
             chart,
@@ -449,8 +448,7 @@ impl<'a> TileCtx<'a> {
     fn estimate(&self, off: usize, k: usize, dense: bool) -> (Vec3, Reach, f32) {
         let key = (self.seed, self.first_key + off as u64);
         let p = self.p;
-        let seen = self.observed.get(off).copied().unwrap_or(true);
-        let params = self.params[usize::from(!seen)];
+        let params = self.params[usize::from(!self.observed[off])];
         emitter_irradiance_var(&p.scene, &p.accel, k, &self.fps[off], params, key, dense)
     }
 
