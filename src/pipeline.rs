@@ -55,6 +55,7 @@ use crate::stages::indirect::photon::{
     begin_pass, finish_pass, photon_pass_shared, smooth_accum, AlbedoTextures, PassContext, Paths,
 };
 use crate::stages::one_colour::{smooth_uniform, UniformStats};
+use crate::stages::project::pass_texel::PassTexel;
 use crate::stages::project::{ProjectionStats, Shard};
 use crate::stages::solve::{init_indirect_tile, kd_step, update_step, Filled};
 use crate::stages::{direct, project};
@@ -346,12 +347,14 @@ fn work_dir(out: &Path, world: &World) -> PathBuf {
 fn with_shard<R>(world: &World, f: impl FnOnce(&Shard) -> R) -> R {
     let owns = |u: usize| world.owns(u as u64);
     let sync = |s: &mut TileStore<TexelState>| ranks::share_tiles(world, s);
+    let sync_pass = |s: &mut TileStore<PassTexel>| ranks::share_tiles(world, s);
     let pixels = |img: &mut [Option<glam::Vec3>], unit| ranks::share_pixels(world, img, unit);
     let bytes = |buf: &mut [u8], unit| ranks::share_bytes(world, buf, unit);
     let sum = |v: u64| world.sum(v);
     f(&Shard {
         owns: &owns,
         sync: &sync,
+        sync_pass: &sync_pass,
         sync_pixels: &pixels,
         sync_bytes: &bytes,
         sum: &sum,

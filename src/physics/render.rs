@@ -9,7 +9,7 @@ use crate::physics::accel::{offset_origin, Accel, Hit};
 use crate::physics::bsdf_sampling;
 use crate::physics::camera::Camera;
 use crate::scene::{Emitter, PixelFilter, Scene, Sides};
-use glam::{Vec2, Vec3};
+use glam::{Vec2, Vec3, Vec3A};
 use rayon::prelude::*;
 
 /// Texels a renderer can look up: `width x height` linear RGB, row 0 = top. Implemented by
@@ -81,9 +81,13 @@ pub fn bilinear(texels: &dyn Texels, uv: Vec2) -> Vec3 {
     }
 }
 
-/// [`bilinear`] over texels read by `g`.
+/// [`bilinear`] over texels read by `g`, as `Vec3` or as `Vec3A` (the same arithmetic per
+/// channel, so the same bits, in one SIMD register).
 #[inline(always)]
-fn bilinear_with(width: u32, height: u32, uv: Vec2, g: impl Fn(u32, u32) -> Vec3) -> Vec3 {
+fn bilinear_with<V>(width: u32, height: u32, uv: Vec2, g: impl Fn(u32, u32) -> V) -> V
+where
+    V: Copy + std::ops::Mul<f32, Output = V> + std::ops::Add<Output = V>,
+{
     let fx = (uv.x - 0.5).clamp(0.0, (width - 1) as f32);
     let fy = (uv.y - 0.5).clamp(0.0, (height - 1) as f32);
     // non-negative after the clamp (or NaN, which both casts make 0): truncation is the floor
@@ -275,18 +279,19 @@ fn flat_pixel(textures: &[Option<Texture>], k: u32, f: &FlatPixel) -> Option<Vec
     let (w, h) = (tex.texels.width(), tex.texels.height());
     // the texture resolved once per pixel, not per sub-pixel look-up
     Some(match tex.texels.row_major() {
-        Some(v) => flat_mean(k, f, |uv| {
-            bilinear_with(w, h, uv, |x, y| v[(y * w + x) as usize])
-        }),
-        None => flat_mean(k, f, |uv| bilinear(tex.texels, uv)),
+        Some(v) => Vec3::from(flat_mean(k, f, |uv| {
+            bilinear_with(w, h, uv, |x, y| Vec3A::from(v[(y * w + x) as usize]))
+        })),
+        None => Vec3::from(flat_mean(k, f, |uv| bilinear(tex.texels, uv).into())),
     })
 }
 
-/// The mean of `look(uv)` over `k x k` sub-pixel positions of a flat pixel.
+/// The mean of `look(uv)` over `k x k` sub-pixel positions of a flat pixel (in `Vec3A`:
+/// the same bits as in `Vec3`, fewer instructions).
 #[inline(always)]
-fn flat_mean(k: u32, f: &FlatPixel, look: impl Fn(Vec2) -> Vec3) -> Vec3 {
+fn flat_mean(k: u32, f: &FlatPixel, look: impl Fn(Vec2) -> Vec3A) -> Vec3A {
     let [a, b, c, d] = f.uv;
-    let mut sum = Vec3::ZERO;
+    let mut sum = Vec3A::ZERO;
     for j in 0..k {
         let ty = (j as f32 + 0.5) / k as f32;
         let (l, r) = (a.lerp(c, ty), b.lerp(d, ty));

@@ -142,6 +142,7 @@ const FOLDERS: &[(&str, &[Layer])] = &[
                 "exposure",
                 "noise",
                 "shrinkage",
+                "pass_texel",
                 "total_variation",
                 "noise_probe",
                 "diagnose",

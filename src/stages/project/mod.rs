@@ -67,6 +67,7 @@ mod lookups;
 mod noise;
 pub mod noise_probe;
 mod one_surface;
+pub mod pass_texel;
 pub mod pose;
 mod refine;
 mod shrinkage;
@@ -95,6 +96,7 @@ use crate::physics::camera::Camera;
 use crate::report::PoseCorrection;
 use crate::scene::{luminance, Sides};
 use glam::Vec3;
+use pass_texel::{PassRecord, PassTexel};
 use std::time::Instant;
 
 /// The largest sub-sample grid per texel and view (k x k).
@@ -145,6 +147,8 @@ pub struct ProjectionStats {
 pub struct Shard<'a> {
     pub owns: &'a (dyn Fn(usize) -> bool + Sync),
     pub sync: &'a dyn Fn(&mut TileStore<TexelState>) -> Result<()>,
+    /// [`Shard::sync`] for the refinement passes' working store.
+    pub sync_pass: &'a dyn Fn(&mut TileStore<PassTexel>) -> Result<()>,
     pub sync_pixels: &'a SyncPixels<'a>,
     pub sync_bytes: &'a SyncBytes<'a>,
     pub sum: &'a dyn Fn(u64) -> u64,
@@ -169,6 +173,9 @@ impl Shard<'static> {
         fn tiles(_: &mut TileStore<TexelState>) -> Result<()> {
             Ok(())
         }
+        fn pass_tiles(_: &mut TileStore<PassTexel>) -> Result<()> {
+            Ok(())
+        }
         fn pixels(_: &mut [Option<Vec3>], _: usize) -> Result<()> {
             Ok(())
         }
@@ -181,6 +188,7 @@ impl Shard<'static> {
         Shard {
             owns: &every,
             sync: &tiles,
+            sync_pass: &pass_tiles,
             sync_pixels: &pixels,
             sync_bytes: &bytes,
             sum: &alone,
@@ -688,17 +696,17 @@ pub struct ResidualViews<'a> {
 /// (`w` the projection's weight, `r` the shrunk residual, `h` the robust weight
 /// ([`robust_weight`]) of the raw residual against the view's noise plus [`MODEL_FLOOR`] at the
 /// current `l_orig`), and the statistics of [`Residual`].
-pub fn backproject_tile(
+pub fn backproject_tile<T: PassRecord>(
     rv: &ResidualViews,
     looks: &TileLookups,
-    state: &[TexelState],
+    state: &[T],
     acc: &mut [Residual],
 ) -> Agreement {
     let mut seen = Agreement::default();
     let width = rv.view.camera.width();
     for (i, Pair(raw, r, level, keep), w) in looks.read(width, rv.residual) {
         let (s, a) = (&state[i], &mut acc[i]);
-        let l = luminance(Vec3::from_array(s.l_orig)).max(0.0);
+        let l = luminance(Vec3::from_array(s.l_orig())).max(0.0);
         let var = texel_noise_variance(level, rv.sigma, l, w);
         let y = luminance(raw);
         let spread = (var + (MODEL_FLOOR * l).powi(2)).sqrt();
@@ -767,15 +775,15 @@ pub fn photo_variance(a: &Residual, weight: f32) -> f32 {
 /// where the photos hold nothing more to fit, texel by texel, and go on where unresolved detail
 /// remains (see [`crate::config::REFINE_GATE`]). A texel where a view is being outvoted is not
 /// gated, so the reweighting runs its course. The statistics are updated either way.
-pub fn apply_refinement(
-    state: &mut [TexelState],
+pub fn apply_refinement<T: PassRecord>(
+    state: &mut [T],
     acc: &[Residual],
     stats: bool,
     step: f32,
     gate: f32,
 ) {
     for (s, a) in state.iter_mut().zip(acc) {
-        if s.weight > 0.0 && a.hw > 0.0 {
+        if s.weight() > 0.0 && a.hw > 0.0 {
             let quiet = gate > 0.0 && a.hwk < gate * a.hw;
             let k = if a.out > 0.0 {
                 1.0
@@ -784,13 +792,13 @@ pub fn apply_refinement(
             } else {
                 step
             };
-            for c in 0..3 {
-                s.l_orig[c] = (s.l_orig[c] + k * a.d[c] / a.hw).max(0.0);
+            let mut l = s.l_orig();
+            for (l, d) in l.iter_mut().zip(a.d) {
+                *l = (*l + k * d / a.hw).max(0.0);
             }
+            s.set_l_orig(l);
             if stats {
-                s.l_var = fused_variance(a, s.weight);
-                s.l_noise = photo_variance(a, s.weight);
-                s.disagree = a.out;
+                s.set_stats(a);
             }
         }
     }
@@ -857,6 +865,44 @@ mod tests {
         };
         apply_refinement(&mut st, &[outvoted], false, 1.8, 0.0);
         assert_eq!(st[0].l_orig, [1.5, 0.75, 1.0]);
+    }
+
+    /// The passes' working record takes the state's own update, bit for bit: every field of
+    /// a state updated directly equals the one updated through a [`PassTexel`] written back,
+    /// statistics, clamps, the gate and outvoted texels included.
+    #[test]
+    fn the_working_record_takes_the_state_update_bit_for_bit() {
+        let states: Vec<TexelState> = (0..6)
+            .map(|i| TexelState {
+                weight: if i == 5 { 0.0 } else { 1.0 + i as f32 },
+                l_orig: [0.3 * i as f32, 1.0, 2.0 - 0.1 * i as f32],
+                k_d: [0.5; 3],
+                l_var: 0.7,
+                ..Default::default()
+            })
+            .collect();
+        let accs: Vec<Residual> = (0..6)
+            .map(|i| Residual {
+                hwk: i as f32 * 0.4,
+                out: (i % 3 == 0) as u32 as f32,
+                views: 2.0,
+                w2var: 0.1 * i as f32,
+                wr2: 0.2,
+                ..acc(Vec3::new(0.3, -2.0, 0.1 * i as f32), 1.0 + i as f32 * 0.5)
+            })
+            .collect();
+        for (stats, step, gate) in [(false, 1.0, 0.0), (true, 1.8, 0.7)] {
+            let mut direct = states.clone();
+            apply_refinement(&mut direct, &accs, stats, step, gate);
+            let mut work: Vec<PassTexel> = states.iter().map(PassTexel::of).collect();
+            apply_refinement(&mut work, &accs, stats, step, gate);
+            let mut back = states.clone();
+            for (s, w) in back.iter_mut().zip(&work) {
+                w.write_back(s);
+            }
+            assert_eq!(direct, back);
+            assert_ne!(direct, states, "the update changed texels");
+        }
     }
 
     /// The gate: a texel whose residual is mostly noise (mean keep `hwk / hw` under the gate)

@@ -4,6 +4,7 @@
 
 use super::diagnose;
 use super::noise_probe::ViewNoise;
+use super::pass_texel::{self, PassRecord, PassTexel};
 use super::shrinkage::relative;
 use super::total_variation::tv_luminance;
 use super::view::View;
@@ -35,9 +36,9 @@ const REFINE_DILATE: u32 = 4;
 /// Every reconstructed shape's current luminance map (unobserved and gutter texels filled by
 /// dilation, as written maps are), indexed by shape; together within `scratch`'s budget
 /// (each its share), the rest in tiles.
-pub(super) fn current_maps(
+pub(super) fn current_maps<T: PassRecord>(
     p: &RunContext,
-    state: &TileStore<TexelState>,
+    state: &TileStore<T>,
     scratch: &Scratch,
 ) -> Result<Vec<Option<SlotTexture<Vec3>>>> {
     let mut maps: Vec<Option<SlotTexture<Vec3>>> =
@@ -50,8 +51,8 @@ pub(super) fn current_maps(
         .sum();
     for (slot, st) in p.layout.slots.iter().enumerate() {
         let from = (&p.layout, slot, state);
-        let vals = SlotTexture::read_store(from, scratch, "lum", |s| Vec3::from_array(s.l_orig))?;
-        let mask = SlotTexture::read_store(from, scratch, "obs", |s| (s.weight > 0.0) as u8)?;
+        let vals = SlotTexture::read_store(from, scratch, "lum", |s| Vec3::from_array(s.l_orig()))?;
+        let mask = SlotTexture::read_store(from, scratch, "obs", |s| (s.weight() > 0.0) as u8)?;
         let keep = scratch.share(st.width as u64 * st.height as u64, total);
         maps[st.shape] = Some(vals.dilated(&mask, REFINE_DILATE, &keep)?);
     }
@@ -168,7 +169,8 @@ impl Refine<'_> {
     /// and the residuals live in scratch textures and tiles within the memory budget; casts
     /// rays only for clean pixels that straddle a chart seam. Returns each view's noise as
     /// the last pass estimated it (none without passes), and per pass each view's
-    /// [`mean_relative_residual`] before the pass's update.
+    /// [`mean_relative_residual`] before the pass's update. The passes run on a working store
+    /// of [`PassTexel`]s (see [`super::pass_texel`]), written back into `state` after the last.
     #[inline(never)] // a stage entry tools/icount.py measures
     pub fn run(
         &self,
@@ -176,12 +178,31 @@ impl Refine<'_> {
         passes: Passes,
         mode: Mode,
     ) -> Result<(Vec<ViewNoise>, Vec<Vec<f64>>)> {
+        if passes.count == 0 || self.views.is_empty() {
+            return Ok((Vec::new(), Vec::new()));
+        }
+        let name = format!("passes-{}.tiles", self.label.replace(' ', "-"));
+        let path = self.scratch.dir.join(name);
+        let mut work = self.p.create_store(&path, PassTexel::default())?;
+        let done = pass_texel::copy_in(&mut work, state, self.window)
+            .and_then(|_| self.passes(&mut work, passes, mode))
+            .and_then(|out| pass_texel::copy_back(state, &work, self.window).map(|_| out));
+        drop(work);
+        let removed = std::fs::remove_file(&path).map_err(|e| Error::io(&path, e));
+        done.and_then(|out| removed.map(|_| out))
+    }
+
+    /// [`Refine::run`]'s passes on its working store `work`.
+    fn passes(
+        &self,
+        work: &mut TileStore<PassTexel>,
+        passes: Passes,
+        mode: Mode,
+    ) -> Result<(Vec<ViewNoise>, Vec<Vec<f64>>)> {
+        let state = work;
         let mut noise = Vec::new();
         let mut residuals = Vec::new();
         let (count, tv) = (passes.count, passes.tv);
-        if count == 0 || self.views.is_empty() {
-            return Ok((noise, residuals));
-        }
         let total = count as u64 * self.views.len() as u64;
         let stage = Stage::new(mode, self.label, total, "views");
         for pass in 0..count {
@@ -200,7 +221,7 @@ impl Refine<'_> {
                 .collect();
             let (step, gate) = (passes.step(pass), passes.gate(pass));
             let seen = self.backproject_and_apply(&prepared, state, (last, step, gate))?;
-            (self.shard.sync)(state)?;
+            (self.shard.sync_pass)(state)?;
             residuals.push(prepared.iter().map(|v| v.mean).collect());
             noise = self.noise(prepared, seen);
             if tv > 0.0 {
@@ -302,7 +323,7 @@ impl Refine<'_> {
     fn backproject_and_apply(
         &self,
         prepared: &[Prepared],
-        state: &mut TileStore<TexelState>,
+        state: &mut TileStore<PassTexel>,
         (stats, step, gate): (bool, f32, f32),
     ) -> Result<Vec<Agreement>> {
         let p = self.p;

@@ -15,8 +15,9 @@
 //! or to a texel no photo saw. Chambolle's dual projection (projected gradient on the dual
 //! field, step [`TAU`] < 1/4), [`ITERATIONS`] steps.
 
+use super::pass_texel::PassRecord;
 use crate::atlas::store::TileStore;
-use crate::atlas::store::{Layout, TexelGeom, TexelState};
+use crate::atlas::store::{Layout, TexelGeom};
 use crate::atlas::texture::{Scratch, SlotTexture};
 use crate::atlas::uv::Charts;
 use crate::atlas::uv::NONE;
@@ -140,7 +141,7 @@ pub fn tv_luminance(
     layout: &Layout,
     charts: &Charts,
     geom: &TileStore<TexelGeom>,
-    state: &mut TileStore<TexelState>,
+    state: &mut TileStore<impl PassRecord>,
     rel: f32,
     scratch: &Scratch,
 ) -> Result<()> {
@@ -150,11 +151,11 @@ pub fn tv_luminance(
     for slot in 0..layout.slots.len() {
         let c = &charts.slots[slot];
         let tex = SlotTexture::read(layout, slot, state, geom, scratch, "tv", |s, g| {
-            let l = Vec3::from_array(s.l_orig);
+            let l = Vec3::from_array(s.l_orig());
             TvTexel {
                 l,
                 lambda: l * rel,
-                chart: if s.weight > 0.0 { c.texel(g) } else { NONE },
+                chart: if s.weight() > 0.0 { c.texel(g) } else { NONE },
             }
         })?;
         let out = tex.map_windows(reach(ITERATIONS), scratch, "tv-out", |v, w, h| {
@@ -162,10 +163,10 @@ pub fn tv_luminance(
         })?;
         drop(tex);
         out.write(state, |s, v| {
-            if s.weight <= 0.0 {
+            if s.weight() <= 0.0 {
                 return false;
             }
-            s.l_orig = v.to_array();
+            s.set_l_orig(v.to_array());
             true
         })?;
     }
@@ -175,6 +176,7 @@ pub fn tv_luminance(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::atlas::store::TexelState;
     use crate::atlas::testing::{all_records, jitter, Built};
 
     /// `w x h` texels, left half `a` and right half `b`, charts from `chart(x)`.

@@ -736,6 +736,7 @@ mod tests {
                         let shard = Shard {
                             owns: &owns,
                             sync: &sync,
+                            sync_pass: &|_| Ok(()),
                             sync_pixels: &pixels,
                             sync_bytes: &bytes,
                             sum: &sum,
