@@ -46,7 +46,7 @@ static CHECKPOINT_WRITES: AtomicU64 = AtomicU64::new(0);
 /// what the state's fields mean and their size (92 bytes a texel), and the fields of the
 /// config and report it carries (bincode is not self-describing, so a checkpoint with other
 /// fields would not decode).
-pub const VERSION: u32 = 17;
+pub const VERSION: u32 = 18;
 const MAGIC: &str = "KDMCKPT";
 /// The current manifest.
 pub const MANIFEST: &str = "progress.kdm";
@@ -718,7 +718,7 @@ mod tests {
         let mut want: Vec<&str> = "scene views exposure pinned_gains refine_pose response colmap \
             colmap_to_world atlas atlas.texels_per_unit atlas.max_texels \
             atlas.padding atlas.use_mesh_uvs atlas.tile_size atlas.max_texture_size \
-            refine_passes fine_geometry refine_step refine_gate refine_gated_from denoise_radius denoise_z \
+            refine_passes fine_geometry refine_step refine_gate refine_gated_from refine_settle denoise_radius denoise_z \
             tv_weight noise_probe area_samples env_samples unobserved_share method gather_rays gather_spacing \
             photons photons_per_texel batch_size max_depth smoothing_radius iterations \
             tolerance alpha0 update relaxation initial_indirect_share seed threads \
@@ -729,7 +729,7 @@ mod tests {
         want.sort();
         assert_eq!(
             (VERSION, got),
-            (17, want.iter().map(|s| s.to_string()).collect::<Vec<_>>()),
+            (18, want.iter().map(|s| s.to_string()).collect::<Vec<_>>()),
             "the config's fields changed: bump VERSION and update this list"
         );
     }

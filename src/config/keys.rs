@@ -177,8 +177,8 @@ pub const KEYS: &[Key] = &[
         "refine_passes",
         "passes",
         "Iterative back-projection passes after \
-        the weighted mean: each re-renders every view and back-projects the residual \
-        (0..=64, 0 = off).",
+        the weighted mean, at most (see refine_settle): each re-renders every view and \
+        back-projects the residual (0..=64, 0 = off).",
         |c| c.refine_passes.to_string(),
     ),
     key(
@@ -213,6 +213,15 @@ pub const KEYS: &[Key] = &[
         "The first gated pass, from 0 (1 suits \
         scenes of uniform surfaces).",
         |c| c.refine_gated_from.to_string(),
+    ),
+    key(
+        "projection",
+        "refine_settle",
+        "share",
+        "Once a gated pass changed fewer than \
+        this share of its texels by more than 1%, the next pass is the last (0 = every pass, \
+        < 1).",
+        |c| float(c.refine_settle),
     ),
     key(
         "projection",

@@ -97,6 +97,7 @@ pub struct RawProjection {
     pub refine_step: Option<f32>,
     pub refine_gate: Option<f32>,
     pub refine_gated_from: Option<u32>,
+    pub refine_settle: Option<f32>,
     pub denoise_radius: Option<u32>,
     pub denoise_z: Option<f32>,
     pub tv_weight: Option<f32>,
@@ -290,6 +291,7 @@ impl RawProjection {
         set(&mut c.refine_step, self.refine_step);
         set(&mut c.refine_gate, self.refine_gate);
         set(&mut c.refine_gated_from, self.refine_gated_from);
+        set(&mut c.refine_settle, self.refine_settle);
         set(&mut c.denoise_radius, self.denoise_radius);
         set(&mut c.denoise_z, self.denoise_z);
         set(&mut c.tv_weight, self.tv_weight);

@@ -120,6 +120,9 @@ fn impossible_settings_are_refused() {
         assert!(c.validate().unwrap_err().contains("refine_gate"), "{gate}");
     }
     let mut c = Config::for_scene("s.xml".into());
+    c.refine_settle = 1.0;
+    assert!(c.validate().unwrap_err().contains("refine_settle"));
+    c.refine_settle = 0.0;
     c.refine_gated_from = MAX_REFINE_PASSES + 1;
     assert!(c.validate().unwrap_err().contains("refine_gated_from"));
     let mut c = Config::for_scene("s.xml".into());
@@ -175,7 +178,7 @@ fn projection_section_sets_refine_passes() {
     std::fs::write(
         &p,
         "scene = \"s.xml\"\n[projection]\nrefine_passes = 1\nrefine_step = 1.25\n\
-             refine_gate = 0.5\nrefine_gated_from = 2\ndenoise_radius = 3\ndenoise_z = 2.5\n\
+             refine_gate = 0.5\nrefine_gated_from = 2\nrefine_settle = 0.01\ndenoise_radius = 3\ndenoise_z = 2.5\n\
              tv_weight = 0.2\nnoise_probe = false\n",
     )
     .unwrap();
@@ -187,6 +190,7 @@ fn projection_section_sets_refine_passes() {
     );
     assert_eq!((c.refine_passes, c.refine_step), (1, 1.25));
     assert_eq!((c.refine_gate, c.refine_gated_from), (0.5, 2));
+    assert_eq!(c.refine_settle, 0.01);
     assert_eq!((c.denoise_radius, c.denoise_z), (3, 2.5));
     assert_eq!(c.tv_weight, 0.2);
     std::fs::write(&p, "scene = \"s.xml\"\n[projection]\nrefine = 1\n").unwrap();

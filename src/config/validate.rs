@@ -65,6 +65,12 @@ impl Config {
                 self.refine_gate
             ));
         }
+        if !(0.0..1.0).contains(&self.refine_settle) {
+            return Err(format!(
+                "projection.refine_settle = {}: must be at least 0 and under 1 (0 = every pass)",
+                self.refine_settle
+            ));
+        }
         if self.refine_gated_from > MAX_REFINE_PASSES {
             return Err(format!(
                 "projection.refine_gated_from = {}: must be 0..={MAX_REFINE_PASSES}",

@@ -305,6 +305,8 @@ pub fn run_shard(
     };
     let passes = refine::Passes::of(cfg);
     let (noise, residual) = project_and_refine(&ctx, state, passes, mode, cfg.fine_geometry)?;
+    // the probe measures the passes these photos took, settled or not
+    let passes = passes.exactly(residual.len() as u32);
     stats.refine_residual = residual;
     stats.lookup_bytes = lookups.bytes();
     for (g, n) in stats.gains.iter_mut().zip(&noise) {
@@ -761,6 +763,17 @@ pub fn photo_variance(a: &Residual, weight: f32) -> f32 {
     a.w2var / (weight * weight)
 }
 
+/// A texel's luminance change in a pass that counts as a move ([`Moved`]): 1%.
+pub const MOVED_BY: f32 = 0.01;
+
+/// How many texels a refinement pass updated, and how many of them it changed by more than
+/// [`MOVED_BY`] of their luminance (what the passes' settling reads).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Moved {
+    pub updated: u64,
+    pub changed: u64,
+}
+
 /// After a pass over all views: `l_orig += step * d / hw` (the weighted mean of the views'
 /// residuals, robust-weighted: an iteratively reweighted least-squares step towards the robust
 /// estimate; where every view agrees `hw` is `weight`), clamped at zero; after the last pass
@@ -781,7 +794,8 @@ pub fn apply_refinement<T: PassRecord>(
     stats: bool,
     step: f32,
     gate: f32,
-) {
+) -> Moved {
+    let mut moved = Moved::default();
     for (s, a) in state.iter_mut().zip(acc) {
         if s.weight() > 0.0 && a.hw > 0.0 {
             let quiet = gate > 0.0 && a.hwk < gate * a.hw;
@@ -793,15 +807,20 @@ pub fn apply_refinement<T: PassRecord>(
                 step
             };
             let mut l = s.l_orig();
+            let before = luminance(Vec3::from_array(l));
             for (l, d) in l.iter_mut().zip(a.d) {
                 *l = (*l + k * d / a.hw).max(0.0);
             }
             s.set_l_orig(l);
+            let change = (luminance(Vec3::from_array(l)) - before).abs();
+            moved.updated += 1;
+            moved.changed += (change > MOVED_BY * before) as u64;
             if stats {
                 s.set_stats(a);
             }
         }
     }
+    moved
 }
 
 #[cfg(test)]

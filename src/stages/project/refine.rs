@@ -9,8 +9,8 @@ use super::shrinkage::relative;
 use super::total_variation::tv_luminance;
 use super::view::View;
 use super::{
-    apply_refinement, backproject_tile, shrink_residual_levels, Agreement, Lookups, Pair, Residual,
-    ResidualViews, Shard, TileLookups, ViewHits, ROW_BAND,
+    apply_refinement, backproject_tile, shrink_residual_levels, Agreement, Lookups, Moved, Pair,
+    Residual, ResidualViews, Shard, TileLookups, ViewHits, ROW_BAND,
 };
 use crate::atlas::context::HitTable;
 use crate::atlas::store::TileStore;
@@ -19,7 +19,7 @@ use crate::atlas::texture::{Scratch, SlotTexture};
 use crate::atlas::uv::Charts;
 use crate::atlas::RunContext;
 use crate::base::error::{Error, Result};
-use crate::base::progress::{Mode, Stage};
+use crate::base::progress::{note, Mode, Stage};
 use crate::physics::film_filter::render_filtered;
 use crate::physics::render::{render_view_with, sub_hits, Film, Plan, Texture};
 use glam::Vec3;
@@ -97,6 +97,8 @@ pub struct Passes {
     pub gate: f32,
     /// ... from this pass on (from 0).
     pub gated_from: u32,
+    /// The settling threshold ([`Passes::settled`]; 0 = every pass).
+    pub settle: f32,
 }
 
 impl Passes {
@@ -108,7 +110,28 @@ impl Passes {
             tv: cfg.tv_weight,
             gate: cfg.refine_gate,
             gated_from: cfg.refine_gated_from,
+            settle: cfg.refine_settle,
         }
+    }
+
+    /// These passes, `count` of them and no settling: what the noise probe runs, the passes
+    /// the projection of the photos ran.
+    pub fn exactly(self, count: u32) -> Passes {
+        Passes {
+            count,
+            settle: 0.0,
+            ..self
+        }
+    }
+
+    /// Whether the passes have settled with pass `pass` (from 0), which `moved` texels: it
+    /// was gated and changed under `settle` of the texels it updated by more than
+    /// [`super::MOVED_BY`] of their luminance. The next pass is then the last.
+    fn settled(&self, moved: Moved, pass: u32) -> bool {
+        self.settle > 0.0
+            && pass >= self.gated_from
+            && moved.updated > 0
+            && (moved.changed as f64) < self.settle as f64 * moved.updated as f64
     }
 
     /// The step of pass `pass` (from 0): 1 in the first, whose robust weights are judged
@@ -202,10 +225,11 @@ impl Refine<'_> {
         let state = work;
         let mut noise = Vec::new();
         let mut residuals = Vec::new();
-        let (count, tv) = (passes.count, passes.tv);
+        let (mut count, tv) = (passes.count, passes.tv);
         let total = count as u64 * self.views.len() as u64;
         let stage = Stage::new(mode, self.label, total, "views");
-        for pass in 0..count {
+        let mut pass = 0;
+        while pass < count {
             let maps = current_maps(self.p, state, self.scratch)?;
             let textures = self.textures(&maps);
             let last = pass + 1 == count;
@@ -220,7 +244,7 @@ impl Refine<'_> {
                 .map(|(view, render)| prepare(view, render, last))
                 .collect();
             let (step, gate) = (passes.step(pass), passes.gate(pass));
-            let seen = self.backproject_and_apply(&prepared, state, (last, step, gate))?;
+            let (seen, moved) = self.backproject_and_apply(&prepared, state, (last, step, gate))?;
             (self.shard.sync_pass)(state)?;
             residuals.push(prepared.iter().map(|v| v.mean).collect());
             noise = self.noise(prepared, seen);
@@ -236,6 +260,22 @@ impl Refine<'_> {
                     self.scratch,
                 )?;
             }
+            if !last && passes.settled(moved, pass) {
+                count = pass + 2;
+                note(
+                    mode,
+                    &format!(
+                        "{}: settled, {count} of at most {} passes (pass {pass} changed {} of \
+                         {} texels by more than {}%)",
+                        self.label,
+                        passes.count,
+                        moved.changed,
+                        moved.updated,
+                        100.0 * super::MOVED_BY
+                    ),
+                );
+            }
+            pass += 1;
         }
         stage.finish();
         Ok((noise, residuals))
@@ -325,9 +365,10 @@ impl Refine<'_> {
         prepared: &[Prepared],
         state: &mut TileStore<PassTexel>,
         (stats, step, gate): (bool, f32, f32),
-    ) -> Result<Vec<Agreement>> {
+    ) -> Result<(Vec<Agreement>, Moved)> {
         let p = self.p;
         let err: Mutex<Option<Error>> = Mutex::new(None);
+        let (updated, changed) = (AtomicU64::new(0), AtomicU64::new(0));
         let counts: Vec<(AtomicU64, AtomicU64)> = (self.views.iter())
             .map(|_| (AtomicU64::new(0), AtomicU64::new(0)))
             .collect();
@@ -365,20 +406,27 @@ impl Refine<'_> {
                 }
             }
             if touched {
-                apply_refinement(st, &acc, stats, step, gate);
+                let m = apply_refinement(st, &acc, stats, step, gate);
+                updated.fetch_add(m.updated, Ordering::Relaxed);
+                changed.fetch_add(m.changed, Ordering::Relaxed);
             }
         })?;
         if let Some(e) = err.into_inner().unwrap_or_else(|e| e.into_inner()) {
             return Err(e);
         }
         let sum = self.shard.sum;
-        Ok(counts
+        let agree = counts
             .into_iter()
             .map(|(a, b)| Agreement {
                 texels: sum(a.into_inner()),
                 disagreeing: sum(b.into_inner()),
             })
-            .collect())
+            .collect();
+        let moved = Moved {
+            updated: sum(updated.into_inner()),
+            changed: sum(changed.into_inner()),
+        };
+        Ok((agree, moved))
     }
 
     /// Each view's noise as this pass estimated it (its relative level; in the `last` pass
@@ -467,6 +515,36 @@ mod tests {
             plane: 0.0,
             clean,
         }
+    }
+
+    /// The passes settle once a gated pass changed under `settle` of the texels it updated by
+    /// more than 1%: not before the gate, not with nothing updated, never with `settle` 0; the
+    /// probe's passes are the count the photos' took, without settling.
+    #[test]
+    fn passes_settle_when_a_gated_pass_moves_few_texels() {
+        let passes = Passes {
+            count: 16,
+            step: 1.8,
+            tv: 0.0,
+            gate: 0.7,
+            gated_from: 4,
+            settle: 0.005,
+        };
+        let few = Moved {
+            updated: 10_000,
+            changed: 49,
+        };
+        let many = Moved { changed: 50, ..few };
+        assert!(passes.settled(few, 4));
+        assert!(!passes.settled(many, 4), "0.5% is not under 0.5%");
+        assert!(!passes.settled(few, 3), "pass 3 was not gated");
+        assert!(!passes.settled(Moved::default(), 4), "nothing updated");
+        let every = Passes {
+            settle: 0.0,
+            ..passes
+        };
+        assert!(!every.settled(few, 4));
+        assert_eq!(passes.exactly(5), Passes { count: 5, ..every });
     }
 
     /// The mean of `|sum r| / sum photo` over clean pixels with light and a render, by hand.
