@@ -21,22 +21,30 @@ pub trait PassRecord: Pod + Send + Sync {
     fn set_stats(&mut self, a: &Residual);
 }
 
-impl PassRecord for TexelState {
-    fn l_orig(&self) -> [f32; 3] {
-        self.l_orig
-    }
-    fn set_l_orig(&mut self, l: [f32; 3]) {
-        self.l_orig = l;
-    }
-    fn weight(&self) -> f32 {
-        self.weight
-    }
-    fn set_stats(&mut self, a: &Residual) {
-        self.l_var = fused_variance(a, self.weight);
-        self.l_noise = photo_variance(a, self.weight);
-        self.disagree = a.out;
-    }
+/// [`PassRecord`] for a record with the fields of that name.
+macro_rules! pass_record {
+    ($t:ty) => {
+        impl PassRecord for $t {
+            fn l_orig(&self) -> [f32; 3] {
+                self.l_orig
+            }
+            fn set_l_orig(&mut self, l: [f32; 3]) {
+                self.l_orig = l;
+            }
+            fn weight(&self) -> f32 {
+                self.weight
+            }
+            fn set_stats(&mut self, a: &Residual) {
+                self.l_var = fused_variance(a, self.weight);
+                self.l_noise = photo_variance(a, self.weight);
+                self.disagree = a.out;
+            }
+        }
+    };
 }
+
+pass_record!(TexelState);
+pass_record!(PassTexel);
 
 /// The refinement's working record of a texel: the fields of [`TexelState`] it reads and
 /// writes, with the same meanings.
@@ -48,23 +56,6 @@ pub struct PassTexel {
     pub l_var: f32,
     pub l_noise: f32,
     pub disagree: f32,
-}
-
-impl PassRecord for PassTexel {
-    fn l_orig(&self) -> [f32; 3] {
-        self.l_orig
-    }
-    fn set_l_orig(&mut self, l: [f32; 3]) {
-        self.l_orig = l;
-    }
-    fn weight(&self) -> f32 {
-        self.weight
-    }
-    fn set_stats(&mut self, a: &Residual) {
-        self.l_var = fused_variance(a, self.weight);
-        self.l_noise = photo_variance(a, self.weight);
-        self.disagree = a.out;
-    }
 }
 
 impl PassTexel {
