@@ -196,6 +196,17 @@ fn one_thread() -> bool {
     rayon::current_num_threads() == 1
 }
 
+/// Images below this many pixels are encoded on the calling thread: exr starts a thread pool
+/// of its own (a thread per core) for every parallel write, which costs more than a small
+/// image's compression, and the outputs of a run of many shapes are written side by side.
+const PARALLEL_EXR_PIXELS: usize = 1 << 18;
+
+/// Whether an image of `size` pixels is encoded on the calling thread ([`one_thread`], or a
+/// small image, [`PARALLEL_EXR_PIXELS`]). The bytes are the same either way.
+fn encode_here(size: (usize, usize)) -> bool {
+    one_thread() || size.0 * size.1 < PARALLEL_EXR_PIXELS
+}
+
 /// [`read_exr`] from any seekable reader of the file's bytes.
 fn read_exr_from(mut reader: impl Read + Seek, path: &Path) -> Result<Image> {
     let file_bytes = reader
@@ -372,7 +383,7 @@ pub fn write_exr_rgb_fn(
                 (to_h(c.x), to_h(c.y), to_h(c.z))
             });
             let w = x::Image::from_layer(x::Layer::new(size, attrs, Encoding::SMALL_LOSSLESS, ch));
-            match one_thread() {
+            match encode_here(size) {
                 true => w.write().non_parallel().to_file(tmp),
                 false => w.write().to_file(tmp),
             }
@@ -382,7 +393,7 @@ pub fn write_exr_rgb_fn(
                 (c.x, c.y, c.z)
             });
             let w = x::Image::from_layer(x::Layer::new(size, attrs, Encoding::SMALL_LOSSLESS, ch));
-            match one_thread() {
+            match encode_here(size) {
                 true => w.write().non_parallel().to_file(tmp),
                 false => w.write().to_file(tmp),
             }
@@ -580,6 +591,27 @@ mod tests {
         assert!(img.valid.iter().all(|&v| v));
         // row 0 is the top row, x runs along a row
         assert_eq!(img.get(3, 2), px[2 * 13 + 3]);
+    }
+
+    #[test]
+    fn an_exr_is_the_same_bytes_encoded_on_one_thread_or_many() {
+        let dir = tempfile::tempdir().unwrap();
+        // one image above the size encoded in parallel, one below it
+        for (w, h) in [(640u32, 420u32), (40, 30)] {
+            let px = ramp(w, h);
+            let (a, b) = (dir.path().join("a.exr"), dir.path().join("b.exr"));
+            write_exr_rgb(&a, w, h, &px, false).unwrap();
+            let one = rayon::ThreadPoolBuilder::new()
+                .num_threads(1)
+                .build()
+                .unwrap();
+            one.install(|| write_exr_rgb(&b, w, h, &px, false)).unwrap();
+            let (a, b) = (std::fs::read(&a).unwrap(), std::fs::read(&b).unwrap());
+            assert!(a == b, "{w}x{h}");
+            assert_eq!(read_exr(dir.path().join("a.exr")).unwrap().pixels, px);
+        }
+        assert!(!encode_here((640, 420)) || one_thread());
+        assert!(encode_here((40, 30)));
     }
 
     #[test]

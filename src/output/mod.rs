@@ -56,6 +56,7 @@ use crate::physics::render::Texture;
 use crate::report::{PoseCorrection, Report};
 use crate::scene::{Scene, Sensor};
 use glam::Vec3;
+use rayon::prelude::*;
 use std::path::Path;
 use std::time::Instant;
 
@@ -137,18 +138,27 @@ pub fn write_outputs(
         error_max: Some(scale.max),
         ..Default::default()
     };
-    for (slot, st) in p.layout.slots.iter().enumerate() {
-        let keep = scratch.share(st.width as u64 * st.height as u64, total);
-        let (lr, f) = maps::write_slot(p, geom, state, slot, out, &scale, (scratch, &keep))?;
+    // Slots side by side, each worker's temporaries its share of the scratch budget; the
+    // files are the same bits whether a texture is held whole or in tiles.
+    let workers = rayon::current_num_threads().max(1) as u64;
+    let temp = scratch.share(1, workers);
+    let written: Vec<(SlotTexture<Vec3>, page::ShapeFacts)> = (p.layout.slots.par_iter())
+        .enumerate()
+        .map(|(slot, st)| {
+            let keep = scratch.share(st.width as u64 * st.height as u64, total);
+            let done = maps::write_slot(p, geom, state, slot, out, &scale, (&temp, &keep))?;
+            tick(st.width as u64 * st.height as u64);
+            Ok(done)
+        })
+        .collect::<Result<_>>()?;
+    for (st, (lr, f)) in p.layout.slots.iter().zip(written) {
         facts.shapes.push(f);
         radiance[st.shape] = Some(lr);
-        tick(st.width as u64 * st.height as u64);
     }
 
     let meshes = out.join("meshes");
-    for (si, shape) in p.scene.shapes.iter().enumerate() {
-        obj::write_shape_mesh(&meshes, shape, p.atlases[si].as_ref())?;
-    }
+    (p.scene.shapes.par_iter().zip(&p.atlases))
+        .try_for_each(|(shape, atlas)| obj::write_shape_mesh(&meshes, shape, atlas.as_ref()))?;
     let folded = match report.settings.uv_fold {
         true => {
             let budget = uv_fold::fold_budget(report.settings.memory_budget_mib);
@@ -181,22 +191,31 @@ pub fn write_outputs(
             })
         })
         .collect();
-    let mut table = Vec::new();
     let renders = out.join("renders");
     let page_views = page::page_dir(out).join("views");
-    for (i, (si, path)) in p.views.iter().enumerate() {
-        let gain = report.capture.get(i).map_or([1.0; 3], |c| c.gain);
-        let (rows, f) = renders::write_view(
-            p,
-            hits,
-            &textures,
-            (&sensors[*si], path, gain),
-            (&renders, &page_views),
-            &scale,
-        )?;
+    // views side by side: each re-render is parallel over its rows, its files are not
+    let views: Vec<_> = (p.views.par_iter().enumerate())
+        .map(|(i, (si, path))| {
+            let gain = report.capture.get(i).map_or([1.0; 3], |c| c.gain);
+            let done = renders::write_view(
+                p,
+                hits,
+                &textures,
+                (&sensors[*si], path, gain),
+                (&renders, &page_views),
+                &scale,
+            )?;
+            tick(view_pixels(p, *si));
+            Ok(done)
+        })
+        .collect::<Result<_>>()?;
+    if !p.views.is_empty() {
+        renders::write_masks_json(&renders, &p.scene)?;
+    }
+    let mut table = Vec::new();
+    for (rows, f) in views {
         table.extend(rows);
         facts.views.push(f);
-        tick(view_pixels(p, *si));
     }
     report.table = table;
     for r in radiance.iter().flatten() {

@@ -171,8 +171,12 @@ fn table_mask(scene: &Scene, pixels: &[PixelInfo], w: u32, h: u32) -> Option<Pix
 }
 
 /// `masks.json`: `{"shapes": [id, ...]}` in the scene's shape order, so mask value `v > 0`
-/// names shape `shapes[v - 1]`. The same for every view; rewritten with each.
-fn write_masks_json(dir: &Path, scene: &Scene) -> Result<()> {
+/// names shape `shapes[v - 1]`. The same for every view: written once, after the views (which
+/// are written side by side), when they have masks ([`table_mask`]).
+pub fn write_masks_json(dir: &Path, scene: &Scene) -> Result<()> {
+    if scene.shapes.len() > MASK_MAX_SHAPES {
+        return Ok(());
+    }
     let ids: Vec<&str> = scene.shapes.iter().map(|s| s.id.as_str()).collect();
     let json = serde_json::json!({ "shapes": ids });
     let path = dir.join("masks.json");
@@ -212,7 +216,6 @@ pub fn write_view(
     cmp.write_png(&dir.join(format!("{}_compare.png", sensor.id)))?;
     if let Some(mask) = table_mask(&p.scene, &view.pixels, w, h) {
         write_pixmap_png(&dir.join(format!("{}_mask.png", sensor.id)), &mask)?;
-        write_masks_json(dir, &p.scene)?;
     }
     let facts = page_files(
         p,

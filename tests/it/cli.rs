@@ -73,10 +73,18 @@ fn results_are_bit_identical_for_1_and_2_threads() {
             assert!(x.1 == y.1, "{sub}/{} differs between 1 and 2 threads", x.0);
         }
     }
-    assert_eq!(
-        std::fs::read(outs[0].join("scene.xml")).unwrap(),
-        std::fs::read(outs[1].join("scene.xml")).unwrap()
-    );
+    for file in [
+        "scene.xml",
+        "scene.glb",
+        "report/scene_glb.js",
+        "renders/masks.json",
+    ] {
+        let (a, b) = (outs[0].join(file), outs[1].join(file));
+        assert!(
+            std::fs::read(a).unwrap() == std::fs::read(b).unwrap(),
+            "{file}"
+        );
+    }
     accuracy_of_a_finished_run(&outs[0]);
 }
 

@@ -5,7 +5,9 @@
 
 use crate::base::error::{Error, Result};
 use crate::base::fsio;
-use base64::Engine as _;
+use base64::write::EncoderWriter;
+use std::fs::File;
+use std::io::{BufReader, BufWriter, Write as _};
 use std::path::Path;
 
 /// The vendored and own files, written as they are: (name under `report/`, bytes).
@@ -47,13 +49,49 @@ pub fn write_assets(dir: &Path, glb: &Path) -> Result<bool> {
             fsio::write_atomic(&path, bytes)?;
         }
     }
-    let bytes = match std::fs::read(glb) {
-        Ok(b) => b,
+    let mut src = match File::open(glb) {
+        Ok(f) => BufReader::new(f),
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(false),
         Err(e) => return Err(Error::io(glb, e)),
     };
-    let b64 = base64::engine::general_purpose::STANDARD.encode(&bytes);
-    let js = format!("window.KDMAP_GLB=\"{b64}\";\n");
-    fsio::write_atomic(&dir.join(GLB_JS), js.as_bytes())?;
+    let path = dir.join(GLB_JS);
+    // streamed: the scene of a large run is hundreds of MB, its base64 a third more
+    fsio::write_atomic_with(&path, |tmp| {
+        let file = File::create(tmp).map_err(|e| Error::io(&path, e))?;
+        let mut out = BufWriter::new(file);
+        out.write_all(b"window.KDMAP_GLB=\"")
+            .map_err(|e| Error::io(&path, e))?;
+        let mut enc = EncoderWriter::new(&mut out, &base64::engine::general_purpose::STANDARD);
+        std::io::copy(&mut src, &mut enc).map_err(|e| Error::io(glb, e))?;
+        let out = enc.finish().map_err(|e| Error::io(&path, e))?;
+        out.write_all(b"\";\n").map_err(|e| Error::io(&path, e))?;
+        out.flush().map_err(|e| Error::io(&path, e))
+    })?;
     Ok(true)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use base64::Engine as _;
+
+    #[test]
+    fn the_scene_script_holds_the_glb_in_base64_as_the_encoder_writes_it_whole() {
+        let dir = tempfile::tempdir().unwrap();
+        let glb = dir.path().join("scene.glb");
+        // every remainder mod 3 (padding), and more than the writers' buffers hold
+        for len in [0usize, 1, 2, 3, 100_001, 300_002] {
+            let bytes: Vec<u8> = (0..len).map(|i| (i * 7919 % 251) as u8).collect();
+            std::fs::write(&glb, &bytes).unwrap();
+            let page = dir.path().join(format!("report-{len}"));
+            assert!(write_assets(&page, &glb).unwrap());
+            let js = std::fs::read_to_string(page.join(GLB_JS)).unwrap();
+            let b64 = base64::engine::general_purpose::STANDARD.encode(&bytes);
+            assert_eq!(js, format!("window.KDMAP_GLB=\"{b64}\";\n"), "{len} bytes");
+            assert!(!fsio::tmp_path(&page.join(GLB_JS)).exists());
+        }
+        let page = dir.path().join("without");
+        assert!(!write_assets(&page, &dir.path().join("none.glb")).unwrap());
+        assert!(!page.join(GLB_JS).exists());
+    }
 }

@@ -269,3 +269,19 @@ fn a_known_diffuse_material_keeps_its_color() {
     );
     assert_eq!(g.images().count(), 0);
 }
+
+#[test]
+fn the_written_glb_is_the_framed_bytes() {
+    let (scene, atlases) = scene();
+    let out = tempfile::tempdir().unwrap();
+    let textures = out.path().join("textures");
+    std::fs::create_dir_all(&textures).unwrap();
+    let png = b"\x89PNG fake bytes, odd length".to_vec();
+    let id = &scene.shapes[0].id;
+    std::fs::write(textures.join(format!("{id}_albedo.png")), &png).unwrap();
+    write_scene_glb(out.path(), &scene, &scene.sensors, &atlases, 0.5).unwrap();
+    let written = std::fs::read(out.path().join("scene.glb")).unwrap();
+    let bytes = scene_glb(&scene, &scene.sensors, &atlases, &[Some(png), None], 0.5).unwrap();
+    assert_eq!(written, bytes);
+    assert_eq!(written.len() % 4, 0);
+}
