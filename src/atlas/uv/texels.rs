@@ -25,6 +25,9 @@ pub const NONE: u32 = u32::MAX;
 const BAND: usize = 16;
 /// Side in texels of the blocks that index triangles for sub-sampling.
 const BLOCK: usize = 8;
+/// Texels: how near a triangle's bounds must come to a point or texel before its footprint is
+/// tested against it ([`TexelMap::near`]).
+const NEAR: f64 = 1.0 / 256.0;
 
 /// Largest sub-sampling factor per texel side (64 x 64 samples).
 pub const MAX_SUBSAMPLES: u32 = 64;
@@ -299,7 +302,21 @@ impl<'a> TexelMap<'a> {
             .get(y as usize / BLOCK * bw + x as usize / BLOCK)
             .iter()
             .copied()
+            .filter(|&t| self.near(t, p, p))
             .find(|&t| footprint(self.mesh, self.atlas, t as usize).is_some_and(|f| f.contains(p)))
+    }
+
+    /// Whether triangle `t`'s texel-space bounds come within [`NEAR`] of the box `lo..=hi`.
+    /// One that does not holds no point of the box (its edge tests err by far less than
+    /// `NEAR`), so its footprint is not made: a block of a finely tessellated shape lists
+    /// hundreds of triangles, of which a texel meets a few.
+    fn near(&self, t: u32, lo: DVec2, hi: DVec2) -> bool {
+        let Some(c) = self.atlas.corner_uv.get(t as usize) else {
+            return false;
+        };
+        let (mn, mx) = (c[0].min(c[1]).min(c[2]), c[0].max(c[1]).max(c[2]));
+        let (mn, mx) = (mn.as_dvec2(), mx.as_dvec2());
+        !(mn.x > hi.x + NEAR || mn.y > hi.y + NEAR || mx.x < lo.x - NEAR || mx.y < lo.y - NEAR)
     }
 
     /// Per texel (row-major), whether it maps to the surface (a whole-texture array: for
@@ -425,13 +442,18 @@ impl<'a> TexelMap<'a> {
         };
         let blocks = self.blocks();
         let bw = (self.atlas.width as usize).div_ceil(BLOCK);
+        let (lo, hi) = (
+            DVec2::new(x as f64, y as f64),
+            DVec2::new(x as f64 + 1.0, y as f64 + 1.0),
+        );
         let cands: Vec<(u32, Footprint)> = std::iter::once(owner)
             .chain(
                 blocks
                     .get(y as usize / BLOCK * bw + x as usize / BLOCK)
                     .iter()
                     .copied()
-                    .filter(|&t| t != owner && self.chart[t as usize] == chart),
+                    .filter(|&t| t != owner && self.chart[t as usize] == chart)
+                    .filter(|&t| self.near(t, lo, hi)),
             )
             .filter_map(|t| Some((t, footprint(self.mesh, self.atlas, t as usize)?)))
             .collect();
@@ -848,6 +870,57 @@ mod tests {
         assert!(one.len() > 100_000);
         assert_eq!(one, run(2));
         assert_eq!(one, run(2));
+    }
+
+    /// The owner and sub-samples of texel `(x, y)` by brute force: every triangle of the
+    /// mesh tried in order, none skipped by its bounds or a block.
+    fn brute_texel(map: &TexelMap, x: u32, y: u32, k: u32) -> (Option<u32>, Vec<TexelSample>) {
+        let ntri = map.mesh.triangles.len();
+        let fp = |t: usize| footprint(map.mesh, map.atlas, t);
+        let p = DVec2::new(x as f64 + 0.5, y as f64 + 0.5);
+        let owner = (0..ntri).find(|&t| fp(t).is_some_and(|f| f.contains(p)));
+        let Some(owner) = owner.map(|t| t as u32) else {
+            return (None, Vec::new());
+        };
+        let chart = map.chart_of(owner);
+        let cands: Vec<(u32, Footprint)> = std::iter::once(owner as usize)
+            .chain((0..ntri).filter(|&t| t != owner as usize))
+            .filter(|&t| map.chart_of(t as u32) == chart)
+            .filter_map(|t| Some((t as u32, fp(t)?)))
+            .collect();
+        let mut out = Vec::new();
+        for j in 0..k {
+            for i in 0..k {
+                let (fx, fy) = ((i as f64 + 0.5) / k as f64, (j as f64 + 0.5) / k as f64);
+                let p = DVec2::new(x as f64 + fx, y as f64 + fy);
+                if let Some((t, f)) = cands.iter().find(|(_, f)| f.contains(p)) {
+                    out.push(map.sample_at(*t, f, p, 1.0 / (k as f64 * k as f64)));
+                }
+            }
+        }
+        (Some(owner), out)
+    }
+
+    #[test]
+    fn owners_and_subsamples_are_those_of_every_triangle_tried() {
+        // fine triangles: a block lists many, a texel meets a few
+        let mesh = bumpy_sphere(48, 24);
+        let atlas = build_atlas(&mesh, &settings(6.0)).unwrap();
+        let map = TexelMap::new(&mesh, &atlas);
+        let key = |s: &TexelSample| (s.tri, s.b1.to_bits(), s.b2.to_bits(), s.area.to_bits());
+        let (mut covered, mut shared) = (0, 0);
+        for y in 0..atlas.height {
+            for x in 0..atlas.width {
+                let (owner, subs) = brute_texel(&map, x, y, 3);
+                assert_eq!(map.owner(x, y), owner, "({x}, {y})");
+                let fast = map.subsamples(x, y, 3);
+                assert_eq!(fast.len(), subs.len(), "({x}, {y})");
+                assert!(fast.iter().map(key).eq(subs.iter().map(key)), "({x}, {y})");
+                covered += owner.is_some() as u32;
+                shared += subs.iter().any(|s| Some(s.tri) != owner) as u32;
+            }
+        }
+        assert!(covered > 100 && shared > 50, "{covered} {shared}");
     }
 
     #[test]
