@@ -49,6 +49,8 @@ pub struct EnvMap {
     texels: Vec<Rgb>,
     /// Cumulative cell weights, normalized (last = 1); cell `j * W + i`.
     cdf: Vec<f64>,
+    /// The last of every [`CDF_BLOCK`] entries of `cdf` ([`Self::cell`]'s first search).
+    cdf_blocks: Vec<f64>,
     /// Density per steradian of each cell (the selection probability over its solid angle).
     density: Vec<f32>,
     /// `integral of L over the sphere` per channel (steradian x radiance).
@@ -128,6 +130,7 @@ impl EnvMap {
             height,
             texels,
             cdf: Vec::new(),
+            cdf_blocks: Vec::new(),
             density: Vec::new(),
             integral: Vec3::ZERO,
         };
@@ -161,6 +164,9 @@ impl EnvMap {
             self.cdf.iter_mut().for_each(|c| *c /= acc);
             *self.cdf.last_mut().expect("cells") = 1.0;
         }
+        self.cdf_blocks = (self.cdf.chunks(CDF_BLOCK))
+            .map(|b| *b.last().expect("a block"))
+            .collect();
         self.density = weights
             .iter()
             .enumerate()
@@ -218,10 +224,7 @@ impl EnvMap {
         if self.is_dark() {
             return None;
         }
-        let k = self
-            .cdf
-            .partition_point(|&c| c <= ucell)
-            .min(self.cdf.len() - 1);
+        let k = self.cell(ucell).min(self.cdf.len() - 1);
         let (w, h) = (self.width as usize, self.height as usize);
         let (i, j) = (k % w, k / w);
         let (c0, c1) = (row_theta(j, h).cos(), row_theta(j + 1, h).cos());
@@ -231,6 +234,18 @@ impl EnvMap {
         // Mitsuba's uv_to_direction: (sin phi sin t, cos t, -cos phi sin t).
         let d = glam::DVec3::new(phi.sin() * sin_t, cos_t, -phi.cos() * sin_t).as_vec3();
         Some(((self.to_world3 * d).normalize(), self.density[k]))
+    }
+
+    /// The first cell whose CDF value exceeds `u` (`cdf.len()` if none), as a binary search
+    /// of the whole CDF finds it, searched in [`CDF_BLOCK`]s: the block first (their last
+    /// values, a table that stays in cache), then within it. A search of the whole CDF of a
+    /// 2k x 1k map misses the cache at most of its 21 steps, and it took a tenth of an
+    /// environment-lit run.
+    fn cell(&self, u: f64) -> usize {
+        let b = self.cdf_blocks.partition_point(|&c| c <= u);
+        let start = b * CDF_BLOCK;
+        let block = &self.cdf[start.min(self.cdf.len())..(start + CDF_BLOCK).min(self.cdf.len())];
+        start.min(self.cdf.len()) + block.partition_point(|&c| c <= u)
     }
 
     /// Density per steradian of [`Self::sample`] at world direction `dir`.
@@ -248,6 +263,9 @@ impl EnvMap {
         self.density[j * w + i]
     }
 }
+
+/// Cells per block of the CDF's first search ([`EnvMap::cell`]): 512 bytes.
+const CDF_BLOCK: usize = 64;
 
 /// The nearest rotation to `m` (columns normalized; the parser refuses anything else).
 fn orthonormalize(m: Mat3) -> Mat3 {

@@ -179,3 +179,33 @@ fn reads_exr_and_radiance_hdr_files_and_refuses_other_formats() {
     let e = EnvMap::load(&dir.path().join("none.exr"), 1.0, Mat4::IDENTITY).unwrap_err();
     assert!(e.to_string().contains("none.exr"), "{e}");
 }
+
+#[test]
+fn the_blocked_cell_search_finds_what_a_search_of_the_whole_cdf_finds() {
+    // sizes whose cell counts are and are not multiples of the block; a map with dark runs
+    // (repeated CDF values) and one with a single bright texel
+    let bright = |x: u32, y: u32| Vec3::splat(if (x, y) == (5, 3) { 9.0 } else { 0.0 });
+    let banded = |x: u32, y: u32| {
+        Vec3::splat(if (x / 7 + y) % 3 == 0 {
+            0.0
+        } else {
+            1.0 + x as f32
+        })
+    };
+    for (w, h) in [(64u32, 33u32), (50, 21), (8, 5), (300, 151)] {
+        let maps = [
+            map(w, h, Mat4::IDENTITY, varied),
+            map(w, h, Mat4::IDENTITY, bright),
+        ];
+        for env in maps.iter().chain([&map(w, h, Mat4::IDENTITY, banded)]) {
+            let whole = |u: f64| env.cdf.partition_point(|&c| c <= u);
+            let mut us: Vec<f64> = (0..2000).map(|i| i as f64 / 1999.0).collect();
+            us.extend(env.cdf.iter().step_by(7).copied());
+            us.extend(env.cdf.iter().step_by(7).map(|&c| c - 1e-12));
+            us.extend([-1.0, 0.0, 1.0, 2.0, f64::NAN, 1.0 - 1e-16]);
+            for u in us {
+                assert_eq!(env.cell(u), whole(u), "{w}x{h}, u = {u}");
+            }
+        }
+    }
+}
