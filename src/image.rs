@@ -530,9 +530,8 @@ pub fn write_png_rows(
             one_line(&e.to_string())
         ))
     };
-    fsio::write_atomic_with(path, |tmp| {
-        let f = std::fs::File::create(tmp).map_err(|e| Error::io(path, e))?;
-        let mut enc = png::Encoder::new(std::io::BufWriter::new(f), width, height);
+    fsio::write_atomic_buffered(path, |out| {
+        let mut enc = png::Encoder::new(out, width, height);
         enc.set_color(png::ColorType::Rgba);
         enc.set_depth(png::BitDepth::Eight);
         let mut w = enc.write_header().map_err(bad)?;
@@ -549,7 +548,8 @@ pub fn write_png_rows(
             std::io::Write::write_all(&mut sw, &r).map_err(|e| Error::io(path, e))?;
         }
         sw.finish().map_err(bad)?;
-        Ok(())
+        // the IEND chunk, written here so that its error is one (dropped, the writer drops it)
+        w.finish().map_err(bad)
     })
 }
 

@@ -110,6 +110,22 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     })
 }
 
+/// [`write_atomic`] for a file streamed through a buffered writer by `write` (an encoder that
+/// writes as it goes, so the whole file is never held): the buffer is flushed before the file
+/// is counted, fsynced and renamed, so a write that fails at the flush (a full disk) is an
+/// error, not a truncated file dropped into place.
+pub fn write_atomic_buffered(
+    path: &Path,
+    write: impl FnOnce(&mut std::io::BufWriter<File>) -> Result<()>,
+) -> Result<()> {
+    write_atomic_with(path, |tmp| {
+        let file = File::create(tmp).map_err(|e| Error::io(path, e))?;
+        let mut w = std::io::BufWriter::new(file);
+        write(&mut w)?;
+        w.flush().map_err(|e| Error::io(path, e))
+    })
+}
+
 /// [`write_atomic`] for a file that `write` produces at the temporary path it is given (a
 /// library encoder); the file is then counted by the fault hook, fsynced and renamed.
 pub fn write_atomic_with(path: &Path, write: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
@@ -242,6 +258,27 @@ pub fn create_dir(dir: &Path) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_buffered_file_is_whole_when_written_and_absent_when_its_writer_fails() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("a.bin");
+        // more than the buffer holds, so part is written before the flush and part by it
+        let bytes: Vec<u8> = (0..20_001u32).map(|i| (i % 251) as u8).collect();
+        write_atomic_buffered(&path, |w| {
+            w.write_all(&bytes).map_err(|e| Error::io(&path, e))
+        })
+        .unwrap();
+        assert_eq!(std::fs::read(&path).unwrap(), bytes);
+        assert!(!tmp_path(&path).exists());
+        let failed = dir.path().join("b.bin");
+        let e = write_atomic_buffered(&failed, |w| {
+            w.write_all(&bytes).map_err(|e| Error::io(&failed, e))?;
+            Err(Error::internal("the encoder failed"))
+        });
+        assert!(e.unwrap_err().to_string().contains("the encoder failed"));
+        assert!(!failed.exists() && !tmp_path(&failed).exists());
+    }
 
     #[test]
     fn files_under_an_unsynced_root_are_in_place_at_once_and_synced_at_the_commit() {

@@ -155,7 +155,7 @@ const MASK_MAX_SHAPES: usize = 255;
 /// Lets tools recompute the table from the EXRs independently (`tools/nightly.py`). `None`
 /// for scenes with more than [`MASK_MAX_SHAPES`] shapes (no mask is written for them).
 fn table_mask(scene: &Scene, pixels: &[PixelInfo], w: u32, h: u32) -> Option<Pixmap> {
-    if scene.shapes.len() > MASK_MAX_SHAPES {
+    if !has_masks(scene) {
         return None;
     }
     let mut pm = Pixmap::new(w, h)?;
@@ -170,11 +170,16 @@ fn table_mask(scene: &Scene, pixels: &[PixelInfo], w: u32, h: u32) -> Option<Pix
     Some(pm)
 }
 
+/// Whether the views of `scene` get table masks: at most [`MASK_MAX_SHAPES`] shapes.
+fn has_masks(scene: &Scene) -> bool {
+    scene.shapes.len() <= MASK_MAX_SHAPES
+}
+
 /// `masks.json`: `{"shapes": [id, ...]}` in the scene's shape order, so mask value `v > 0`
 /// names shape `shapes[v - 1]`. The same for every view: written once, after the views (which
 /// are written side by side), when they have masks ([`table_mask`]).
 pub fn write_masks_json(dir: &Path, scene: &Scene) -> Result<()> {
-    if scene.shapes.len() > MASK_MAX_SHAPES {
+    if !has_masks(scene) {
         return Ok(());
     }
     let ids: Vec<&str> = scene.shapes.iter().map(|s| s.id.as_str()).collect();

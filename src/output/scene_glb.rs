@@ -16,15 +16,13 @@
 
 use crate::atlas::uv::ShapeAtlas;
 use crate::base::error::Error;
-use crate::base::fsio::write_atomic_with;
+use crate::base::fsio::write_atomic_buffered;
 use crate::physics::camera::fov_x_degrees;
 use crate::scene::gltf::{gltf_camera_to_world, spot_cone};
 use crate::scene::{Emitter, KnownBsdf, Material, Scene, Sensor, Shape, Sides};
 use crate::Result;
 use glam::{Mat4, Vec3};
 use serde_json::{json, Value};
-use std::fs::File;
-use std::io::{BufWriter, Write as _};
 use std::path::Path;
 
 /// The binary chunk and the JSON arrays that point into it, while the file is assembled.
@@ -429,14 +427,11 @@ pub fn write_scene_glb(
         .collect::<Result<Vec<_>>>()?;
     let doc = scene_doc(scene, sensors, atlases, &pngs, scale)?;
     let path = out.join("scene.glb");
-    write_atomic_with(&path, |tmp| {
-        let file = File::create(tmp).map_err(|e| Error::io(&path, e))?;
-        let mut w = BufWriter::new(file);
-        let framed = doc.to_writer(&mut w).map_err(|e| match e {
+    write_atomic_buffered(&path, |w| {
+        doc.to_writer(w).map_err(|e| match e {
             ::gltf::Error::Io(e) => Error::io(&path, e),
             e => Error::internal(format!("scene.glb: {e:?}")),
-        });
-        framed.and_then(|()| w.flush().map_err(|e| Error::io(&path, e)))
+        })
     })
 }
 

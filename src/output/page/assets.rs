@@ -7,7 +7,7 @@ use crate::base::error::{Error, Result};
 use crate::base::fsio;
 use base64::write::EncoderWriter;
 use std::fs::File;
-use std::io::{BufReader, BufWriter, Write as _};
+use std::io::{BufReader, Write as _};
 use std::path::Path;
 
 /// The vendored and own files, written as they are: (name under `report/`, bytes).
@@ -56,16 +56,13 @@ pub fn write_assets(dir: &Path, glb: &Path) -> Result<bool> {
     };
     let path = dir.join(GLB_JS);
     // streamed: the scene of a large run is hundreds of MB, its base64 a third more
-    fsio::write_atomic_with(&path, |tmp| {
-        let file = File::create(tmp).map_err(|e| Error::io(&path, e))?;
-        let mut out = BufWriter::new(file);
+    fsio::write_atomic_buffered(&path, |out| {
         out.write_all(b"window.KDMAP_GLB=\"")
             .map_err(|e| Error::io(&path, e))?;
-        let mut enc = EncoderWriter::new(&mut out, &base64::engine::general_purpose::STANDARD);
+        let mut enc = EncoderWriter::new(out, &base64::engine::general_purpose::STANDARD);
         std::io::copy(&mut src, &mut enc).map_err(|e| Error::io(glb, e))?;
         let out = enc.finish().map_err(|e| Error::io(&path, e))?;
-        out.write_all(b"\";\n").map_err(|e| Error::io(&path, e))?;
-        out.flush().map_err(|e| Error::io(&path, e))
+        out.write_all(b"\";\n").map_err(|e| Error::io(&path, e))
     })?;
     Ok(true)
 }
