@@ -140,6 +140,7 @@ const FOLDERS: &[(&str, &[Layer])] = &[
                 "lookups",
                 "visible",
                 "exposure",
+                "window_median",
                 "noise",
                 "shrinkage",
                 "pass_texel",

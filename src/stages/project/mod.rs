@@ -74,6 +74,7 @@ mod shrinkage;
 pub mod total_variation;
 mod view;
 mod visible;
+mod window_median;
 
 pub use diagnose::notes as capture_notes;
 pub use lookups::{Lookups, TileLookups, ViewHits};
