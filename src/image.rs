@@ -534,6 +534,8 @@ pub fn write_png_rows(
         let mut enc = png::Encoder::new(out, width, height);
         enc.set_color(png::ColorType::Rgba);
         enc.set_depth(png::BitDepth::Eight);
+        // fdeflate's fast mode: most of what the previews cost was zlib's deflate
+        enc.set_compression(png::Compression::Fast);
         let mut w = enc.write_header().map_err(bad)?;
         let mut sw = w.stream_writer().map_err(bad)?;
         for y in 0..height {
