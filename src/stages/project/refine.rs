@@ -215,14 +215,13 @@ impl Refine<'_> {
         done.and_then(|out| removed.map(|_| out))
     }
 
-    /// [`Refine::run`]'s passes on its working store `work`.
+    /// [`Refine::run`]'s passes on its working store `state`.
     fn passes(
         &self,
-        work: &mut TileStore<PassTexel>,
+        state: &mut TileStore<PassTexel>,
         passes: Passes,
         mode: Mode,
     ) -> Result<(Vec<ViewNoise>, Vec<Vec<f64>>)> {
-        let state = work;
         let mut noise = Vec::new();
         let mut residuals = Vec::new();
         let (mut count, tv) = (passes.count, passes.tv);
