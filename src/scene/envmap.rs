@@ -243,9 +243,9 @@ impl EnvMap {
     /// environment-lit run.
     fn cell(&self, u: f64) -> usize {
         let b = self.cdf_blocks.partition_point(|&c| c <= u);
-        let start = b * CDF_BLOCK;
-        let block = &self.cdf[start.min(self.cdf.len())..(start + CDF_BLOCK).min(self.cdf.len())];
-        start.min(self.cdf.len()) + block.partition_point(|&c| c <= u)
+        let start = (b * CDF_BLOCK).min(self.cdf.len());
+        let block = &self.cdf[start..(start + CDF_BLOCK).min(self.cdf.len())];
+        start + block.partition_point(|&c| c <= u)
     }
 
     /// Density per steradian of [`Self::sample`] at world direction `dir`.

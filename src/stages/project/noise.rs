@@ -14,7 +14,7 @@
 //! four directions: differences drop what is smooth, the median the pixels of a few edges,
 //! the least direction a straight edge. It is a few medians, so it is written here.
 
-use super::window_median::BlockPairs;
+use super::window_median::{needed_for, BlockPairs};
 use rayon::prelude::*;
 
 /// Side of the square blocks of pixels that share one local level.
@@ -80,7 +80,7 @@ fn roughness(v: &[Option<f32>], width: usize, wanted: &(dyn Fn(usize) -> bool + 
     let height = v.len() / width.max(1);
     let (bw, bh) = (width.div_ceil(NOISE_BLOCK), height.div_ceil(NOISE_BLOCK));
     let mut best = vec![f32::INFINITY; bw * bh];
-    let needed = near_wanted((bw, bh), wanted);
+    let needed = needed_for((bw, bh), wanted);
     let mut pairs = BlockPairs::new((width, height), NOISE_BLOCK, needed);
     let mut diffs = vec![NO_PAIR; v.len()];
     for d in DIRECTIONS {
@@ -104,20 +104,6 @@ fn roughness(v: &[Option<f32>], width: usize, wanted: &(dyn Fn(usize) -> bool + 
     best.into_iter()
         .map(|b| if b.is_finite() { b } else { 0.0 })
         .collect()
-}
-
-/// Per block of a `bw x bh` grid, whether it lies in the window of a block `wanted` takes.
-fn near_wanted((bw, bh): (usize, usize), wanted: &(dyn Fn(usize) -> bool + Sync)) -> Vec<bool> {
-    let mut near = vec![false; bw * bh];
-    for b in (0..bw * bh).filter(|&b| wanted(b)) {
-        let (bx, by) = (b % bw, b / bw);
-        for y in by.saturating_sub(1)..(by + 2).min(bh) {
-            for x in bx.saturating_sub(1)..(bx + 2).min(bw) {
-                near[y * bw + x] = true;
-            }
-        }
-    }
-    near
 }
 
 /// A pair of [`pair_diffs`] that is not one: a pixel without a value, or the second pixel
@@ -157,6 +143,7 @@ fn pair_diffs(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::base::rng::Rng;
 
     /// The pixel range of block `b`'s window along an axis of `n` pixels.
     fn window(b: usize, n: usize) -> (i64, i64) {
@@ -164,7 +151,6 @@ mod tests {
         let hi = ((b + 1) * NOISE_BLOCK + NOISE_REACH).min(n);
         (lo as i64, hi as i64)
     }
-    use crate::base::rng::Rng;
 
     /// Standard normal numbers, a pure function of `stream` and the index.
     fn gauss(stream: u64, n: usize) -> Vec<f32> {

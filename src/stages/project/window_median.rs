@@ -95,14 +95,10 @@ impl BlockPairs {
         min_pairs: usize,
         scratch: &mut Vec<u32>,
     ) -> Option<u32> {
-        let (gw, gh) = self.grid;
         let mut blocks = [0usize; 9];
         let mut k = 0;
-        for y in by.saturating_sub(1)..(by + 2).min(gh) {
-            for x in bx.saturating_sub(1)..(bx + 2).min(gw) {
-                blocks[k] = y * gw + x;
-                k += 1;
-            }
+        for b in window_blocks((bx, by), self.grid) {
+            (blocks[k], k) = (b, k + 1);
         }
         let blocks = &blocks[..k];
         let below = |b: usize, key: usize| self.below[b * (KEYS + 1) + key] as usize;
@@ -135,6 +131,28 @@ impl BlockPairs {
     fn key(&self, bits: u32) -> usize {
         key(bits, self.base)
     }
+}
+
+/// The blocks (by index, row by row) of the window around block `(bx, by)` of a `gw x gh`
+/// grid: the block and the eight around it within the grid.
+fn window_blocks(
+    (bx, by): (usize, usize),
+    (gw, gh): (usize, usize),
+) -> impl Iterator<Item = usize> {
+    (by.saturating_sub(1)..(by + 2).min(gh))
+        .flat_map(move |y| (bx.saturating_sub(1)..(bx + 2).min(gw)).map(move |x| y * gw + x))
+}
+
+/// Per block of a `gw x gh` grid, whether it lies in the window of a block `wanted` takes:
+/// the blocks a [`BlockPairs`] must hold for the windows of those.
+pub fn needed_for((gw, gh): (usize, usize), wanted: &(dyn Fn(usize) -> bool + Sync)) -> Vec<bool> {
+    let mut needed = vec![false; gw * gh];
+    for b in (0..gw * gh).filter(|&b| wanted(b)) {
+        for n in window_blocks((b % gw, b / gw), (gw, gh)) {
+            needed[n] = true;
+        }
+    }
+    needed
 }
 
 /// The key of `bits` (a non-negative float's) above `base`: one per `1 / KEYS_PER_OCTAVE` of
