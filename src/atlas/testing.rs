@@ -53,17 +53,7 @@ impl Built {
 
     /// A unit cube (one-sided, no emitters) at `texels_per_unit`.
     pub fn cube(texels_per_unit: f32) -> Built {
-        let shape = Shape {
-            id: "cube".into(),
-            kind: "test".into(),
-            file: None,
-            mesh: mesh::cube(),
-            sides: Sides::Front,
-            emission: None,
-            reflectance: None,
-            material: Default::default(),
-            material_name: None,
-        };
+        let shape = Shape::plain("cube", mesh::cube(), Sides::Front);
         Built::new(vec![shape], vec![], texels_per_unit, vec![])
     }
 }

@@ -157,27 +157,21 @@ mod tests {
     use glam::{Vec2, Vec3};
 
     fn quad() -> Shape {
+        let mesh = Mesh {
+            positions: vec![
+                Vec3::ZERO,
+                Vec3::X,
+                Vec3::new(1.0, 1.0, 0.0),
+                Vec3::new(0.1, 1.0 / 3.0, 0.0),
+            ],
+            normals: Some(vec![Vec3::Z; 4]),
+            uvs: None,
+            triangles: vec![[0, 1, 2], [0, 2, 3]],
+            flipped: Vec::new(),
+        };
         Shape {
-            id: "wall".into(),
             kind: "obj".into(),
-            file: None,
-            mesh: Mesh {
-                positions: vec![
-                    Vec3::ZERO,
-                    Vec3::X,
-                    Vec3::new(1.0, 1.0, 0.0),
-                    Vec3::new(0.1, 1.0 / 3.0, 0.0),
-                ],
-                normals: Some(vec![Vec3::Z; 4]),
-                uvs: None,
-                triangles: vec![[0, 1, 2], [0, 2, 3]],
-                flipped: Vec::new(),
-            },
-            sides: Sides::Front,
-            emission: None,
-            reflectance: None,
-            material: Default::default(),
-            material_name: None,
+            ..Shape::plain("wall", mesh, Sides::Front)
         }
     }
 

@@ -678,17 +678,7 @@ mod tests {
             for uv in m.uvs.as_mut().unwrap() {
                 *uv *= scale;
             }
-            crate::scene::Shape {
-                id: id.into(),
-                kind: "test".into(),
-                file: None,
-                mesh: m,
-                sides: crate::scene::Sides::Front,
-                emission: None,
-                reflectance: None,
-                material: Default::default(),
-                material_name: None,
-            }
+            crate::scene::Shape::plain(id, m, crate::scene::Sides::Front)
         };
         let shapes = vec![rect("once", 1.0), rect("tiled", 16.0), rect("coarse", 2.0)];
         let b = Built::new(shapes, vec![], 64.0, vec![]);
@@ -729,15 +719,8 @@ mod tests {
     fn fold_files_keep_a_dotted_id() {
         let dir = tempfile::tempdir().unwrap();
         let shape = crate::scene::Shape {
-            id: "Plane.001".into(),
             kind: "obj".into(),
-            file: None,
-            mesh: mesh::rectangle(),
-            sides: crate::scene::Sides::Front,
-            emission: None,
-            reflectance: None,
-            material: Default::default(),
-            material_name: None,
+            ..crate::scene::Shape::plain("Plane.001", mesh::rectangle(), crate::scene::Sides::Front)
         };
         let tex = UvTexture {
             res: 16,

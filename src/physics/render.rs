@@ -527,17 +527,7 @@ mod tests {
 
     /// A plain shape of `mesh` seen from `sides`: no emission, no known material.
     fn test_shape(id: &str, mesh: crate::scene::Mesh, sides: Sides) -> crate::scene::Shape {
-        crate::scene::Shape {
-            id: id.into(),
-            kind: "test".into(),
-            file: None,
-            mesh,
-            sides,
-            emission: None,
-            reflectance: None,
-            material: Default::default(),
-            material_name: None,
-        }
+        crate::scene::Shape::plain(id, mesh, sides)
     }
 
     /// A one-pixel impulse spreads by the tent's per-pixel weights (1/8, 3/4, 1/8 per

@@ -236,6 +236,23 @@ pub enum ReflectanceSpec {
 }
 
 impl Shape {
+    /// A plain shape for tests: `mesh` seen from `sides`, no file, no emission, no stated
+    /// reflectance, its albedo to be recovered.
+    #[cfg(test)]
+    pub fn plain(id: &str, mesh: Mesh, sides: Sides) -> Shape {
+        Shape {
+            id: id.into(),
+            kind: "test".into(),
+            file: None,
+            mesh,
+            sides,
+            emission: None,
+            reflectance: None,
+            material: Default::default(),
+            material_name: None,
+        }
+    }
+
     /// The known material, if the shape has one.
     pub fn known(&self) -> Option<&KnownMaterial> {
         match &self.material {

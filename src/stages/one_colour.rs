@@ -144,17 +144,7 @@ mod tests {
     use crate::scene::{mesh, Shape, Sides};
 
     fn rect(id: &str) -> Shape {
-        Shape {
-            id: id.into(),
-            kind: "test".into(),
-            file: None,
-            mesh: mesh::rectangle(),
-            sides: Sides::Front,
-            emission: None,
-            reflectance: None,
-            material: Default::default(),
-            material_name: None,
-        }
+        Shape::plain(id, mesh::rectangle(), Sides::Front)
     }
 
     /// The true albedo of the test's two shapes at `x`, `y` (scene units on the rectangle):

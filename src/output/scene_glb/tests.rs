@@ -8,27 +8,22 @@ use glam::{Vec2, Vec3};
 use std::collections::BTreeMap;
 
 fn quad(id: &str, emission: Option<Vec3>, sides: Sides) -> Shape {
+    let mesh = Mesh {
+        positions: vec![
+            Vec3::ZERO,
+            Vec3::X,
+            Vec3::new(1.0, 1.0, 0.0),
+            Vec3::new(0.0, 1.0, 0.5),
+        ],
+        normals: None,
+        uvs: None,
+        triangles: vec![[0, 1, 2], [0, 2, 3]],
+        flipped: Vec::new(),
+    };
     Shape {
-        id: id.into(),
         kind: "obj".into(),
-        file: None,
-        mesh: Mesh {
-            positions: vec![
-                Vec3::ZERO,
-                Vec3::X,
-                Vec3::new(1.0, 1.0, 0.0),
-                Vec3::new(0.0, 1.0, 0.5),
-            ],
-            normals: None,
-            uvs: None,
-            triangles: vec![[0, 1, 2], [0, 2, 3]],
-            flipped: Vec::new(),
-        },
-        sides,
         emission,
-        reflectance: None,
-        material: Default::default(),
-        material_name: None,
+        ..Shape::plain(id, mesh, sides)
     }
 }
 

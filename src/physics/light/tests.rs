@@ -29,15 +29,8 @@ pub(super) fn tri(a: Vec3, b: Vec3, c: Vec3) -> Mesh {
 
 pub(super) fn shape(mesh: Mesh, emission: Option<Vec3>) -> Shape {
     Shape {
-        id: "s".into(),
-        kind: "test".into(),
-        file: None,
-        mesh,
-        sides: Sides::Front,
         emission,
-        reflectance: None,
-        material: Default::default(),
-        material_name: None,
+        ..Shape::plain("s", mesh, Sides::Front)
     }
 }
 

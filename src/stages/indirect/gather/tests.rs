@@ -12,15 +12,8 @@ use glam::{DVec3, Mat4};
 
 fn shape(id: &str, mesh: Mesh, emission: Option<Vec3>) -> Shape {
     Shape {
-        id: id.into(),
-        kind: "test".into(),
-        file: None,
-        mesh,
-        sides: Sides::Front,
         emission,
-        reflectance: None,
-        material: Default::default(),
-        material_name: None,
+        ..Shape::plain(id, mesh, Sides::Front)
     }
 }
 

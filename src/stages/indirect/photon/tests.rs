@@ -10,17 +10,7 @@ use glam::{DVec3, Mat4, Vec2, Vec3};
 use std::f64::consts::PI;
 
 fn shape(id: &str, mesh: Mesh, sides: Sides) -> Shape {
-    Shape {
-        id: id.into(),
-        kind: "test".into(),
-        file: None,
-        mesh,
-        sides,
-        emission: None,
-        reflectance: None,
-        material: Default::default(),
-        material_name: None,
-    }
+    Shape::plain(id, mesh, sides)
 }
 
 fn point(position: Vec3, intensity: Vec3) -> Emitter {

@@ -65,17 +65,11 @@ fn a_smooth_surface_that_turns_fast_between_pixels_has_edges_only_on_its_outline
     // Mitsuba's sphere, smooth-shaded, about 9 px across: from one pixel centre to the next
     // its normals turn 13 degrees at the centre and more towards the outline, past the
     // crease angle, and points recede past the depth step; none of that is an edge.
-    let shape = crate::scene::Shape {
-        id: "ball".into(),
-        kind: "test".into(),
-        file: None,
-        mesh: crate::scene::mesh::sphere(),
-        sides: crate::scene::Sides::Front,
-        emission: None,
-        reflectance: None,
-        material: Default::default(),
-        material_name: None,
-    };
+    let shape = crate::scene::Shape::plain(
+        "ball",
+        crate::scene::mesh::sphere(),
+        crate::scene::Sides::Front,
+    );
     let b = Built::new(vec![shape], vec![], 4.0, vec![]);
     let eye = Vec3::new(2.0, 2.5, 9.2);
     let cam = camera(eye, 32);
