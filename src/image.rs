@@ -367,7 +367,6 @@ pub fn write_exr_rgb_fn(
     }
     let size = (width as usize, height as usize);
     let at = |p: x::Vec2<usize>| at(p.x() as u32, p.y() as u32);
-    let attrs = LayerAttributes::default();
     fsio::write_atomic_with(path, |tmp| {
         if half {
             let to_h = |v: f32| {
@@ -378,28 +377,34 @@ pub fn write_exr_rgb_fn(
                 };
                 f16::from_f32(v)
             };
-            let ch = SpecificChannels::rgb(|p| {
+            encode_rgb(tmp, size, |p| {
                 let c = at(p);
                 (to_h(c.x), to_h(c.y), to_h(c.z))
-            });
-            let w = x::Image::from_layer(x::Layer::new(size, attrs, Encoding::SMALL_LOSSLESS, ch));
-            match encode_here(size) {
-                true => w.write().non_parallel().to_file(tmp),
-                false => w.write().to_file(tmp),
-            }
+            })
         } else {
-            let ch = SpecificChannels::rgb(|p| {
+            encode_rgb(tmp, size, |p| {
                 let c = at(p);
                 (c.x, c.y, c.z)
-            });
-            let w = x::Image::from_layer(x::Layer::new(size, attrs, Encoding::SMALL_LOSSLESS, ch));
-            match encode_here(size) {
-                true => w.write().non_parallel().to_file(tmp),
-                false => w.write().to_file(tmp),
-            }
+            })
         }
         .map_err(|e| exr_write_error(path, e))
     })
+}
+
+/// One RGB layer of `size` whose pixel `p` is `px(p)` (f32 or f16 samples), ZIP-compressed,
+/// encoded into `tmp` on exr's workers or, for small images or one thread, here.
+fn encode_rgb<T: x::IntoSample>(
+    tmp: &Path,
+    size: (usize, usize),
+    px: impl Sync + Fn(x::Vec2<usize>) -> (T, T, T),
+) -> exr::error::UnitResult {
+    let ch = SpecificChannels::rgb(px);
+    let attrs = LayerAttributes::default();
+    let w = x::Image::from_layer(x::Layer::new(size, attrs, Encoding::SMALL_LOSSLESS, ch));
+    match encode_here(size) {
+        true => w.write().non_parallel().to_file(tmp),
+        false => w.write().to_file(tmp),
+    }
 }
 
 /// Exposure (stops) that maps the 99th percentile luminance of `vals` (where `mask`) to 0.9:
