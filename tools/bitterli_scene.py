@@ -225,19 +225,6 @@ def depth_ahead(mi, scene, o, f):
     return t if math.isfinite(t) else 1.0
 
 
-def render(mi, xml, out_dir, prefix, spp, force, suffix=""):
-    scene = mi.load_file(xml)
-    os.makedirs(out_dir, exist_ok=True)
-    for i, sensor in enumerate(scene.sensors()):
-        sid = sensor.id()
-        path = os.path.join(out_dir, f"{sid}{suffix}.exr")
-        if not sid.startswith(prefix) or (os.path.exists(path) and not force):
-            continue
-        img = mi.render(scene, sensor=i, spp=spp, seed=i)
-        mi.Bitmap(img).write(path)
-        print(f"rendered {os.path.relpath(path, REPO)}", flush=True)
-
-
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--src", required=True, help="the published scene: scene.xml, models/, ...")
@@ -262,7 +249,7 @@ def main():
     out = a.out or os.path.join(REPO, "cache", "scenes", os.path.basename(src.rstrip("/")))
     os.makedirs(out, exist_ok=True)
 
-    from exrio import mitsuba
+    from exrio import mitsuba, render_sensors as render
     from heldout import _llvm_available as llvm_available
     mi = mitsuba()
     if llvm_available():

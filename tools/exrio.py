@@ -18,6 +18,24 @@ def mitsuba(variant="scalar_rgb"):
     return _MI
 
 
+def render_sensors(mi, xml, out_dir, prefix, spp, force, suffix=""):
+    """Render every sensor of the scene `xml` whose id starts with `prefix` to
+    `<out_dir>/<id><suffix>.exr` (seed: the sensor's index), skipping files already there
+    unless `force`."""
+    import os
+
+    scene = mi.load_file(xml)
+    os.makedirs(out_dir, exist_ok=True)
+    for i, sensor in enumerate(scene.sensors()):
+        sid = sensor.id()
+        path = os.path.join(out_dir, f"{sid}{suffix}.exr")
+        if not sid.startswith(prefix) or (os.path.exists(path) and not force):
+            continue
+        img = mi.render(scene, sensor=i, spp=spp, seed=i)
+        mi.Bitmap(img).write(path)
+        print(f"rendered {os.path.relpath(path)}", flush=True)
+
+
 def read_exr_rgb(path):
     """Linear RGB of an OpenEXR file as a float32 array (h, w, 3); half-float files are widened
     exactly. Reads with Mitsuba's Bitmap, which takes the R, G, B channels as kdmap does."""

@@ -102,19 +102,11 @@ def scene_xml(root, src, truth, res, spp):
 
 
 def render(out, spp, force):
-    import mitsuba as mi
+    from exrio import mitsuba, render_sensors
 
-    mi.set_variant("llvm_ad_rgb")
-    scene = mi.load_file(os.path.join(out, "truth.xml"))
-    os.makedirs(os.path.join(out, "images"), exist_ok=True)
-    for i, sensor in enumerate(scene.sensors()):
-        sid = sensor.id()
-        path = os.path.join(out, "images", f"{sid}.exr")
-        if not sid.startswith("cam_train_") or (os.path.exists(path) and not force):
-            continue
-        img = mi.render(scene, sensor=i, spp=spp, seed=i)
-        mi.Bitmap(img).write(path)
-        print(f"rendered {path}", flush=True)
+    mi = mitsuba("llvm_ad_rgb")
+    render_sensors(mi, os.path.join(out, "truth.xml"), os.path.join(out, "images"), "cam_train_",
+                   spp, force)
 
 
 def main():
