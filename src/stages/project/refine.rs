@@ -476,7 +476,7 @@ struct Prepared {
 /// ([`shrink_residual_levels`]).
 fn prepare(view: &View, render: Vec<Option<Vec3>>, last: bool) -> Prepared {
     let photo = view.image;
-    let mut residual: Vec<Vec3> = (photo.pixels.iter().zip(&render).zip(&view.pixels))
+    let mut residual: Vec<Vec3> = (photo.pixels.iter().zip(&render).zip(view.pixels.iter()))
         .map(|((ph, r), px)| match r {
             Some(r) if px.clean => *ph - *r,
             _ => Vec3::ZERO,
