@@ -793,4 +793,47 @@ mod tests {
             }
         }
     }
+
+    /// Another photo of the same camera shares the view's ray results; one that masks clean
+    /// pixels gets its own classification with exactly those pixels unclean, and the result
+    /// is the view built on that photo from scratch.
+    #[test]
+    fn a_view_of_another_photo_shares_its_rays_and_masks_what_the_photo_masks() {
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+        let scene =
+            crate::scene::mitsuba::load(&root.join("tests/fixtures/cbox/input.xml")).unwrap();
+        let accel = Accel::build(&scene);
+        let cam = Camera::from_sensor(&scene.sensors[0]);
+        let (w, h) = (cam.width(), cam.height());
+        let img = Image::from_raw(w, h, vec![Vec3::splat(0.4); (w * h) as usize]);
+        let view = View::new_with(&scene, &accel, cam.clone(), &img, true);
+        let brighter = Image::from_raw(w, h, vec![Vec3::splat(0.8); (w * h) as usize]);
+        let same = view.with_image(&brighter);
+        assert!(
+            Arc::ptr_eq(&same.pixels, &view.pixels),
+            "nothing masked: shared"
+        );
+        assert!(Arc::ptr_eq(&same.traced, &view.traced));
+        assert!(std::ptr::eq(same.image, &brighter));
+        let masked_at = (0..(w * h) as usize)
+            .find(|&i| view.pixels[i].clean)
+            .unwrap();
+        let mut px = vec![Vec3::splat(0.4); (w * h) as usize];
+        px[masked_at] = Vec3::NAN;
+        let masking = Image::from_raw(w, h, px);
+        let own = view.with_image(&masking);
+        assert!(!Arc::ptr_eq(&own.pixels, &view.pixels));
+        assert!(Arc::ptr_eq(&own.traced, &view.traced));
+        let changed: Vec<usize> = (0..(w * h) as usize)
+            .filter(|&i| own.pixels[i] != view.pixels[i])
+            .collect();
+        assert_eq!(changed, vec![masked_at]);
+        assert!(!own.pixels[masked_at].clean);
+        let fresh = View::new_with(&scene, &accel, cam, &masking, true);
+        assert!(
+            own.pixels == fresh.pixels,
+            "as if built on the masking photo"
+        );
+        assert!(parts(&own).1 == parts(&fresh).1, "corners");
+    }
 }
