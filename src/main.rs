@@ -525,9 +525,14 @@ fn project(
         stats.seconds,
         out.join("maps").display()
     ))?;
-    let (covered, observed) = (stats.covered_texels, stats.observed_texels);
-    let w =
-        kdmap::report::summary::coverage_warning(covered, observed, None, cfg.min_observed_share);
+    let coverage = kdmap::report::summary::Coverage {
+        covered: stats.covered_texels,
+        observed: stats.observed_texels,
+        visible: stats.visible_texels,
+        filled: None,
+    };
+    let (share, fine) = (cfg.min_observed_share, cfg.fine_geometry);
+    let w = kdmap::report::summary::coverage_warning(&coverage, share, fine);
     Ok(w.into_iter().collect())
 }
 

@@ -1259,14 +1259,16 @@ impl<'a> Run<'a> {
             note(self.mode, &line);
         }
         let c = &r.report.counts;
-        r.report.warnings = crate::report::summary::coverage_warning(
-            c.covered_texels,
-            c.observed_texels,
-            Some(c.filled_texels),
-            self.cfg.min_observed_share,
-        )
-        .into_iter()
-        .collect();
+        let coverage = crate::report::summary::Coverage {
+            covered: c.covered_texels,
+            observed: c.observed_texels,
+            visible: c.visible_texels,
+            filled: Some(c.filled_texels),
+        };
+        let (share, fine) = (self.cfg.min_observed_share, self.cfg.fine_geometry);
+        r.report.warnings = crate::report::summary::coverage_warning(&coverage, share, fine)
+            .into_iter()
+            .collect();
         r.report.timings.total = r.elapsed();
         let res = &mut r.report.resources;
         res.memory_budget_mib = self.cfg.memory_budget_mib;

@@ -81,20 +81,31 @@ fn fold_kind(decision: &str, filtered: bool) -> (&'static str, &'static str) {
     }
 }
 
-/// The warning of a run whose photos observed under `min_share` of its `covered` texels, or
-/// whose textures are mostly fill (`filled`: the texels filled from observed ones, when the
-/// run solved for K_d); `None` when neither (or nothing is covered).
-pub fn coverage_warning(
-    covered: u64,
-    observed: u64,
-    filled: Option<u64>,
-    min_share: f64,
-) -> Option<String> {
-    if covered == 0 {
+/// A run's texel counts, for [`coverage_warning`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Coverage {
+    /// Texels on the surfaces of reconstructed shapes.
+    pub covered: u64,
+    /// Those a photo observed.
+    pub observed: u64,
+    /// Those a photo could see at all (in its frame, facing it, unoccluded).
+    pub visible: u64,
+    /// Those filled from observed ones, when the run solved for K_d.
+    pub filled: Option<u64>,
+}
+
+/// The warning of a run whose photos observed under `min_share` of its covered texels, or
+/// whose textures are mostly fill, with what kept the texels from being observed: no photo
+/// could see them (more viewpoints would), or the photos could but their pixels were not
+/// read (parts a pixel or two wide: finer photos would, or `fine_geometry` when it is off).
+/// Each cause is named when it holds at least a fifth of the texels it concerns. `None` when
+/// neither (or nothing is covered).
+pub fn coverage_warning(c: &Coverage, min_share: f64, fine_geometry: bool) -> Option<String> {
+    if c.covered == 0 {
         return None;
     }
-    let seen = observed as f64 / covered as f64;
-    let fill = filled.map(|f| f as f64 / covered as f64);
+    let seen = c.observed as f64 / c.covered as f64;
+    let fill = c.filled.map(|f| f as f64 / c.covered as f64);
     if seen >= min_share && fill.is_none_or(|f| f <= 1.0 - min_share) {
         return None;
     }
@@ -102,14 +113,37 @@ pub fn coverage_warning(
         Some(f) => format!("; {} of the texture is fill", percent(f)),
         None => String::new(),
     };
-    Some(format!(
+    let mut w = format!(
         "only {} of {} covered texels ({}) were observed by a photo{fill_part} (below \
          run.min_observed_share = {min_share}): the textures mostly show the fill, not the \
          photos",
-        thousands(observed),
-        thousands(covered),
+        thousands(c.observed),
+        thousands(c.covered),
         percent(seen),
-    ))
+    );
+    let unseen = c.covered.saturating_sub(c.visible);
+    if 5 * unseen >= c.covered {
+        w += &format!(
+            ". No photo could see {} of them ({}): photos from more viewpoints would",
+            thousands(unseen),
+            percent(unseen as f64 / c.covered as f64)
+        );
+    }
+    let unread = c.visible.saturating_sub(c.observed);
+    if unread > 0 && 5 * unread >= c.visible {
+        w += &format!(
+            ". Of the {} a photo could see, {} were not observed: their pixels straddle an \
+             edge or another shape (parts a pixel or two wide in these photos); photos of \
+             higher resolution or from nearer observe them",
+            thousands(c.visible),
+            percent(unread as f64 / c.visible as f64)
+        );
+        if !fine_geometry {
+            w += ", or [projection] fine_geometry = true reads them from pixels that see one \
+                  surface";
+        }
+    }
+    Some(w)
 }
 
 /// A share as a percentage with the digits that tell small ones apart (`0.06%`, `99.9%`).
@@ -160,9 +194,18 @@ mod tests {
         assert_eq!(lines[1], folds[437].summary(), "one shape: said in full");
     }
 
+    fn cov(covered: u64, observed: u64, visible: u64, filled: Option<u64>) -> Coverage {
+        Coverage {
+            covered,
+            observed,
+            visible,
+            filled,
+        }
+    }
+
     #[test]
     fn the_warning_gives_the_figures() {
-        let w = coverage_warning(526_961, 309, Some(526_652), 0.5).unwrap();
+        let w = coverage_warning(&cov(526_961, 309, 309, Some(526_652)), 0.5, false).unwrap();
         assert!(
             w.starts_with(
                 "only 309 of 526,961 covered texels (0.06%) were observed by a photo; \
@@ -171,19 +214,56 @@ mod tests {
             "{w}"
         );
         assert!(w.contains("min_observed_share = 0.5"), "{w}");
-        let p = coverage_warning(1000, 200, None, 0.5).unwrap();
+        let p = coverage_warning(&cov(1000, 200, 1000, None), 0.5, true).unwrap();
         assert!(p.contains("(20%)") && !p.contains("fill;"), "{p}");
+    }
+
+    /// The lego's figures: most texels no photo sees, and most of those it sees not read.
+    #[test]
+    fn the_warning_names_what_kept_texels_unobserved() {
+        let lego = cov(530_119, 31_117, 112_081, Some(499_002));
+        let w = coverage_warning(&lego, 0.5, false).unwrap();
+        assert!(
+            w.contains(
+                "No photo could see 418,038 of them (79%): photos from more viewpoints would"
+            ),
+            "{w}"
+        );
+        assert!(
+            w.contains("Of the 112,081 a photo could see, 72% were not observed"),
+            "{w}"
+        );
+        assert!(w.ends_with("pixels that see one surface"), "{w}");
+        let on = coverage_warning(&lego, 0.5, true).unwrap();
+        assert!(
+            on.ends_with("from nearer observe them"),
+            "fine_geometry on: {on}"
+        );
+        // all visible texels observed, most not visible: only the viewpoints
+        let hidden = coverage_warning(&cov(1000, 100, 100, None), 0.5, false).unwrap();
+        assert!(hidden.contains("No photo could see 900") && !hidden.contains("Of the"));
+        // every texel visible, few read: only the pixels
+        let fine = coverage_warning(&cov(1000, 100, 1000, None), 0.5, false).unwrap();
+        assert!(
+            !fine.contains("No photo") && fine.contains("Of the 1,000"),
+            "{fine}"
+        );
+        // a cause under a fifth is not named
+        let few = coverage_warning(&cov(1000, 300, 850, None), 0.5, false).unwrap();
+        assert!(
+            !few.contains("No photo") && few.contains("Of the 850"),
+            "{few}"
+        );
     }
 
     #[test]
     fn a_well_observed_run_has_no_warning() {
-        assert_eq!(coverage_warning(1000, 800, Some(200), 0.5), None);
-        assert_eq!(coverage_warning(1000, 500, None, 0.5), None);
-        assert_eq!(coverage_warning(0, 0, Some(0), 0.5), None);
-        assert!(
-            coverage_warning(1000, 800, Some(600), 0.5).is_some(),
-            "mostly fill"
-        );
-        assert_eq!(coverage_warning(1000, 10, Some(990), 0.0), None, "off");
+        let w = |c: Coverage| coverage_warning(&c, 0.5, false);
+        assert_eq!(w(cov(1000, 800, 1000, Some(200))), None);
+        assert_eq!(w(cov(1000, 500, 1000, None)), None);
+        assert_eq!(w(cov(0, 0, 0, Some(0))), None);
+        assert!(w(cov(1000, 800, 1000, Some(600))).is_some(), "mostly fill");
+        let off = coverage_warning(&cov(1000, 10, 1000, Some(990)), 0.0, false);
+        assert_eq!(off, None, "off");
     }
 }

@@ -379,6 +379,11 @@ fn a_run_whose_photos_see_little_warns_and_fails_only_when_strict() {
         warning.contains("covered texels (") && warning.contains("of the texture is fill"),
         "{err}"
     );
+    // the cause: a cube no camera can see
+    assert!(
+        warning.contains("No photo could see") && warning.contains("more viewpoints"),
+        "{err}"
+    );
     assert!(
         err.contains("error: --strict: the run ended with 1 warning(s)"),
         "{err}"
