@@ -98,6 +98,7 @@ use crate::report::PoseCorrection;
 use crate::scene::{luminance, Sides};
 use glam::Vec3;
 use pass_texel::{PassRecord, PassTexel};
+use std::sync::Arc;
 use std::time::Instant;
 
 /// The largest sub-sample grid per texel and view (k x k).
@@ -366,7 +367,8 @@ fn probe_noise(
     let path = ctx.scratch.dir.join("probe-state.tiles");
     let mut probe_state = p.create_store(&path, TexelState::default())?;
     // the look-ups are the views' own while the probe's photos mask the same pixels
-    let same = (probe_views.iter().zip(views)).all(|(a, b)| a.pixels == b.pixels);
+    let same = (probe_views.iter().zip(views))
+        .all(|(a, b)| Arc::ptr_eq(&a.pixels, &b.pixels) || a.pixels == b.pixels);
     let own;
     let lookups = match same {
         true => ctx.lookups,

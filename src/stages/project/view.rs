@@ -767,16 +767,22 @@ mod tests {
         })
     }
 
-    /// The classification split among 2 and 3 processes by bands of rows and gathered is the
-    /// one process's, bit for bit, on every process (with a masked pixel, an emitter in view
-    /// and the loose reading's spans).
-    #[test]
-    fn rays_split_among_processes_and_gathered_classify_as_one_process() {
+    /// The Cornell box fixture, its BVH and its first camera.
+    fn cbox_first_camera() -> (Scene, Accel, Camera) {
         let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
         let scene =
             crate::scene::mitsuba::load(&root.join("tests/fixtures/cbox/input.xml")).unwrap();
         let accel = Accel::build(&scene);
         let cam = Camera::from_sensor(&scene.sensors[0]);
+        (scene, accel, cam)
+    }
+
+    /// The classification split among 2 and 3 processes by bands of rows and gathered is the
+    /// one process's, bit for bit, on every process (with a masked pixel, an emitter in view
+    /// and the loose reading's spans).
+    #[test]
+    fn rays_split_among_processes_and_gathered_classify_as_one_process() {
+        let (scene, accel, cam) = cbox_first_camera();
         let (w, h) = (cam.width(), cam.height());
         let mut px = vec![Vec3::splat(0.4); (w * h) as usize];
         px[(37 * w + 101) as usize] = Vec3::NAN;
@@ -799,11 +805,7 @@ mod tests {
     /// is the view built on that photo from scratch.
     #[test]
     fn a_view_of_another_photo_shares_its_rays_and_masks_what_the_photo_masks() {
-        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
-        let scene =
-            crate::scene::mitsuba::load(&root.join("tests/fixtures/cbox/input.xml")).unwrap();
-        let accel = Accel::build(&scene);
-        let cam = Camera::from_sensor(&scene.sensors[0]);
+        let (scene, accel, cam) = cbox_first_camera();
         let (w, h) = (cam.width(), cam.height());
         let img = Image::from_raw(w, h, vec![Vec3::splat(0.4); (w * h) as usize]);
         let view = View::new_with(&scene, &accel, cam.clone(), &img, true);
