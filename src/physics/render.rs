@@ -23,6 +23,39 @@ pub trait Texels: Sync {
     fn row_major(&self) -> Option<&[Vec3]> {
         None
     }
+    /// A block of held texels that includes columns `x0..=x1` of rows `y0..=y1`, where the
+    /// texture keeps its texels in blocks (tiles) and those lie in one: one look-up for the
+    /// texels around a point instead of one per texel. `None` otherwise (the default).
+    fn held_block(&self, _x0: u32, _y0: u32, _x1: u32, _y1: u32) -> Option<Block> {
+        None
+    }
+}
+
+/// Texels `(ox + i, oy + j)` at `texels[j * stride + i]` (see [`Texels::held_block`]).
+pub struct Block {
+    pub texels: std::sync::Arc<Vec<Vec3>>,
+    pub stride: u32,
+    pub origin: (u32, u32),
+    /// Columns and rows held, from the origin.
+    pub size: (u32, u32),
+}
+
+impl Block {
+    /// Texel `(x, y)` if the block holds it.
+    #[inline]
+    fn get(&self, x: u32, y: u32) -> Option<Vec3> {
+        let (i, j) = (x.wrapping_sub(self.origin.0), y.wrapping_sub(self.origin.1));
+        (i < self.size.0 && j < self.size.1).then(|| self.texels[(j * self.stride + i) as usize])
+    }
+}
+
+/// Texel `(x, y)` of `texels`, from `block` when it holds it (the same value either way).
+#[inline]
+fn texel_via(texels: &dyn Texels, block: Option<&Block>, x: u32, y: u32) -> Vec3 {
+    match block.and_then(|b| b.get(x, y)) {
+        Some(v) => v,
+        None => texels.texel(x, y),
+    }
 }
 
 /// A row-major `width x height` slice as [`Texels`].
@@ -77,8 +110,26 @@ pub fn bilinear(texels: &dyn Texels, uv: Vec2) -> Vec3 {
     let (width, height) = (texels.width(), texels.height());
     match texels.row_major() {
         Some(v) => bilinear_with(width, height, uv, |x, y| v[(y * width + x) as usize]),
-        None => bilinear_with(width, height, uv, |x, y| texels.texel(x, y)),
+        None => {
+            let (_, (x0, y0, x1, y1)) = taps(width, height, uv);
+            let block = texels.held_block(x0, y0, x1, y1);
+            bilinear_with(width, height, uv, |x, y| {
+                texel_via(texels, block.as_ref(), x, y)
+            })
+        }
     }
+}
+
+/// Where a bilinear look-up at `uv` reads: the clamped position in texel centres and the
+/// columns and rows of its four texels, `(x0, y0, x1, y1)`.
+#[inline(always)]
+fn taps(width: u32, height: u32, uv: Vec2) -> ((f32, f32), (u32, u32, u32, u32)) {
+    let fx = (uv.x - 0.5).clamp(0.0, (width - 1) as f32);
+    let fy = (uv.y - 0.5).clamp(0.0, (height - 1) as f32);
+    // non-negative after the clamp (or NaN, which both casts make 0): truncation is the floor
+    let (x0, y0) = (fx as u32, fy as u32);
+    let (x1, y1) = ((x0 + 1).min(width - 1), (y0 + 1).min(height - 1));
+    ((fx, fy), (x0, y0, x1, y1))
 }
 
 /// [`bilinear`] over texels read by `g`, as `Vec3` or as `Vec3A` (the same arithmetic per
@@ -88,11 +139,7 @@ fn bilinear_with<V>(width: u32, height: u32, uv: Vec2, g: impl Fn(u32, u32) -> V
 where
     V: Copy + std::ops::Mul<f32, Output = V> + std::ops::Add<Output = V>,
 {
-    let fx = (uv.x - 0.5).clamp(0.0, (width - 1) as f32);
-    let fy = (uv.y - 0.5).clamp(0.0, (height - 1) as f32);
-    // non-negative after the clamp (or NaN, which both casts make 0): truncation is the floor
-    let (x0, y0) = (fx as u32, fy as u32);
-    let (x1, y1) = ((x0 + 1).min(width - 1), (y0 + 1).min(height - 1));
+    let ((fx, fy), (x0, y0, x1, y1)) = taps(width, height, uv);
     let (tx, ty) = (fx - x0 as f32, fy - y0 as f32);
     let top = g(x0, y0) * (1.0 - tx) + g(x1, y0) * tx;
     let bot = g(x0, y1) * (1.0 - tx) + g(x1, y1) * tx;
@@ -282,8 +329,37 @@ fn flat_pixel(textures: &[Option<Texture>], k: u32, f: &FlatPixel) -> Option<Vec
         Some(v) => Vec3::from(flat_mean(k, f, |uv| {
             bilinear_with(w, h, uv, |x, y| Vec3A::from(v[(y * w + x) as usize]))
         })),
-        None => Vec3::from(flat_mean(k, f, |uv| bilinear(tex.texels, uv).into())),
+        None => {
+            // the sub-pixel positions lie within the corners' box: one block for them all
+            let block = flat_block(tex.texels, f);
+            Vec3::from(flat_mean(k, f, |uv| {
+                let g = |x, y| Vec3A::from(texel_via(tex.texels, block.as_ref(), x, y));
+                bilinear_with(w, h, uv, g)
+            }))
+        }
     })
+}
+
+/// The block of `texels` holding every tap of a flat pixel's look-ups: the taps of its
+/// corners' bounding box, a texel wider on each side (the sub-pixel positions, interpolated
+/// between the corners, may round past them); `None` for corners that are not finite.
+fn flat_block(texels: &dyn Texels, f: &FlatPixel) -> Option<Block> {
+    let (lo, hi) =
+        f.uv.iter()
+            .fold((f.uv[0], f.uv[0]), |(lo, hi), &c| (lo.min(c), hi.max(c)));
+    if !(lo.is_finite() && hi.is_finite()) {
+        return None;
+    }
+    let (w, h) = (texels.width(), texels.height());
+    let (_, (x0, y0, _, _)) = taps(w, h, lo);
+    let (_, (_, _, x1, y1)) = taps(w, h, hi);
+    let grow = |v: u32, n: u32| (v + 1).min(n - 1);
+    texels.held_block(
+        x0.saturating_sub(1),
+        y0.saturating_sub(1),
+        grow(x1, w),
+        grow(y1, h),
+    )
 }
 
 /// The mean of `look(uv)` over `k x k` sub-pixel positions of a flat pixel (in `Vec3A`:
@@ -524,6 +600,121 @@ fn environment(scene: &Scene, d: Vec3) -> Seen {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::sync::atomic::{AtomicU32, Ordering};
+
+    /// Row-major texels that also hand out tiles of `ts x ts` as blocks (as a tiled slot
+    /// texture does), counting the blocks handed out.
+    struct Tiled {
+        width: u32,
+        height: u32,
+        ts: u32,
+        texels: Vec<Vec3>,
+        handed: AtomicU32,
+    }
+
+    impl Texels for Tiled {
+        fn width(&self) -> u32 {
+            self.width
+        }
+        fn height(&self) -> u32 {
+            self.height
+        }
+        fn texel(&self, x: u32, y: u32) -> Vec3 {
+            self.texels[(y * self.width + x) as usize]
+        }
+        fn held_block(&self, x0: u32, y0: u32, x1: u32, y1: u32) -> Option<Block> {
+            let ts = self.ts;
+            if (x0 / ts, y0 / ts) != (x1 / ts, y1 / ts) {
+                return None;
+            }
+            let origin = (x0 / ts * ts, y0 / ts * ts);
+            let mut tile = vec![Vec3::ZERO; (ts * ts) as usize];
+            for j in 0..ts.min(self.height - origin.1) {
+                for i in 0..ts.min(self.width - origin.0) {
+                    tile[(j * ts + i) as usize] = self.texel(origin.0 + i, origin.1 + j);
+                }
+            }
+            self.handed.fetch_add(1, Ordering::Relaxed);
+            Some(Block {
+                texels: std::sync::Arc::new(tile),
+                stride: ts,
+                origin,
+                size: (ts, ts),
+            })
+        }
+    }
+
+    /// Look-ups through blocks (single bilinear taps and flat pixels' sub-pixel means) give
+    /// the same bits as reading texel by texel from a row-major slice: inside tiles, across
+    /// tile borders, at and beyond the texture's edges, and with corners that are not finite.
+    #[test]
+    fn lookups_through_blocks_are_those_of_the_texels() {
+        let (width, height) = (37u32, 29u32);
+        let mut rng = Rng::new(7, 0, 0, 0);
+        let texels: Vec<Vec3> = (0..width * height)
+            .map(|_| Vec3::new(rng.f32(), rng.f32(), rng.f32()))
+            .collect();
+        let plain = RowMajor {
+            width,
+            height,
+            texels: &texels,
+        };
+        let tiled = Tiled {
+            width,
+            height,
+            ts: 8,
+            texels: texels.clone(),
+            handed: AtomicU32::new(0),
+        };
+        let at = |rng: &mut Rng| {
+            Vec2::new(
+                rng.f32() * (width + 4) as f32 - 2.0,
+                rng.f32() * (height + 4) as f32 - 2.0,
+            )
+        };
+        for _ in 0..2000 {
+            let uv = at(&mut rng);
+            let (a, b) = (bilinear(&plain, uv), bilinear(&tiled, uv));
+            assert_eq!(
+                a.to_array().map(f32::to_bits),
+                b.to_array().map(f32::to_bits)
+            );
+        }
+        let cases = (0..2000).map(|i| {
+            let c = at(&mut rng);
+            let d = |rng: &mut Rng| Vec2::new(rng.f32(), rng.f32()) * 3.0;
+            let mut uv = [c, c + d(&mut rng), c + d(&mut rng), c + d(&mut rng)];
+            if i % 97 == 0 {
+                uv[i % 4].x = f32::NAN;
+            }
+            FlatPixel { shape: 0, uv }
+        });
+        let tp = [Some(Texture {
+            texels: &plain,
+            corner_uv: &[],
+        })];
+        let tt = [Some(Texture {
+            texels: &tiled,
+            corner_uv: &[],
+        })];
+        let before = tiled.handed.load(Ordering::Relaxed);
+        for f in cases {
+            let (a, b) = (
+                flat_pixel(&tp, 4, &f).unwrap(),
+                flat_pixel(&tt, 4, &f).unwrap(),
+            );
+            assert!(
+                a.to_array().map(f32::to_bits) == b.to_array().map(f32::to_bits)
+                    || (a.is_nan() && b.is_nan()),
+                "{f:?}: {a} against {b}"
+            );
+        }
+        let used = tiled.handed.load(Ordering::Relaxed) - before;
+        assert!(
+            used > 300,
+            "flat pixels read through blocks: {used} of 2000"
+        );
+    }
 
     /// A plain shape of `mesh` seen from `sides`: no emission, no known material.
     fn test_shape(id: &str, mesh: crate::scene::Mesh, sides: Sides) -> crate::scene::Shape {

@@ -513,6 +513,31 @@ impl crate::physics::render::Texels for SlotTexture<glam::Vec3> {
             Data::Tiled { .. } => None,
         }
     }
+    /// The tile holding the texels, when it holds them all and is not resident (a resident
+    /// cache reads each texel as cheaply).
+    fn held_block(
+        &self,
+        x0: u32,
+        y0: u32,
+        x1: u32,
+        y1: u32,
+    ) -> Option<crate::physics::render::Block> {
+        let Data::Tiled { cache, .. } = &self.data else {
+            return None;
+        };
+        let (t, o) = self.grid.locate(x0, y0);
+        if cache.all_resident() || self.grid.locate(x1, y1).0 != t {
+            return None;
+        }
+        let ts = self.grid.tile_size;
+        let origin = (x0 - o % ts, y0 - o / ts);
+        Some(crate::physics::render::Block {
+            texels: cache.tile(t),
+            stride: ts,
+            size: (ts, ts),
+            origin,
+        })
+    }
 }
 
 /// See [`SlotTexture::reader`].
@@ -580,6 +605,40 @@ mod tests {
         assert!(path.exists());
         drop(b);
         assert!(!path.exists(), "scratch file removed with its texture");
+    }
+
+    /// A tiled texture hands out the tile holding a rectangle of texels (each at the texel's
+    /// value), none for a rectangle across tiles; a whole texture hands out none.
+    #[test]
+    fn a_tiled_texture_hands_out_the_tile_holding_texels() {
+        use crate::physics::render::Texels;
+        let dir = tempfile::tempdir().unwrap();
+        let (big, tiny) = (
+            Scratch::new(dir.path(), 1 << 30),
+            Scratch::new(dir.path(), 1),
+        );
+        let g = grid(37, 23, 8);
+        let f = |x: u32, y: u32| Vec3::new(x as f32, y as f32, (x * y) as f32);
+        let (whole, tiled) = (tex(g, &big, f), tex(g, &tiny, f));
+        assert!(
+            whole.held_block(9, 9, 10, 10).is_none(),
+            "whole: indexed directly"
+        );
+        let b = tiled
+            .held_block(9, 17, 14, 22)
+            .expect("one tile (8..16, 16..24)");
+        assert_eq!((b.origin, b.stride, b.size), ((8, 16), 8, (8, 8)));
+        for y in 16..23 {
+            for x in 8..16 {
+                let i = ((y - 16) * b.stride + (x - 8)) as usize;
+                assert_eq!(b.texels[i], f(x, y), "({x}, {y})");
+            }
+        }
+        assert!(tiled.held_block(7, 9, 8, 10).is_none(), "across tiles");
+        assert!(
+            tiled.held_block(33, 0, 36, 7).is_some(),
+            "the last, partial tile column"
+        );
     }
 
     /// Tiled dilation is the whole-texture dilation, bit for bit, for several pass counts,
