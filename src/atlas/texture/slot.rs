@@ -570,13 +570,15 @@ mod tests {
 
     use crate::atlas::testing::{grid, texture as tex};
 
+    /// Scratch space in `dir` that holds textures whole, and scratch space that tiles them.
+    fn whole_and_tiled(dir: &std::path::Path) -> (Scratch, Scratch) {
+        (Scratch::new(dir, 1 << 30), Scratch::new(dir, 1))
+    }
+
     #[test]
     fn whole_and_tiled_textures_read_the_same() {
         let dir = tempfile::tempdir().unwrap();
-        let (big, tiny) = (
-            Scratch::new(dir.path(), 1 << 30),
-            Scratch::new(dir.path(), 1),
-        );
+        let (big, tiny) = whole_and_tiled(dir.path());
         let g = grid(37, 23, 8);
         let f = |x: u32, y: u32| x * 1000 + y;
         let (a, b) = (tex(g, &big, f), tex(g, &tiny, f));
@@ -613,10 +615,7 @@ mod tests {
     fn a_tiled_texture_hands_out_the_tile_holding_texels() {
         use crate::physics::render::Texels;
         let dir = tempfile::tempdir().unwrap();
-        let (big, tiny) = (
-            Scratch::new(dir.path(), 1 << 30),
-            Scratch::new(dir.path(), 1),
-        );
+        let (big, tiny) = whole_and_tiled(dir.path());
         let g = grid(37, 23, 8);
         let f = |x: u32, y: u32| Vec3::new(x as f32, y as f32, (x * y) as f32);
         let (whole, tiled) = (tex(g, &big, f), tex(g, &tiny, f));
@@ -646,10 +645,7 @@ mod tests {
     #[test]
     fn tiled_dilation_equals_whole_dilation() {
         let dir = tempfile::tempdir().unwrap();
-        let (big, tiny) = (
-            Scratch::new(dir.path(), 1 << 30),
-            Scratch::new(dir.path(), 1),
-        );
+        let (big, tiny) = whole_and_tiled(dir.path());
         let g = grid(61, 45, 8);
         // islands of coverage with irregular values
         let on = |x: u32, y: u32| ((x / 7 + y / 5) % 3 == 0 && (x * 13 + y * 7) % 11 != 0) as u8;
