@@ -1,5 +1,6 @@
 """Small I/O helpers shared by the nightly harness scripts: EXR and PNG reading, Mitsuba setup."""
 
+import os
 import warnings
 
 import numpy as np
@@ -22,8 +23,6 @@ def render_sensors(mi, xml, out_dir, prefix, spp, force, suffix=""):
     """Render every sensor of the scene `xml` whose id starts with `prefix` to
     `<out_dir>/<id><suffix>.exr` (seed: the sensor's index), skipping files already there
     unless `force`."""
-    import os
-
     scene = mi.load_file(xml)
     os.makedirs(out_dir, exist_ok=True)
     for i, sensor in enumerate(scene.sensors()):

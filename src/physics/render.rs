@@ -31,13 +31,12 @@ pub trait Texels: Sync {
     }
 }
 
-/// Texels `(ox + i, oy + j)` at `texels[j * stride + i]` (see [`Texels::held_block`]).
+/// Texels `(ox + i, oy + j)` at `texels[j * stride + i]`, `stride` columns and as many rows
+/// as `texels` holds (see [`Texels::held_block`]).
 pub struct Block {
     pub texels: std::sync::Arc<Vec<Vec3>>,
     pub stride: u32,
     pub origin: (u32, u32),
-    /// Columns and rows held, from the origin.
-    pub size: (u32, u32),
 }
 
 impl Block {
@@ -45,7 +44,8 @@ impl Block {
     #[inline]
     fn get(&self, x: u32, y: u32) -> Option<Vec3> {
         let (i, j) = (x.wrapping_sub(self.origin.0), y.wrapping_sub(self.origin.1));
-        (i < self.size.0 && j < self.size.1).then(|| self.texels[(j * self.stride + i) as usize])
+        let at = j as usize * self.stride as usize + i as usize;
+        (i < self.stride).then(|| self.texels.get(at).copied())?
     }
 }
 
@@ -111,19 +111,22 @@ pub fn bilinear(texels: &dyn Texels, uv: Vec2) -> Vec3 {
     match texels.row_major() {
         Some(v) => bilinear_with(width, height, uv, |x, y| v[(y * width + x) as usize]),
         None => {
-            let (_, (x0, y0, x1, y1)) = taps(width, height, uv);
+            let at = taps(width, height, uv);
+            let (_, (x0, y0, x1, y1)) = at;
             let block = texels.held_block(x0, y0, x1, y1);
-            bilinear_with(width, height, uv, |x, y| {
-                texel_via(texels, block.as_ref(), x, y)
-            })
+            bilinear_at(at, |x, y| texel_via(texels, block.as_ref(), x, y))
         }
     }
 }
 
+/// The clamped position of a bilinear look-up in texel centres and its four texels' columns
+/// and rows, `(x0, y0, x1, y1)` ([`taps`]).
+type Taps = ((f32, f32), (u32, u32, u32, u32));
+
 /// Where a bilinear look-up at `uv` reads: the clamped position in texel centres and the
 /// columns and rows of its four texels, `(x0, y0, x1, y1)`.
 #[inline(always)]
-fn taps(width: u32, height: u32, uv: Vec2) -> ((f32, f32), (u32, u32, u32, u32)) {
+fn taps(width: u32, height: u32, uv: Vec2) -> Taps {
     let fx = (uv.x - 0.5).clamp(0.0, (width - 1) as f32);
     let fy = (uv.y - 0.5).clamp(0.0, (height - 1) as f32);
     // non-negative after the clamp (or NaN, which both casts make 0): truncation is the floor
@@ -139,7 +142,15 @@ fn bilinear_with<V>(width: u32, height: u32, uv: Vec2, g: impl Fn(u32, u32) -> V
 where
     V: Copy + std::ops::Mul<f32, Output = V> + std::ops::Add<Output = V>,
 {
-    let ((fx, fy), (x0, y0, x1, y1)) = taps(width, height, uv);
+    bilinear_at(taps(width, height, uv), g)
+}
+
+/// [`bilinear_with`] at the [`Taps`] of its position.
+#[inline(always)]
+fn bilinear_at<V>(((fx, fy), (x0, y0, x1, y1)): Taps, g: impl Fn(u32, u32) -> V) -> V
+where
+    V: Copy + std::ops::Mul<f32, Output = V> + std::ops::Add<Output = V>,
+{
     let (tx, ty) = (fx - x0 as f32, fy - y0 as f32);
     let top = g(x0, y0) * (1.0 - tx) + g(x1, y0) * tx;
     let bot = g(x0, y1) * (1.0 - tx) + g(x1, y1) * tx;
@@ -639,7 +650,6 @@ mod tests {
                 texels: std::sync::Arc::new(tile),
                 stride: ts,
                 origin,
-                size: (ts, ts),
             })
         }
     }

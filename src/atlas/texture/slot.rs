@@ -525,8 +525,11 @@ impl crate::physics::render::Texels for SlotTexture<glam::Vec3> {
         let Data::Tiled { cache, .. } = &self.data else {
             return None;
         };
+        if cache.all_resident() {
+            return None;
+        }
         let (t, o) = self.grid.locate(x0, y0);
-        if cache.all_resident() || self.grid.locate(x1, y1).0 != t {
+        if self.grid.locate(x1, y1).0 != t {
             return None;
         }
         let ts = self.grid.tile_size;
@@ -534,7 +537,6 @@ impl crate::physics::render::Texels for SlotTexture<glam::Vec3> {
         Some(crate::physics::render::Block {
             texels: cache.tile(t),
             stride: ts,
-            size: (ts, ts),
             origin,
         })
     }
@@ -626,7 +628,7 @@ mod tests {
         let b = tiled
             .held_block(9, 17, 14, 22)
             .expect("one tile (8..16, 16..24)");
-        assert_eq!((b.origin, b.stride, b.size), ((8, 16), 8, (8, 8)));
+        assert_eq!((b.origin, b.stride, b.texels.len()), ((8, 16), 8, 64));
         for y in 16..23 {
             for x in 8..16 {
                 let i = ((y - 16) * b.stride + (x - 8)) as usize;

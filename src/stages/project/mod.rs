@@ -366,9 +366,9 @@ fn probe_noise(
         .collect();
     let path = ctx.scratch.dir.join("probe-state.tiles");
     let mut probe_state = p.create_store(&path, TexelState::default())?;
-    // the look-ups are the views' own while the probe's photos mask the same pixels
-    let same = (probe_views.iter().zip(views))
-        .all(|(a, b)| Arc::ptr_eq(&a.pixels, &b.pixels) || a.pixels == b.pixels);
+    // the look-ups are the views' own while the probe's photos mask the same pixels, which
+    // is when `with_image` shares the views' classification
+    let same = (probe_views.iter().zip(views)).all(|(a, b)| Arc::ptr_eq(&a.pixels, &b.pixels));
     let own;
     let lookups = match same {
         true => ctx.lookups,
