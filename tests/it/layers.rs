@@ -86,6 +86,7 @@ const FOLDERS: &[(&str, &[Layer])] = &[
         )],
     ),
     ("physics::light", &[(&["sampler", "area", "env"], Listed)]),
+    ("physics::light::area", &[(&["piece"], Listed)]),
     (
         "atlas",
         &[

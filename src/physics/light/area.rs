@@ -5,6 +5,10 @@
 //! `cos_r cos_e / d^2`. This ratio estimator is 1 (or 0) with no noise when every sample is
 //! visible (or none is), so noise is confined to penumbrae.
 //!
+//! Shadow boundaries are fitted per piece of the emitter ([`piece`]): a triangle, or two
+//! triangles of one plane sharing an edge (a rectangle), whose boundary is searched for,
+//! bisected and checked once across the quad instead of once in each triangle.
+//!
 //! Sidedness: Mitsuba emits on the side of the emitter's *shading* normal. A triangle's front
 //! side is its geometric normal `(p1 - p0) x (p2 - p0)`, flipped if the mesh's vertex normals
 //! (summed over the triangle) point the other way; the analytic part uses that plane. For
@@ -13,11 +17,14 @@
 //! Mitsuba's per-point rule up to the analytic part's flat-triangle approximation. For flat
 //! emitters the two rules agree exactly.
 
+mod piece;
+
 use super::{DirectParams, Footprint, Reach};
 use crate::base::rng::Rng;
 use crate::physics::accel::Accel;
 use crate::scene::Mesh;
 use glam::{DVec3, Vec3};
+use piece::{pieces, Piece};
 
 /// Mixed into the seed so these streams never coincide with the photon tracer's.
 const STREAM_TAG: u64 = 0xa11c_e5ad_0d1e_c700;
@@ -38,8 +45,8 @@ pub(crate) fn irradiance_factor(
     let pd = fp.p.as_dvec3();
     let (mut total, mut lit, mut dark, mut partial) = (0.0, false, false, false);
     let area = mesh.area();
-    for t in 0..mesh.triangles.len() {
-        let Some((front, unoccluded)) = facing_solid_angle(mesh, t, pd, nd) else {
+    for piece in pieces(mesh) {
+        let Some((front, unoccluded)) = piece_solid_angle(mesh, &piece, pd, nd) else {
             continue;
         };
         if params.area_samples == 0 {
@@ -47,19 +54,28 @@ pub(crate) fn irradiance_factor(
             lit = true;
             continue;
         }
+        let t = piece.t;
         let mut rng = Rng::new(stream.0 ^ STREAM_TAG, stream.1, t as u64, stream.2);
         let tri = Target {
             mesh,
             t,
             front,
             accel,
+            shade: mesh.normals.is_some() && piece.n == 3,
         };
-        // The penumbra budget is the emitter's, shared by its triangles by area.
-        let share = (mesh.triangle_area(t) as f64 / area).clamp(0.0, 1.0);
+        // The penumbra budget is the emitter's, shared by its pieces by area.
+        let piece_area: f64 = piece
+            .triangles()
+            .map(|t| mesh.triangle_area(t) as f64)
+            .sum();
+        let share = (piece_area / area).clamp(0.0, 1.0);
         let dense_n =
             ((params.penumbra_samples as f64 * share).ceil() as u32).max(params.area_samples);
-        let budget = (params.area_samples, dense_n, params.fit_depth);
-        let (vis, part) = tri.visibility(fp, budget, &mut rng, dense);
+        // as many interior checks over a quad as over its two triangles: thin shadows (bars
+        // across the light) slip between fewer
+        let checks = params.area_samples * (piece.n as u32 - 2);
+        let budget = (checks, dense_n, params.fit_depth);
+        let (vis, part) = tri.visibility(fp, piece.poly(), budget, &mut rng, dense);
         partial |= part;
         lit |= vis >= 1.0;
         dark |= vis <= 0.0;
@@ -105,6 +121,18 @@ fn facing_solid_angle(mesh: &Mesh, t: usize, pd: DVec3, nd: DVec3) -> Option<(DV
     }
     let u = projected_solid_angle(&poly[..m], nd);
     (u > 0.0 && u.is_finite()).then_some((front, u))
+}
+
+/// [`facing_solid_angle`] of a piece: its first facing triangle's front normal and the sum of
+/// its triangles' projected solid angles.
+fn piece_solid_angle(mesh: &Mesh, piece: &Piece, pd: DVec3, nd: DVec3) -> Option<(DVec3, f64)> {
+    let mut found: Option<(DVec3, f64)> = None;
+    for t in piece.triangles() {
+        if let Some((front, u)) = facing_solid_angle(mesh, t, pd, nd) {
+            found = Some(found.map_or((front, u), |(f, s)| (f, s + u)));
+        }
+    }
+    found
 }
 
 /// Unit front normal of triangle `t` (see the module notes), `None` if degenerate.
@@ -238,12 +266,12 @@ impl Fit {
     }
 }
 
-/// Where the ray `from + s dir` (`s > 0`, in the triangle's plane) leaves triangle `tri`.
-fn exit_point(tri: [Vec3; 3], from: Vec3, dir: Vec3) -> Option<Vec3> {
-    let n = (tri[1] - tri[0]).cross(tri[2] - tri[0]);
+/// Where the ray `from + s dir` (`s > 0`, in the piece's plane) leaves the convex piece `poly`.
+fn exit_point(poly: &[Vec3], from: Vec3, dir: Vec3) -> Option<Vec3> {
+    let n = (poly[1] - poly[0]).cross(poly[2] - poly[0]);
     let mut best: Option<f32> = None;
-    for e in 0..3 {
-        let (a, b) = (tri[e], tri[(e + 1) % 3]);
+    for e in 0..poly.len() {
+        let (a, b) = (poly[e], poly[(e + 1) % poly.len()]);
         // the plane through the edge, perpendicular to the triangle
         let en = (b - a).cross(n);
         let den = en.dot(dir);
@@ -328,6 +356,21 @@ fn stratified_tri(
     (wsum, vsum)
 }
 
+/// A uniform random point of the convex piece `poly`: a triangle's from two draws, a quad's
+/// from a third before them that picks one of its triangles by area.
+fn interior_point(poly: &[Vec3], rng: &mut Rng) -> Vec3 {
+    let (a, mut b, mut c) = (poly[0], poly[1], poly[2]);
+    if let [_, _, _, d] = *poly {
+        let (s1, s2) = ((b - a).cross(c - a).length(), (c - a).cross(d - a).length());
+        if rng.f32() * (s1 + s2) >= s1 {
+            (b, c) = (c, d);
+        }
+    }
+    let su = rng.f32().sqrt();
+    let u2 = rng.f32();
+    a + (b - a) * (su * (1.0 - u2)) + (c - a) * (su * u2)
+}
+
 /// Clips the convex polygon `poly` to the half-space `x . normal >= 0` (a zero normal keeps
 /// everything).
 fn clip_polygon(poly: &[DVec3], normal: DVec3) -> Vec<DVec3> {
@@ -348,26 +391,31 @@ fn clip_polygon(poly: &[DVec3], normal: DVec3) -> Vec<DVec3> {
     out
 }
 
-/// One emitter triangle as a shadow-ray target.
+/// One emitter piece (a triangle or a flat quad, [`pieces`]) as a shadow-ray target.
 struct Target<'a> {
     mesh: &'a Mesh,
+    /// The piece's first triangle.
     t: usize,
     /// Unit front normal (see [`front_normal`]).
     front: DVec3,
     accel: &'a Accel,
+    /// Whether a shadow sample must also face the receiver by the triangle's interpolated
+    /// vertex normal (a curved emitter; a quad's vertex normals are its plane's).
+    shade: bool,
 }
 
 impl Target<'_> {
-    /// The visible fraction of the triangle from `fp` (weighted by the unoccluded integrand)
-    /// and whether it is partial, from the texel's center: a soft shadow varies little across
-    /// a texel (and linearly, where the center is the mean). The shadow boundary is looked for
-    /// around the triangle's perimeter and at `checks` interior points: none found, the
-    /// triangle is wholly lit or wholly dark; one straight boundary (or two lines of a band or
-    /// corner), its lit part integrated exactly; else [`Target::fit`] splits the triangle.
-    /// `dense` uses the split search at once.
+    /// The visible fraction of the piece `poly` from `fp` (weighted by the unoccluded
+    /// integrand) and whether it is partial, from the texel's center: a soft shadow varies
+    /// little across a texel (and linearly, where the center is the mean). The shadow boundary
+    /// is looked for around the piece's perimeter and at `checks` interior points: none found,
+    /// the piece is wholly lit or wholly dark; one straight boundary (or two lines of a band
+    /// or corner), its lit part integrated exactly; else [`Target::fit`] splits it. `dense`
+    /// uses the split search at once.
     fn visibility(
         &self,
         fp: &Footprint,
+        poly: &[Vec3],
         (checks, dense_n, fit_depth): (u32, u32, u32),
         rng: &mut Rng,
         dense: bool,
@@ -377,15 +425,15 @@ impl Target<'_> {
             n: fp.n,
             ng: fp.ng,
         };
-        let tri = self.mesh.triangle(self.t);
         if !dense {
             let seen = |y: Vec3| self.sees(r.q, r.ng, y);
-            match self.fit_line(&r, tri, &seen, rng, checks) {
+            match self.fit_line(&r, poly, &seen, rng, checks) {
                 Some(Fit::Lit) => return (1.0, false),
                 Some(Fit::Dark) => return (0.0, false),
                 Some(fit) => {
                     let nd = r.n.as_dvec3();
-                    let rel = tri.map(|v| v.as_dvec3() - r.q.as_dvec3());
+                    let rel: Vec<DVec3> =
+                        poly.iter().map(|v| v.as_dvec3() - r.q.as_dvec3()).collect();
                     let whole = clip_polygon(&rel, nd);
                     let total = projected_solid_angle(&whole, nd);
                     if total > 0.0 {
@@ -398,7 +446,7 @@ impl Target<'_> {
                 None => {}
             }
         }
-        let (lit, total) = self.fit(&r, tri, (0, fit_depth), dense_n, rng);
+        let (lit, total) = self.fit(&r, poly, (0, fit_depth), dense_n, rng);
         let v = if total > 0.0 {
             (lit / total).clamp(0.0, 1.0)
         } else {
@@ -414,15 +462,23 @@ impl Target<'_> {
     /// triangle is split in four (shadow corners, curved boundaries) down to `max_depth`
     /// ([`DirectParams::fit_depth`]), and a last failing piece is sampled with `samples`
     /// stratified rays. With `max_depth` 0 the triangle is sampled at once (the first pass
-    /// already looked for a line).
+    /// already looked for a line). A quad is fitted as its two triangles, each with half the
+    /// samples (the first pass already looked for a line across the whole).
     fn fit(
         &self,
         r: &Receiver,
-        tri: [Vec3; 3],
+        poly: &[Vec3],
         (depth, max_depth): (u32, u32),
         samples: u32,
         rng: &mut Rng,
     ) -> (f64, f64) {
+        if let [a, b, c, d] = *poly {
+            let half = samples.div_ceil(2);
+            let (l1, t1) = self.fit(r, &[a, b, c], (depth, max_depth), half, rng);
+            let (l2, t2) = self.fit(r, &[a, c, d], (depth, max_depth), half, rng);
+            return (l1 + l2, t1 + t2);
+        }
+        let tri = [poly[0], poly[1], poly[2]];
         let qd = r.q.as_dvec3();
         let nd = r.n.as_dvec3();
         let rel = tri.map(|v| v.as_dvec3() - qd);
@@ -438,7 +494,7 @@ impl Target<'_> {
         let seen = |y: Vec3| self.sees(r.q, r.ng, y);
         let line = match max_depth {
             0 => None,
-            _ => self.fit_line(r, tri, &seen, rng, EDGE_CHECKS >> depth.min(1)),
+            _ => self.fit_line(r, &tri, &seen, rng, EDGE_CHECKS >> depth.min(1)),
         };
         if let Some(fit) = line {
             return (fit.lit_part(&whole, nd, total), total);
@@ -448,7 +504,7 @@ impl Target<'_> {
             let (ab, bc, ca) = (a.lerp(b, 0.5), b.lerp(c, 0.5), c.lerp(a, 0.5));
             let mut acc = (0.0, 0.0);
             for t in [[a, ab, ca], [ab, b, bc], [ca, bc, c], [ab, bc, ca]] {
-                let (l, tt) = self.fit(r, t, (depth + 1, max_depth), samples / 4, rng);
+                let (l, tt) = self.fit(r, &t, (depth + 1, max_depth), samples / 4, rng);
                 acc = (acc.0 + l, acc.1 + tt);
             }
             return acc;
@@ -479,15 +535,16 @@ impl Target<'_> {
     fn fit_line(
         &self,
         r: &Receiver,
-        tri: [Vec3; 3],
+        poly: &[Vec3],
         seen: &dyn Fn(Vec3) -> bool,
         rng: &mut Rng,
         checks: u32,
     ) -> Option<Fit> {
-        let ring: Vec<Vec3> = (0..3)
+        let m = poly.len();
+        let ring: Vec<Vec3> = (0..m)
             .flat_map(|e| {
                 (0..PERIMETER)
-                    .map(move |i| tri[e].lerp(tri[(e + 1) % 3], i as f32 / PERIMETER as f32))
+                    .map(move |i| poly[e].lerp(poly[(e + 1) % m], i as f32 / PERIMETER as f32))
             })
             .collect();
         let vis: Vec<bool> = ring.iter().map(|&y| seen(y)).collect();
@@ -505,7 +562,7 @@ impl Target<'_> {
         if let [(e1, a), (e2, b), (e3, c), (e4, d)] = cuts[..] {
             return self.band(
                 r,
-                tri,
+                poly,
                 [e1, e2, e3, e4],
                 [ring[a], ring[b], ring[c], ring[d]],
                 seen,
@@ -517,21 +574,21 @@ impl Target<'_> {
         let [e1, e2] = cuts[..] else {
             let fit = if vis[0] { Fit::Lit } else { Fit::Dark };
             return self
-                .check(&fit, r, tri, &[], seen, rng, checks)
+                .check(&fit, r, poly, &[], seen, rng, checks)
                 .then_some(fit);
         };
         // one line: lit on the side of the lit perimeter points
         let lit_at = ring[vis.iter().position(|&v| v)?];
         let line = Fit::Region(vec![self.plane(r, e1, e2, lit_at)?], true);
-        if self.check(&line, r, tri, &[(e1, e2)], seen, rng, checks) {
+        if self.check(&line, r, poly, &[(e1, e2)], seen, rng, checks) {
             return Some(line);
         }
-        let wedge = self.wedge(r, tri, (e1, e2), seen)?;
+        let wedge = self.wedge(r, poly, (e1, e2), seen)?;
         let Fit::Region(_, _) = &wedge.0 else {
             return None;
         };
         let segments = [(e1, wedge.1), (wedge.1, e2)];
-        let ok = self.check(&wedge.0, r, tri, &segments, seen, rng, checks);
+        let ok = self.check(&wedge.0, r, poly, &segments, seen, rng, checks);
         ok.then_some(wedge.0)
     }
 
@@ -542,7 +599,7 @@ impl Target<'_> {
     fn band(
         &self,
         r: &Receiver,
-        tri: [Vec3; 3],
+        poly: &[Vec3],
         e: [Vec3; 4],
         after: [Vec3; 4],
         seen: &dyn Fn(Vec3) -> bool,
@@ -558,7 +615,7 @@ impl Target<'_> {
                 self.plane(r, b0, b1, inside)?,
             ];
             let fit = Fit::Region(planes, seen(inside));
-            if self.check(&fit, r, tri, &[(a0, a1), (b0, b1)], seen, rng, checks) {
+            if self.check(&fit, r, poly, &[(a0, a1), (b0, b1)], seen, rng, checks) {
                 return Some(fit);
             }
         }
@@ -584,7 +641,7 @@ impl Target<'_> {
     fn wedge(
         &self,
         r: &Receiver,
-        tri: [Vec3; 3],
+        poly: &[Vec3],
         (e1, e2): (Vec3, Vec3),
         seen: &dyn Fn(Vec3) -> bool,
     ) -> Option<(Fit, Vec3)> {
@@ -592,7 +649,7 @@ impl Target<'_> {
         let mid_lit = seen(mid);
         let w = self.front.as_vec3().cross(e2 - e1).normalize_or_zero();
         // the bulge side: where a perpendicular from the segment crosses the boundary
-        let reach = |from: Vec3, dir: Vec3| exit_point(tri, from, dir);
+        let reach = |from: Vec3, dir: Vec3| exit_point(poly, from, dir);
         let side = [w, -w]
             .into_iter()
             .find(|&d| reach(mid, d).is_some_and(|end| seen(end) != mid_lit))?;
@@ -615,7 +672,7 @@ impl Target<'_> {
         &self,
         fit: &Fit,
         r: &Receiver,
-        tri: [Vec3; 3],
+        poly: &[Vec3],
         boundary: &[(Vec3, Vec3)],
         seen: &dyn Fn(Vec3) -> bool,
         rng: &mut Rng,
@@ -636,11 +693,8 @@ impl Target<'_> {
                 }
             }
         }
-        let [a, b, c] = tri;
         (0..checks).all(|_| {
-            let su = rng.f32().sqrt();
-            let u2 = rng.f32();
-            let y = a + (b - a) * (su * (1.0 - u2)) + (c - a) * (su * u2);
+            let y = interior_point(poly, rng);
             predict(y) == seen(y)
         })
     }
@@ -667,7 +721,7 @@ impl Target<'_> {
         if v.dot(self.front) <= 0.0 {
             return false;
         }
-        if self.mesh.normals.is_some() {
+        if self.shade {
             let (b1, b2) = self.mesh.barycentric(self.t, y);
             if self.mesh.shading_normal(self.t, b1, b2).dot(q - y) <= 0.0 {
                 return false;

@@ -773,3 +773,59 @@ fn a_quarter_of_the_samples_under_bars_is_as_close_as_all_of_them() {
         "rays {lean_rays} against {full_rays}"
     );
 }
+
+/// The penumbra scene's light as one quad (its triangles share the diagonal's vertices) and as
+/// two separate triangles (each its own vertices): the mean of 100 keys at `p`, and the rays.
+fn quad_and_triangles(p: Vec3) -> [(f64, u64); 2] {
+    let sc = penumbra_scene();
+    let m = &sc.shapes[1].mesh;
+    let mut apart = m.clone();
+    apart.positions = m
+        .triangles
+        .iter()
+        .flatten()
+        .map(|&i| m.positions[i as usize])
+        .collect();
+    apart.triangles = vec![[0, 1, 2], [3, 4, 5]];
+    let split = {
+        let mut s = penumbra_scene();
+        s.shapes[1].mesh = apart;
+        s
+    };
+    [sc, split].map(|sc| {
+        let acc = Accel::build(&sc);
+        let pr = DirectParams::default();
+        let v: f64 = (0..100)
+            .map(|k| direct_irradiance(&sc, &acc, p, Z, Z, &pr, (7, k)).x as f64 / 5.0)
+            .sum();
+        (v / 100.0, acc.rays())
+    })
+}
+
+/// A rectangular light's shadow line is fitted across the whole rectangle at once: the same
+/// irradiance as fitted in each triangle, within brute force's error, for markedly fewer rays,
+/// in its penumbra and in full light.
+#[test]
+fn a_rectangle_is_fitted_as_one_quad_for_fewer_rays() {
+    let sc = penumbra_scene();
+    let acc = Accel::build(&sc);
+    let mesh = &sc.shapes[1].mesh;
+    // (receiver, most rays against the triangles'): two in the penumbra, one in full light
+    let points = [
+        (Vec3::ZERO, 0.75),
+        (Vec3::new(0.2, 0.3, 0.0), 0.75),
+        (Vec3::X * 2.0, 0.9),
+    ];
+    for (p, most) in points {
+        let (bf, se) = brute_force(mesh, Some(&acc), p, Z, 400_000);
+        let [(quad, quad_rays), (tris, tri_rays)] = quad_and_triangles(p);
+        eprintln!("p={p}: quad {quad:.6} ({quad_rays} rays), triangles {tris:.6} ({tri_rays}), brute {bf:.6} +- {se:.1e}");
+        for v in [quad, tris] {
+            assert!((v - bf).abs() <= 0.002 * bf + 4.0 * se, "{v} vs {bf}");
+        }
+        assert!(
+            (quad_rays as f64) < most * tri_rays as f64,
+            "rays {quad_rays} against {tri_rays}"
+        );
+    }
+}
