@@ -539,4 +539,4 @@ fn default_env_samples() -> u32 {
 }
 
 /// Default share of the dense direct-light samples a texel no photo observed draws.
-pub const UNOBSERVED_SHARE: f32 = 0.25;
+pub const UNOBSERVED_SHARE: f32 = 0.0625;
