@@ -21,7 +21,7 @@ mod piece;
 
 use super::{DirectParams, Footprint, Reach};
 use crate::base::rng::Rng;
-use crate::physics::accel::Accel;
+use crate::physics::accel::{offset_origin, Accel};
 use crate::scene::Mesh;
 use glam::{DVec3, Vec3};
 use piece::{pieces, Piece};
@@ -426,6 +426,9 @@ impl Target<'_> {
             ng: fp.ng,
         };
         if !dense {
+            if self.clear(&r, poly) {
+                return (1.0, false);
+            }
             let seen = |y: Vec3| self.sees(r.q, r.ng, y);
             match self.fit_line(&r, poly, &seen, rng, checks) {
                 Some(Fit::Lit) => return (1.0, false),
@@ -712,6 +715,29 @@ impl Target<'_> {
             }
         }
         p0.lerp(p1, 0.5 * (lo + hi))
+    }
+
+    /// Whether nothing stands between `r` and any point of the flat piece `poly`, proved by one
+    /// traversal of the pyramid the shadow rays would fill ([`Accel::pyramid_clear`]): from the
+    /// rays' offset origin to the piece pulled in as they stop short of it. What the first
+    /// pass's rays would say there, Lit, without them. Not for a piece whose vertex normals
+    /// decide its side point by point, nor one reaching down to the receiver's plane (its rays
+    /// may leave from another origin; and the cap that keeps the receiver's own surface out of
+    /// the pyramid needs the pyramid above it).
+    fn clear(&self, r: &Receiver, poly: &[Vec3]) -> bool {
+        if self.shade {
+            return false;
+        }
+        // the rays' origin, lifted off the receiver's plane (as `offset_origin` lifts it)
+        let lift = 1e-4 * r.q.abs().max_element().max(1.0);
+        if poly.iter().any(|&c| r.ng.dot(c - r.q) <= lift) {
+            return false;
+        }
+        let o = offset_origin(r.q, r.ng, poly[0] - r.q);
+        let keep = 1.0 - super::SHADOW_SHORTEN;
+        let base: Vec<Vec3> = poly.iter().map(|&c| o + (c - o) * keep).collect();
+        let cap = (r.ng, r.ng.dot(r.q) + 0.5 * lift);
+        self.accel.pyramid_clear(o, &base, cap)
     }
 
     /// Whether emitter point `y` lights receiver point `q`: it faces `q` (front side, and the
