@@ -728,12 +728,13 @@ impl Target<'_> {
         if self.shade {
             return false;
         }
-        // the rays' origin, lifted off the receiver's plane (as `offset_origin` lifts it)
-        let lift = 1e-4 * r.q.abs().max_element().max(1.0);
-        if poly.iter().any(|&c| r.ng.dot(c - r.q) <= lift) {
+        // the rays' origin, lifted off the receiver's plane: how far is `offset_origin`'s own
+        // lift, and every ray leaves from it where every corner is above it
+        let o = offset_origin(r.q, r.ng, poly[0] - r.q);
+        let lift = r.ng.dot(o - r.q);
+        if lift.is_nan() || lift <= 0.0 || poly.iter().any(|&c| r.ng.dot(c - r.q) <= lift) {
             return false;
         }
-        let o = offset_origin(r.q, r.ng, poly[0] - r.q);
         let keep = 1.0 - super::SHADOW_SHORTEN;
         let base: Vec<Vec3> = poly.iter().map(|&c| o + (c - o) * keep).collect();
         let cap = (r.ng, r.ng.dot(r.q) + 0.5 * lift);
