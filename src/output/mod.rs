@@ -212,7 +212,8 @@ pub fn write_outputs(
             Ok(done)
         })
         .collect::<Result<_>>()?;
-    // what a view's failure left of them
+    // the directory itself: each view removed its file (a failed run's go with the scratch
+    // directory when the next run opens it)
     let _ = std::fs::remove_dir_all(&kept);
     if !p.views.is_empty() {
         renders::write_masks_json(&renders, &p.scene)?;

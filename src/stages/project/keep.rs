@@ -90,7 +90,7 @@ pub fn take<'a>(dir: &Path, index: usize, camera: &Camera, image: &'a Image) -> 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::physics::accel::Accel;
+    use crate::stages::project::view::tests::cbox_first_camera as cbox;
     use glam::Vec3;
 
     /// A kept view is the view traced again, bit for bit: kept from the projection's loose
@@ -98,11 +98,7 @@ mod tests {
     /// did not. It is read once; another camera or a file cut short gets `None` (traced again).
     #[test]
     fn a_kept_view_is_the_view_traced_again() {
-        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
-        let scene =
-            crate::scene::mitsuba::load(&root.join("tests/fixtures/cbox/input.xml")).unwrap();
-        let accel = Accel::build(&scene);
-        let cam = Camera::from_sensor(&scene.sensors[0]);
+        let (scene, accel, cam) = cbox();
         let (w, h) = (cam.width(), cam.height());
         let mut px = vec![Vec3::splat(0.4); (w * h) as usize];
         px[(37 * w + 101) as usize] = Vec3::NAN;
@@ -142,11 +138,7 @@ mod tests {
     /// A keeper keeps the views that fit in its bytes, in the order offered, and no more.
     #[test]
     fn a_keeper_keeps_views_up_to_its_bytes() {
-        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
-        let scene =
-            crate::scene::mitsuba::load(&root.join("tests/fixtures/cbox/input.xml")).unwrap();
-        let accel = Accel::build(&scene);
-        let cam = Camera::from_sensor(&scene.sensors[0]);
+        let (scene, accel, cam) = cbox();
         let (w, h) = (cam.width(), cam.height());
         let img = Image::from_raw(w, h, vec![Vec3::splat(0.4); (w * h) as usize]);
         let view = View::new(&scene, &accel, cam.clone(), &img);

@@ -750,7 +750,7 @@ pub fn classify_pixels(
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::*;
     use crate::atlas::store::{TexelState, TileStore};
     use std::sync::{Barrier, Mutex};
@@ -814,7 +814,7 @@ mod tests {
     }
 
     /// The Cornell box fixture, its BVH and its first camera.
-    fn cbox_first_camera() -> (Scene, Accel, Camera) {
+    pub(in crate::stages::project) fn cbox_first_camera() -> (Scene, Accel, Camera) {
         let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
         let scene =
             crate::scene::mitsuba::load(&root.join("tests/fixtures/cbox/input.xml")).unwrap();
