@@ -138,7 +138,6 @@ const FOLDERS: &[(&str, &[Layer])] = &[
                 "coat",
                 "one_surface",
                 "view",
-                "keep",
                 "lookups",
                 "visible",
                 "exposure",

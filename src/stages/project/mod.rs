@@ -63,7 +63,6 @@ mod coat;
 mod diagnose;
 mod edges;
 pub mod exposure;
-pub mod keep;
 mod lookups;
 mod noise;
 pub mod noise_probe;
@@ -99,7 +98,6 @@ use crate::report::PoseCorrection;
 use crate::scene::{luminance, Sides};
 use glam::Vec3;
 use pass_texel::{PassRecord, PassTexel};
-use std::path::Path;
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -214,22 +212,11 @@ pub fn run(
     mode: Mode,
     scratch: &Scratch,
 ) -> Result<ProjectionStats> {
-    run_shard(
-        p,
-        cfg,
-        lookups,
-        geom,
-        state,
-        mode,
-        (scratch, None),
-        &Shard::whole(),
-    )
+    run_shard(p, cfg, lookups, geom, state, mode, scratch, &Shard::whole())
 }
 
 /// [`run`] shared by several processes: only the tiles `shard` owns are projected and refined
-/// here, and the store is synced after the weighted mean and after each refinement pass. With
-/// `keep`, the views' classifications and corner rays are written there for the outputs'
-/// re-renders, up to `memory_budget_mib` of them ([`keep`]).
+/// here, and the store is synced after the weighted mean and after each refinement pass.
 #[allow(clippy::too_many_arguments)]
 #[inline(never)] // a stage entry tools/icount.py measures
 pub fn run_shard(
@@ -239,7 +226,7 @@ pub fn run_shard(
     geom: &TileStore<TexelGeom>,
     state: &mut TileStore<TexelState>,
     mode: Mode,
-    (scratch, keep): (&Scratch, Option<&Path>),
+    scratch: &Scratch,
     shard: &Shard,
 ) -> Result<ProjectionStats> {
     let mut stats = ProjectionStats {
@@ -253,8 +240,7 @@ pub fn run_shard(
     stats.masked_pixels = raw.iter().map(|ph| ph.masked).sum();
     let bounds = tile_bounds(geom)?;
     let mut nominal = Vec::with_capacity(raw.len());
-    let mut keeper = keep.map(|dir| keep::Keeper::new(dir, cfg.memory_budget_mib << 20));
-    for (i, ((si, _), photo)) in p.views.iter().zip(&raw).enumerate() {
+    for ((si, _), photo) in p.views.iter().zip(&raw) {
         let view = View::new_shared(
             &p.scene,
             &p.accel,
@@ -263,9 +249,6 @@ pub fn run_shard(
             cfg.fine_geometry,
             shard,
         )?;
-        if let Some(k) = &mut keeper {
-            k.offer(i, &view);
-        }
         nominal.push(view);
         stage.inc(1);
         interrupt::check(interrupt::NOTHING_SAVED)?;

@@ -404,52 +404,6 @@ impl<'a> View<'a> {
         }
     }
 
-    /// The view's classified pixels and corner hits as words: [`View::from_words`] makes the
-    /// view again (without the loose reading's parts) for no rays.
-    pub fn to_words(&self) -> Vec<u32> {
-        let corners = &self.traced.corners;
-        let mut out = encode_pixels(&self.pixels);
-        out.reserve(corners.len() * 3);
-        for c in corners {
-            out.extend_from_slice(&[c.prim, c.b1.to_bits(), c.b2.to_bits()]);
-        }
-        out
-    }
-
-    /// The view [`View::to_words`] wrote, of `camera` (the one it was made with) and `image`:
-    /// what [`View::new`] makes of them, bit for bit, when `image` masks the pixels the
-    /// view's own photo masked (a pixel `image` masks is made unclean, as
-    /// [`View::with_image`] does). `None` if the words do not fit the camera's size.
-    pub fn from_words(camera: Camera, image: &'a Image, words: &[u32]) -> Option<View<'a>> {
-        let (w, h) = (camera.width() as usize, camera.height() as usize);
-        let (np, nc) = (w * h * PIXEL_WORDS, (w + 1) * (h + 1) * 3);
-        if words.len() != np + nc || (image.width as usize, image.height as usize) != (w, h) {
-            return None;
-        }
-        let mut pixels = decode_pixels(&words[..np]);
-        for (p, ok) in pixels.iter_mut().zip(&image.valid) {
-            p.clean &= *ok;
-        }
-        let f = f32::from_bits;
-        let corners = (words[np..].chunks_exact(3))
-            .map(|c| Corner {
-                prim: c[0],
-                b1: f(c[1]),
-                b2: f(c[2]),
-            })
-            .collect();
-        Some(View {
-            camera,
-            image,
-            pixels: Arc::new(pixels),
-            traced: Arc::new(Traced {
-                corners,
-                spans: Vec::new(),
-                hot: Vec::new(),
-            }),
-        })
-    }
-
     /// The same view (camera, pixel classification, corners) of another photo of the same
     /// size: no rays are cast again.
     pub fn with_image<'b>(&self, image: &'b Image) -> View<'b> {
@@ -750,7 +704,7 @@ pub fn classify_pixels(
 }
 
 #[cfg(test)]
-pub(super) mod tests {
+mod tests {
     use super::*;
     use crate::atlas::store::{TexelState, TileStore};
     use std::sync::{Barrier, Mutex};
@@ -814,7 +768,7 @@ pub(super) mod tests {
     }
 
     /// The Cornell box fixture, its BVH and its first camera.
-    pub(in crate::stages::project) fn cbox_first_camera() -> (Scene, Accel, Camera) {
+    fn cbox_first_camera() -> (Scene, Accel, Camera) {
         let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
         let scene =
             crate::scene::mitsuba::load(&root.join("tests/fixtures/cbox/input.xml")).unwrap();
