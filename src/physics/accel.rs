@@ -150,9 +150,7 @@ impl Accel {
             .bvh
             .ray_traverse_miss(ray, |r, id| tris[id].intersect(r))
     }
-}
 
-impl Accel {
     /// Whether no triangle meets the pyramid from `apex` over the convex planar polygon `base`
     /// (corners in order): then no segment from `apex` to a point of `base` is blocked, a proof
     /// where shadow rays are samples. Conservative: a box or triangle that no face plane of the
@@ -163,10 +161,9 @@ impl Accel {
         if self.tris.is_empty() {
             return true;
         }
-        let Some(mut planes) = Pyramid::new(apex, base) else {
+        let Some(planes) = Pyramid::new(apex, base, cap) else {
             return false;
         };
-        planes.planes.push((-Vec3A::from(cap.0), -cap.1, 0.0));
         let tris = &self.tris;
         let mut clear = true;
         let mut state = self.bvh.new_traversal(planes.axis);
@@ -195,18 +192,18 @@ struct Pyramid {
 }
 
 impl Pyramid {
-    /// `None` if degenerate (a base of fewer than 3 corners, a zero face).
-    fn new(apex: Vec3, base: &[Vec3]) -> Option<Pyramid> {
+    /// The pyramid from `apex` over `base` cut by `cap` (see [`Accel::pyramid_clear`]); `None`
+    /// if degenerate (a base of fewer than 3 corners, a zero face).
+    fn new(apex: Vec3, base: &[Vec3], cap: (Vec3, f32)) -> Option<Pyramid> {
         if base.len() < 3 {
             return None;
         }
         let apex = Vec3A::from(apex);
-        let base: Vec<Vec3A> = base.iter().map(|&b| b.into()).collect();
-        let centre = base.iter().fold(Vec3A::ZERO, |a, &b| a + b) / base.len() as f32;
-        let scale = base
-            .iter()
-            .fold(apex.abs().max_element(), |m, b| {
-                m.max(b.abs().max_element())
+        let corner = |i: usize| Vec3A::from(base[i % base.len()]);
+        let centre = (0..base.len()).fold(Vec3A::ZERO, |a, i| a + corner(i)) / base.len() as f32;
+        let scale = (0..base.len())
+            .fold(apex.abs().max_element(), |m, i| {
+                m.max(corner(i).abs().max_element())
             })
             .max(1.0);
         let tol = 1e-5 * scale;
@@ -215,21 +212,18 @@ impl Pyramid {
             let m = if m.dot(centre - on) > 0.0 { -m } else { m };
             Some((m, m.dot(on), tol))
         };
-        let mut planes = Vec::with_capacity(base.len() + 1);
+        let mut planes = Vec::with_capacity(base.len() + 2);
         for i in 0..base.len() {
-            let (a, b) = (base[i], base[(i + 1) % base.len()]);
+            let (a, b) = (corner(i), corner(i + 1));
             planes.push(outward((a - apex).cross(b - apex), apex)?);
         }
         // the base plane, outward away from the apex (the apex is inside)
-        let nb = (base[1] - base[0])
-            .cross(base[2] - base[0])
-            .try_normalize()?;
-        let nb = if nb.dot(apex - base[0]) > 0.0 {
-            -nb
-        } else {
-            nb
-        };
-        planes.push((nb, nb.dot(base[0]), tol));
+        let b0 = corner(0);
+        let nb = (corner(1) - b0).cross(corner(2) - b0).try_normalize()?;
+        let nb = if nb.dot(apex - b0) > 0.0 { -nb } else { nb };
+        planes.push((nb, nb.dot(b0), tol));
+        // the cap, outward below it
+        planes.push((-Vec3A::from(cap.0), -cap.1, 0.0));
         let axis = (centre - apex).try_normalize()?;
         Some(Pyramid { planes, axis })
     }
