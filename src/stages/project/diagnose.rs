@@ -20,14 +20,10 @@ pub const SHIFT_LIMIT: f32 = 0.5;
 /// A view disagreeing at more than this share of its texels is reported.
 pub const DISAGREE_LIMIT: f32 = 0.03;
 
-/// The view's check from its photo, its re-render (filtered as the photo is; `None` where not
-/// rendered), its pixels' classification, and `(texels seen, texels disagreeing)` in the pass.
-pub fn check(
-    photo: &Image,
-    render: &[Option<Vec3>],
-    pixels: &[PixelInfo],
-    (texels, disagreeing): (u64, u64),
-) -> ViewCheck {
+/// The view's check from its photo and its re-render (filtered as the photo is; `None` where
+/// not rendered) over its pixels' classification; its `disagreeing` share is 0 until
+/// [`with_agreement`] gives it the pass's texel counts.
+pub fn check(photo: &Image, render: &[Option<Vec3>], pixels: &[PixelInfo]) -> ViewCheck {
     let mut ratios: [Vec<f32>; 3] = Default::default();
     let mut n = 0u64;
     for ((ph, r), px) in photo.pixels.iter().zip(render).zip(pixels) {
@@ -44,12 +40,21 @@ pub fn check(
     ViewCheck {
         pixels: n,
         ratio: ratios.map(|mut v| median(&mut v)),
+        disagreeing: 0.0,
+        shift: None,
+    }
+}
+
+/// `check` with the share of the `texels` the view saw in the pass at which it was
+/// `disagreeing`.
+pub fn with_agreement(check: ViewCheck, (texels, disagreeing): (u64, u64)) -> ViewCheck {
+    ViewCheck {
         disagreeing: if texels > 0 {
             disagreeing as f32 / texels as f32
         } else {
             0.0
         },
-        shift: None,
+        ..check
     }
 }
 
@@ -135,7 +140,7 @@ mod tests {
         pixels[3] = pixel(false);
         let mut photo = photo;
         photo.pixels[3] *= 10.0;
-        let c = check(&photo, &render, &pixels, (1000, 80));
+        let c = with_agreement(check(&photo, &render, &pixels), (1000, 80));
         assert_eq!(c.pixels, 63);
         for (got, want) in c.ratio.iter().zip([1.1, 1.05, 1.0]) {
             assert!((got - want).abs() < 1e-5, "{got} vs {want}");

@@ -71,18 +71,18 @@ impl TileLookups {
     }
 
     /// Per observed texel, `(index in the tile, mean value over its taps, weight)`, the values
-    /// read from a row-major image `width` pixels wide: what [`super::observe_texel_from`]
-    /// gives, to the bit.
+    /// read from a row-major image `width` pixels wide whose pixel `i` is `at(i)`: what
+    /// [`super::observe_texel_from`] gives, to the bit.
     pub fn read<'a, T: Value>(
         &'a self,
         width: u32,
-        values: &'a [T],
+        at: impl Fn(usize) -> T + Copy + 'a,
     ) -> impl Iterator<Item = (usize, T, f32)> + 'a {
         self.texels.iter().map(move |t| {
             let taps = &self.taps[t.start as usize..(t.start + t.count) as usize];
             let mut sum = T::default();
             for tap in taps {
-                sum += tap.read_slice(width, values);
+                sum += tap.read_index(width, at);
             }
             (t.index as usize, sum / t.count as f32, t.weight)
         })

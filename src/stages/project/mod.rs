@@ -80,7 +80,7 @@ pub use diagnose::notes as capture_notes;
 pub use lookups::{Lookups, TileLookups, ViewHits};
 pub use refine::{Refine, REFINE_SUPERSAMPLE};
 pub use shrinkage::{shrink_residual, shrink_residual_levels, NoiseLevels};
-pub use view::{classify_pixels, Pair, PixelInfo, Value, View};
+pub use view::{classify_pixels, Pair, PixelInfo, Rays, Value, View};
 
 use crate::atlas::context::HitTable;
 use crate::atlas::store::{flags, TexelGeom, TexelState};
@@ -98,7 +98,6 @@ use crate::report::PoseCorrection;
 use crate::scene::{luminance, Sides};
 use glam::Vec3;
 use pass_texel::{PassRecord, PassTexel};
-use std::sync::Arc;
 use std::time::Instant;
 
 /// The largest sub-sample grid per texel and view (k x k).
@@ -262,67 +261,42 @@ pub fn run_shard(
     let photos: Vec<Image> = (raw.iter().zip(&stats.gains))
         .map(|(ph, g)| exposure::apply(ph, g.gain))
         .collect();
-    let photos = coat::remove(p, &photos, cfg.seed).unwrap_or(photos);
+    let mut photos = coat::remove(p, &photos, cfg.seed).unwrap_or(photos);
     let views: Vec<View> = (nominal.iter().zip(&photos))
         .map(|(v, ph)| v.with_image(ph))
         .collect();
     drop(nominal);
     drop(raw);
-    let none = Lookups::new(0, 0, 0);
-    let ctx = refine::Refine {
+    let cameras: Vec<Camera> = views.iter().map(|v| v.camera.clone()).collect();
+    let ground = refine::Ground {
         p,
         hits,
         charts,
         geom,
-        views: &views,
         bounds: &bounds,
         window,
         scratch,
         shard,
-        label: "refinement",
-        lookups: &none,
     };
-    let posed;
-    let ctx = match cfg.refine_pose {
-        true => {
-            let t = Instant::now();
-            let (refined, poses) = pose::refine(&ctx, mode)?;
-            for c in &poses {
-                note(mode, &c.summary());
-            }
-            (stats.pose, stats.pose_seconds) = (poses, t.elapsed().as_secs_f64());
-            posed = refined;
-            refine::Refine {
-                views: &posed,
-                ..ctx
-            }
-        }
-        false => ctx,
-    };
-    let tiles = p.layout.tile_count as usize;
-    let lookups = Lookups::new(ctx.views.len(), tiles, lookup_budget(cfg));
-    let ctx = refine::Refine {
-        lookups: &lookups,
-        ..ctx
-    };
-    let passes = refine::Passes::of(cfg);
-    let (noise, residual) = project_and_refine(&ctx, state, passes, mode, cfg.fine_geometry)?;
-    // the probe measures the passes these photos took, settled or not
-    let passes = passes.exactly(residual.len() as u32);
-    stats.refine_residual = residual;
-    stats.lookup_bytes = lookups.bytes();
-    for (g, n) in stats.gains.iter_mut().zip(&noise) {
-        g.check = n.check.clone();
-    }
+    let lookups = Lookups::new(
+        views.len(),
+        p.layout.tile_count as usize,
+        lookup_budget(cfg),
+    );
+    let (noise, rays, passes) =
+        refine_views(&ground, &views, &lookups, state, (cfg, mode), &mut stats)?;
+    drop(views);
     if cfg.noise_probe && !noise.is_empty() {
         let t = Instant::now();
-        probe_noise(&ctx, cfg, state, (&photos, &noise), passes, mode)?;
+        let photos = (&mut photos[..], rays, &noise[..]);
+        probe_noise(&ground, cfg, state, photos, (passes, &lookups), mode)?;
         stats.probe_seconds = t.elapsed().as_secs_f64();
     }
+    drop(photos);
     stage.finish();
     let counts = map_tiles(state, geom, window, |t, g, st| {
         let shape = p.shape_ref(p.layout.slot_of_tile(t as u32));
-        let seen = |g: &TexelGeom| views.iter().any(|v| visible::sees(v, &p.accel, &shape, g));
+        let seen = |g: &TexelGeom| (cameras.iter()).any(|c| visible::sees(c, &p.accel, &shape, g));
         let c = g.iter().filter(|g| g.covered()).count() as u64;
         let o = st.iter().filter(|s| s.flags & flags::OBSERVED != 0).count() as u64;
         let v = match (shard.owns)(t) {
@@ -345,57 +319,84 @@ fn lookup_budget(cfg: &Config) -> u64 {
     (cfg.memory_budget_mib << 20) / 4
 }
 
-/// The noise probe (see [`noise_probe`]): the photos perturbed by their own noise, projected
-/// and refined again into a scratch store, and the difference made each texel's photo noise.
-/// A function of its own so the instruction-count guard (`tools/icount.py`) can find it.
+/// The views' poses refined (`refine_pose`), then the weighted mean and the refinement passes
+/// into `state`, their figures into `stats`. Returns the views' noise as the last pass
+/// estimated it, the rays of the views the passes read (at the refined poses) and the passes
+/// they took (what the noise probe repeats).
+fn refine_views(
+    ground: &refine::Ground,
+    views: &[View],
+    lookups: &Lookups,
+    state: &mut TileStore<TexelState>,
+    (cfg, mode): (&Config, Mode),
+    stats: &mut ProjectionStats,
+) -> Result<(Vec<noise_probe::ViewNoise>, Vec<Rays>, refine::Passes)> {
+    let none = Lookups::new(0, 0, 0);
+    let ctx = ground.refine(views, "refinement", &none);
+    let posed;
+    let ctx = match cfg.refine_pose {
+        true => {
+            let t = Instant::now();
+            let (refined, poses) = pose::refine(&ctx, mode)?;
+            for c in &poses {
+                note(mode, &c.summary());
+            }
+            (stats.pose, stats.pose_seconds) = (poses, t.elapsed().as_secs_f64());
+            posed = refined;
+            refine::Refine {
+                views: &posed,
+                ..ctx
+            }
+        }
+        false => ctx,
+    };
+    let ctx = refine::Refine { lookups, ..ctx };
+    let passes = refine::Passes::of(cfg);
+    let (noise, residual) = project_and_refine(&ctx, state, passes, mode, cfg.fine_geometry)?;
+    // the probe measures the passes these photos took, settled or not
+    let passes = passes.exactly(residual.len() as u32);
+    stats.refine_residual = residual;
+    stats.lookup_bytes = lookups.bytes();
+    for (g, n) in stats.gains.iter_mut().zip(&noise) {
+        g.check = n.check.clone();
+    }
+    Ok((noise, ctx.views.iter().map(View::rays).collect(), passes))
+}
+
+/// The noise probe (see [`noise_probe`]): the photos perturbed in place by their own noise,
+/// projected and refined again with the views' `rays` into a scratch store, and the
+/// difference made each texel's photo noise. The perturbation leaves what a photo masks as
+/// it was, so the probe's views classify their pixels as the views did and share their
+/// look-ups. A function of its own so the instruction-count guard (`tools/icount.py`) can
+/// find it.
 #[inline(never)]
 fn probe_noise(
-    ctx: &refine::Refine,
+    ground: &refine::Ground,
     cfg: &Config,
     state: &mut TileStore<TexelState>,
-    (photos, noise): (&[Image], &[noise_probe::ViewNoise]),
-    passes: refine::Passes,
+    (photos, rays, noise): (&mut [Image], Vec<Rays>, &[noise_probe::ViewNoise]),
+    (passes, lookups): (refine::Passes, &Lookups),
     mode: Mode,
 ) -> Result<()> {
-    let (p, views) = (ctx.p, ctx.views);
-    let perturbed: Vec<Image> = (photos.iter().zip(noise).enumerate())
-        .map(|(i, (ph, n))| noise_probe::perturbed(ph, n, cfg.seed, i as u64))
+    let p = ground.p;
+    for (i, (ph, n)) in photos.iter_mut().zip(noise).enumerate() {
+        noise_probe::perturb(ph, n, cfg.seed, i as u64);
+    }
+    let views: Vec<View> = (rays.into_iter().zip(photos.iter()))
+        .map(|(r, ph)| r.with_image(ph))
         .collect();
-    let probe_views: Vec<View> = (views.iter().zip(&perturbed))
-        .map(|(v, im)| v.with_image(im))
-        .collect();
-    let path = ctx.scratch.dir.join("probe-state.tiles");
+    let path = ground.scratch.dir.join("probe-state.tiles");
     let mut probe_state = p.create_store(&path, TexelState::default())?;
-    // the look-ups are the views' own while the probe's photos mask the same pixels, which
-    // is when `with_image` shares the views' classification
-    let same = (probe_views.iter().zip(views)).all(|(a, b)| Arc::ptr_eq(&a.pixels, &b.pixels));
-    let own;
-    let lookups = match same {
-        true => ctx.lookups,
-        false => {
-            own = Lookups::new(
-                views.len(),
-                p.layout.tile_count as usize,
-                lookup_budget(cfg),
-            );
-            &own
-        }
-    };
-    let pctx = refine::Refine {
-        views: &probe_views,
-        label: "noise probe",
-        lookups,
-        ..*ctx
-    };
-    project_and_refine(&pctx, &mut probe_state, passes, mode, cfg.fine_geometry)?;
+    let ctx = ground.refine(&views, "noise probe", lookups);
+    project_and_refine(&ctx, &mut probe_state, passes, mode, cfg.fine_geometry)?;
     noise_probe::apply(
         &p.layout,
-        ctx.charts,
-        ctx.geom,
+        ground.charts,
+        ground.geom,
         state,
         &mut probe_state,
-        ctx.window,
-        ctx.scratch,
+        ground.window,
+        ground.scratch,
     )?;
     drop(probe_state);
     std::fs::remove_file(&path).map_err(|e| crate::base::error::Error::io(&path, e))
@@ -506,7 +507,7 @@ pub fn observe_texel_seen(
     shape: &ShapeRef,
     g: &TexelGeom,
 ) -> Option<(Vec3, f32)> {
-    if !visible::sees(view, accel, shape, g) {
+    if !visible::sees(&view.camera, accel, shape, g) {
         return None;
     }
     let pix = view.camera.project(g.p())?;
@@ -686,15 +687,33 @@ pub fn texel_noise_variance(level: f32, sigma: f32, l: f32, w: f32) -> f32 {
     view_variance(level.max(sigma), l, w)
 }
 
-/// The residual of one view for back-projection, per pixel of its photo: raw (`photo -
-/// render`, judged against the noise) and shrunk (what is added, see [`shrink_residual`]) as
-/// one [`Pair`], so a texel's sub-samples are looked up once for both; with the view (its
-/// camera and pixel classification) and the photo's relative noise `sigma` (its median level;
-/// each [`Pair`] carries the local level at its pixel).
+/// The residual of one view for back-projection, per pixel of its photo
+/// ([`ResidualPixel`]); with the view (its camera and pixel classification) and the photo's
+/// relative noise `sigma` (its median level; each pixel carries the local level).
 pub struct ResidualViews<'a> {
     pub view: &'a View<'a>,
-    pub residual: &'a [Pair],
+    pub residual: &'a [ResidualPixel],
     pub sigma: f32,
+}
+
+/// One pixel's residual as it is kept for back-projection: raw (`photo - render`, judged
+/// against the noise), the photo's relative noise level there and the shrinkage's keep factor
+/// ([`shrink_residual`]). The shrunk residual (what is added) is `raw * keep`, to the bit, so
+/// it is not kept: [`ResidualPixel::pair`] makes it as a pixel is read.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct ResidualPixel {
+    pub raw: Vec3,
+    pub level: f32,
+    pub keep: f32,
+}
+
+impl ResidualPixel {
+    /// Raw and shrunk residual as one [`Pair`] with the level and keep factor, so a texel's
+    /// sub-samples are looked up once for all four.
+    #[inline(always)]
+    pub fn pair(self) -> Pair {
+        Pair(self.raw, self.raw * self.keep, self.level, self.keep)
+    }
 }
 
 /// Back-project one view's residual into one tile: per texel the view observes, `d += h w r`
@@ -709,7 +728,8 @@ pub fn backproject_tile<T: PassRecord>(
 ) -> Agreement {
     let mut seen = Agreement::default();
     let width = rv.view.camera.width();
-    for (i, Pair(raw, r, level, keep), w) in looks.read(width, rv.residual) {
+    let at = |i: usize| rv.residual[i].pair();
+    for (i, Pair(raw, r, level, keep), w) in looks.read(width, at) {
         let (s, a) = (&state[i], &mut acc[i]);
         let l = luminance(Vec3::from_array(s.l_orig())).max(0.0);
         let var = texel_noise_variance(level, rv.sigma, l, w);

@@ -53,31 +53,21 @@ pub struct ViewNoise {
     pub check: Option<crate::report::ViewCheck>,
 }
 
-/// `image` with relative noise `PROBE_SCALE * level` (`sigma` where the level is 0) added to every valid pixel
-/// (one standard normal per pixel, scaling all three channels: the noise is relative, the
-/// same in every channel); draw `i` of view `view` is `Rng::new(seed ^ tag, view, 0, i)`.
-pub fn perturbed(image: &Image, noise: &ViewNoise, seed: u64, view: u64) -> Image {
-    let pixels = image
-        .pixels
-        .par_iter()
-        .enumerate()
-        .map(|(i, &v)| {
-            if !image.valid[i] {
-                return v;
-            }
-            let level = noise.level.get(i).copied().filter(|&l| l > 0.0);
-            let level = level.unwrap_or(noise.sigma);
-            let n = Rng::new(seed ^ STREAM_TAG, view, 0, i as u64).normal();
-            (v * (1.0 + PROBE_SCALE * level * n)).max(Vec3::ZERO)
-        })
-        .collect();
-    Image {
-        width: image.width,
-        height: image.height,
-        pixels,
-        valid: image.valid.clone(),
-        masked: image.masked,
-    }
+/// `image` given relative noise `PROBE_SCALE * level` (`sigma` where the level is 0) at every
+/// valid pixel, in place (one standard normal per pixel, scaling all three channels: the
+/// noise is relative, the same in every channel); draw `i` of view `view` is
+/// `Rng::new(seed ^ tag, view, 0, i)`. What the image masks is left as it was.
+pub fn perturb(image: &mut Image, noise: &ViewNoise, seed: u64, view: u64) {
+    let valid = &image.valid;
+    (image.pixels.par_iter_mut().enumerate()).for_each(|(i, v)| {
+        if !valid[i] {
+            return;
+        }
+        let level = noise.level.get(i).copied().filter(|&l| l > 0.0);
+        let level = level.unwrap_or(noise.sigma);
+        let n = Rng::new(seed ^ STREAM_TAG, view, 0, i as u64).normal();
+        *v = (*v * (1.0 + PROBE_SCALE * level * n)).max(Vec3::ZERO);
+    });
 }
 
 /// Per texel of a row-major `width x height` texture, the mean of `v` over the texels of its
@@ -199,9 +189,14 @@ mod tests {
             level,
             check: None,
         };
+        let perturbed = |img: &Image, noise: &ViewNoise, seed: u64, view: u64| {
+            let mut a = img.clone();
+            perturb(&mut a, noise, seed, view);
+            a
+        };
         let a = perturbed(&img, &noise, 1, 0);
         assert_eq!(a.pixels[3], Vec3::ZERO, "masked");
-        assert_eq!(a.masked, 1);
+        assert_eq!((a.masked, &a.valid), (1, &img.valid), "masks what it masked");
         let rel = |p: &Vec3| (p.x / v.x - 1.0, p.y / v.y - 1.0);
         let std = |r: &[Vec3]| {
             let e: Vec<f32> = r.iter().map(|p| rel(p).0).collect();

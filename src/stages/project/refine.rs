@@ -9,8 +9,8 @@ use super::shrinkage::relative;
 use super::total_variation::tv_luminance;
 use super::view::View;
 use super::{
-    apply_refinement, backproject_tile, shrink_residual_levels, Agreement, Lookups, Moved, Pair,
-    Residual, ResidualViews, Shard, TileLookups, ViewHits, ROW_BAND,
+    apply_refinement, backproject_tile, shrink_residual_levels, Agreement, Lookups, Moved,
+    Residual, ResidualPixel, ResidualViews, Shard, TileLookups, ViewHits, ROW_BAND,
 };
 use crate::atlas::context::HitTable;
 use crate::atlas::store::TileStore;
@@ -156,6 +156,46 @@ impl Passes {
     }
 }
 
+/// What every [`Refine`] of a projection reads besides its views, label and look-ups.
+#[derive(Clone, Copy)]
+pub struct Ground<'a> {
+    pub p: &'a RunContext,
+    pub hits: &'a HitTable,
+    pub charts: &'a Charts,
+    pub geom: &'a TileStore<TexelGeom>,
+    pub bounds: &'a [Option<(Vec3, Vec3)>],
+    pub window: usize,
+    pub scratch: &'a Scratch,
+    pub shard: &'a Shard<'a>,
+}
+
+impl<'a> Ground<'a> {
+    /// The refinement of `views`, its progress named `label`, its look-ups kept in `lookups`.
+    pub fn refine<'v>(
+        &self,
+        views: &'v [View<'v>],
+        label: &'static str,
+        lookups: &'v Lookups,
+    ) -> Refine<'v>
+    where
+        'a: 'v,
+    {
+        Refine {
+            p: self.p,
+            hits: self.hits,
+            charts: self.charts,
+            geom: self.geom,
+            views,
+            bounds: self.bounds,
+            window: self.window,
+            scratch: self.scratch,
+            shard: self.shard,
+            label,
+            lookups,
+        }
+    }
+}
+
 /// Iterative back-projection after the weighted mean, over views prepared once.
 pub struct Refine<'a> {
     pub p: &'a RunContext,
@@ -238,7 +278,7 @@ impl Refine<'_> {
             }
             drop(textures);
             drop(maps);
-            // each render dropped once its residual is made, but in the last pass
+            // each render dropped once its residual is made
             let prepared: Vec<Prepared> = (self.views.par_iter().zip(renders))
                 .map(|(view, render)| prepare(view, render, last))
                 .collect();
@@ -432,13 +472,11 @@ impl Refine<'_> {
     /// also its residual's local roughness per pixel and its check against its render, with
     /// `seen` its texels and disagreements).
     fn noise(&self, prepared: Vec<Prepared>, seen: Vec<Agreement>) -> Vec<ViewNoise> {
-        let all = self.views.iter().zip(prepared).zip(seen);
-        all.map(|((view, v), a)| ViewNoise {
+        let all = prepared.into_iter().zip(seen);
+        all.map(|(v, a)| ViewNoise {
             sigma: v.sigma,
             level: v.rough,
-            check: (v.render.as_ref()).map(|render| {
-                diagnose::check(view.image, render, &view.pixels, (a.texels, a.disagreeing))
-            }),
+            check: (v.check).map(|c| diagnose::with_agreement(c, (a.texels, a.disagreeing))),
         })
         .collect()
     }
@@ -461,14 +499,15 @@ impl Refine<'_> {
     }
 }
 
-/// One view's residual for a pass: raw and shrunk as [`Pair`]s, the photo's noise level and
-/// (in the last pass) its local roughness per pixel and its render, and the residual's
+/// One view's residual for a pass per pixel ([`ResidualPixel`]s), the photo's noise level and
+/// (in the last pass) its local roughness per pixel and its check against its render (see
+/// [`diagnose`]; the render itself is not kept), and the residual's
 /// [`mean_relative_residual`].
 struct Prepared {
-    pairs: Vec<Pair>,
+    pairs: Vec<ResidualPixel>,
     sigma: f32,
     rough: Vec<f32>,
-    render: Option<Vec<Option<Vec3>>>,
+    check: Option<crate::report::ViewCheck>,
     mean: f64,
 }
 
@@ -486,18 +525,15 @@ fn prepare(view: &View, render: Vec<Option<Vec3>>, last: bool) -> Prepared {
     let raw = residual.clone();
     let w = photo.width as usize;
     let levels = shrink_residual_levels(&mut residual, &photo.pixels, &view.pixels, w);
-    let pairs = (raw
-        .into_iter()
-        .zip(residual)
-        .zip(levels.level)
-        .zip(levels.keep))
-    .map(|(((a, b), s), k)| Pair(a, b, s, k))
-    .collect();
+    drop(residual); // shrunk: `raw * keep` to the bit, made again as it is read
+    let pairs = (raw.into_iter().zip(levels.level).zip(levels.keep))
+        .map(|((raw, level), keep)| ResidualPixel { raw, level, keep })
+        .collect();
     Prepared {
         pairs,
         sigma: levels.sigma,
         rough: if last { levels.rough } else { Vec::new() },
-        render: last.then_some(render),
+        check: last.then(|| diagnose::check(photo, &render, &view.pixels)),
         mean,
     }
 }

@@ -54,6 +54,39 @@ pub struct View<'a> {
     traced: Arc<Traced>,
 }
 
+/// What a view's rays found, without its photo: kept while the photo changes in place (the
+/// noise probe's), and made a view of a photo again with [`Rays::with_image`].
+pub struct Rays {
+    camera: Camera,
+    pixels: Arc<Vec<PixelInfo>>,
+    traced: Arc<Traced>,
+}
+
+impl Rays {
+    /// The view of `image`, a photo of the same size, with these rays: a pixel `image` masks
+    /// (the coat's: see `coat`) is not read, so the classification is copied only when it
+    /// masks a clean one.
+    pub fn with_image(self, image: &Image) -> View<'_> {
+        let masks = |(p, ok): (&PixelInfo, &bool)| p.clean && !*ok;
+        let pixels = match self.pixels.iter().zip(&image.valid).any(masks) {
+            true => {
+                let mut pixels = Vec::clone(&self.pixels);
+                for (p, ok) in pixels.iter_mut().zip(&image.valid) {
+                    p.clean &= *ok;
+                }
+                Arc::new(pixels)
+            }
+            false => self.pixels,
+        };
+        View {
+            camera: self.camera,
+            image,
+            pixels,
+            traced: self.traced,
+        }
+    }
+}
+
 /// A view's ray results besides its pixels' classification.
 struct Traced {
     /// `(w + 1) x (h + 1)` pixel corners, row-major.
@@ -407,22 +440,14 @@ impl<'a> View<'a> {
     /// The same view (camera, pixel classification, corners) of another photo of the same
     /// size: no rays are cast again.
     pub fn with_image<'b>(&self, image: &'b Image) -> View<'b> {
-        // a pixel `image` masks (the coat's: see `coat`) is not read
-        let masks = |(p, ok): (&PixelInfo, &bool)| p.clean && !*ok;
-        let pixels = match self.pixels.iter().zip(&image.valid).any(masks) {
-            true => {
-                let mut pixels = Vec::clone(&self.pixels);
-                for (p, ok) in pixels.iter_mut().zip(&image.valid) {
-                    p.clean &= *ok;
-                }
-                Arc::new(pixels)
-            }
-            false => Arc::clone(&self.pixels),
-        };
-        View {
+        self.rays().with_image(image)
+    }
+
+    /// What the view's rays found, without its photo (shared, not copied).
+    pub fn rays(&self) -> Rays {
+        Rays {
             camera: self.camera.clone(),
-            image,
-            pixels,
+            pixels: Arc::clone(&self.pixels),
             traced: Arc::clone(&self.traced),
         }
     }
@@ -579,13 +604,19 @@ impl Tap {
     /// [`Tap::read`] from a row-major image `width` pixels wide held in `values`.
     #[inline(always)]
     pub fn read_slice<T: Value>(&self, width: u32, values: &[T]) -> T {
+        self.read_index(width, |i| values[i])
+    }
+
+    /// [`Tap::read`] from a row-major image `width` pixels wide whose pixel `i` is `at(i)`.
+    #[inline(always)]
+    pub fn read_index<T: Value>(&self, width: u32, at: impl Fn(usize) -> T) -> T {
         let b = self.base as usize;
         if self.tx == Tap::ONE_PIXEL {
-            return values[b];
+            return at(b);
         }
         let (tx, ty, w) = (self.tx, self.ty, width as usize);
-        let top = values[b] * (1.0 - tx) + values[b + 1] * tx;
-        let bot = values[b + w] * (1.0 - tx) + values[b + w + 1] * tx;
+        let top = at(b) * (1.0 - tx) + at(b + 1) * tx;
+        let bot = at(b + w) * (1.0 - tx) + at(b + w + 1) * tx;
         top * (1.0 - ty) + bot * ty
     }
 }
