@@ -205,10 +205,10 @@ pub fn needs(
         .map(|s| s.mesh.positions.len() as u64)
         .sum();
     let scene_bytes = tris * (12 + 64 + 48) + verts * 32;
-    // photos (RGBA f32), the projection's cached ray per pixel, and every view's residual
-    // (raw and shrunk, with its noise level and keep factor) and render, which the
-    // refinement passes hold at once
-    let photo_bytes = pixels * (16 + 48 + 32 + 16);
+    // photos (RGB f32 and a mask), the projection's rays per pixel (classification and
+    // corner), and every view's residual (raw, noise level, keep factor) and render, which
+    // the refinement passes hold at once
+    let photo_bytes = pixels * (13 + 36 + 20 + 16);
     Needs {
         store_texels,
         disk_bytes: stores + 2 * store_texels * state + outputs,
