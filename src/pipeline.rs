@@ -56,7 +56,7 @@ use crate::stages::indirect::photon::{
 };
 use crate::stages::one_colour::{smooth_uniform, UniformStats};
 use crate::stages::project::pass_texel::PassTexel;
-use crate::stages::project::{ProjectionStats, Shard};
+use crate::stages::project::{keep, ProjectionStats, Shard};
 use crate::stages::solve::{init_indirect_tile, kd_step, update_step, Filled};
 use crate::stages::{direct, project};
 use ranks::GATHER_CHUNK;
@@ -226,7 +226,7 @@ pub fn run_projection(
             &geom,
             &mut state,
             mode,
-            &scratch,
+            (&scratch, None),
             sh,
         )
     })?;
@@ -565,7 +565,10 @@ impl<'a> Run<'a> {
         let t = Instant::now();
         let ps = with_shard(world, |sh| {
             let (hits, geom, scratch) = ((self.hits(), &self.charts), &self.geom, &self.scratch);
-            project::run_shard(p, cfg, hits, geom, &mut state, mode, scratch, sh)
+            // the root's outputs re-render the views from what the projection traced
+            let kept = keep::dir(&scratch.dir);
+            let keep = world.is_root().then_some(kept.as_path());
+            project::run_shard(p, cfg, hits, geom, &mut state, mode, (scratch, keep), sh)
         })?;
         let dn = denoise(
             p,

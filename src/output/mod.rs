@@ -55,6 +55,7 @@ use crate::base::progress::Tick;
 use crate::physics::render::Texture;
 use crate::report::{PoseCorrection, Report};
 use crate::scene::{Scene, Sensor};
+use crate::stages::project::keep;
 use glam::Vec3;
 use rayon::prelude::*;
 use std::path::Path;
@@ -193,6 +194,8 @@ pub fn write_outputs(
         .collect();
     let renders = out.join("renders");
     let page_views = page::page_dir(out).join("views");
+    // the views as the projection traced them, where it kept them
+    let kept = keep::dir(&scratch.dir);
     // views side by side: each re-render is parallel over its rows, its files are not
     let views: Vec<_> = (p.views.par_iter().enumerate())
         .map(|(i, (si, path))| {
@@ -202,13 +205,16 @@ pub fn write_outputs(
                 hits,
                 &textures,
                 (&sensors[*si], path, gain),
-                (&renders, &page_views),
+                (&renders, &page_views, (&kept, i)),
                 &scale,
             )?;
             tick(view_pixels(p, *si));
             Ok(done)
         })
         .collect::<Result<_>>()?;
+    // the directory itself: each view removed its file (a failed run's go with the scratch
+    // directory when the next run opens it)
+    let _ = std::fs::remove_dir_all(&kept);
     if !p.views.is_empty() {
         renders::write_masks_json(&renders, &p.scene)?;
     }

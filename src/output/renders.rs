@@ -31,7 +31,7 @@ use crate::physics::camera::Camera;
 use crate::physics::render::{apply_pixel_filter, render_view_with, Film, Plan, Texture};
 use crate::report::ViewShapeRow;
 use crate::scene::{luminance, Scene, Sensor};
-use crate::stages::project::{exposure, PixelInfo, View};
+use crate::stages::project::{exposure, keep, PixelInfo, View};
 use crate::{Error, Result};
 use glam::Vec3;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
@@ -193,19 +193,21 @@ pub fn write_masks_json(dir: &Path, scene: &Scene) -> Result<()> {
 /// Re-render view `(sensor, photo path, gain)` (the sensor at the pose the run used), write
 /// its EXR, PNG and comparison PNG into `dir` and the report page's photo, error panel and
 /// values into `page_dir`, and return its table rows and page figures; the photo is divided by
-/// its gain (exposure and white balance) as the projection divided it.
+/// its gain (exposure and white balance) as the projection divided it. The view's rays are
+/// the ones the projection kept as view `index` in `kept` if it did ([`keep`]), else traced.
 pub fn write_view(
     p: &RunContext,
     hits: &HitTable,
     textures: &[Option<Texture>],
     (sensor, photo_path, gain): (&Sensor, &Path, [f32; 3]),
-    (dir, page_dir): (&Path, &Path),
+    (dir, page_dir, (kept, index)): (&Path, &Path, (&Path, usize)),
     scale: &ErrorScale,
 ) -> Result<(Vec<ViewShapeRow>, ViewFacts)> {
     fsio::create_dir(dir)?;
     let photo = exposure::apply(&read_photo(photo_path, sensor, &p.response)?, gain);
     let camera = Camera::from_sensor(sensor);
-    let view = View::new(&p.scene, &p.accel, camera.clone(), &photo);
+    let view = keep::take(kept, index, &camera, &photo)
+        .unwrap_or_else(|| View::new(&p.scene, &p.accel, camera, &photo));
     let render = render_recovered(p, hits, &view, textures, SUPERSAMPLE);
     let (w, h) = (sensor.width, sensor.height);
     let exposure = auto_exposure(&photo.pixels, &photo.valid);

@@ -138,6 +138,7 @@ const FOLDERS: &[(&str, &[Layer])] = &[
                 "coat",
                 "one_surface",
                 "view",
+                "keep",
                 "lookups",
                 "visible",
                 "exposure",

@@ -63,6 +63,7 @@ mod coat;
 mod diagnose;
 mod edges;
 pub mod exposure;
+pub mod keep;
 mod lookups;
 mod noise;
 pub mod noise_probe;
@@ -98,6 +99,7 @@ use crate::report::PoseCorrection;
 use crate::scene::{luminance, Sides};
 use glam::Vec3;
 use pass_texel::{PassRecord, PassTexel};
+use std::path::Path;
 use std::time::Instant;
 
 /// The largest sub-sample grid per texel and view (k x k).
@@ -211,11 +213,23 @@ pub fn run(
     mode: Mode,
     scratch: &Scratch,
 ) -> Result<ProjectionStats> {
-    run_shard(p, cfg, lookups, geom, state, mode, scratch, &Shard::whole())
+    run_shard(
+        p,
+        cfg,
+        lookups,
+        geom,
+        state,
+        mode,
+        (scratch, None),
+        &Shard::whole(),
+    )
 }
 
 /// [`run`] shared by several processes: only the tiles `shard` owns are projected and refined
-/// here, and the store is synced after the weighted mean and after each refinement pass.
+/// here, and the store is synced after the weighted mean and after each refinement pass. With
+/// `keep`, the views' classifications and corner rays are written there for the outputs'
+/// re-renders, up to `memory_budget_mib` of them and what the disk can spare
+/// ([`keep::allowance`]).
 #[allow(clippy::too_many_arguments)]
 #[inline(never)] // a stage entry tools/icount.py measures
 pub fn run_shard(
@@ -225,7 +239,7 @@ pub fn run_shard(
     geom: &TileStore<TexelGeom>,
     state: &mut TileStore<TexelState>,
     mode: Mode,
-    scratch: &Scratch,
+    (scratch, keep): (&Scratch, Option<&Path>),
     shard: &Shard,
 ) -> Result<ProjectionStats> {
     let mut stats = ProjectionStats {
@@ -239,7 +253,15 @@ pub fn run_shard(
     stats.masked_pixels = raw.iter().map(|ph| ph.masked).sum();
     let bounds = tile_bounds(geom)?;
     let mut nominal = Vec::with_capacity(raw.len());
-    for ((si, _), photo) in p.views.iter().zip(&raw) {
+    let mut keeper = keep.map(|dir| {
+        let free = crate::base::fsio::free_bytes(&scratch.dir);
+        let stores = geom.data_bytes() + state.data_bytes();
+        keep::Keeper::new(
+            dir,
+            keep::allowance(cfg.memory_budget_mib << 20, free, stores),
+        )
+    });
+    for (i, ((si, _), photo)) in p.views.iter().zip(&raw).enumerate() {
         let view = View::new_shared(
             &p.scene,
             &p.accel,
@@ -248,6 +270,9 @@ pub fn run_shard(
             cfg.fine_geometry,
             shard,
         )?;
+        if let Some(k) = &mut keeper {
+            k.offer(i, &view);
+        }
         nominal.push(view);
         stage.inc(1);
         interrupt::check(interrupt::NOTHING_SAVED)?;

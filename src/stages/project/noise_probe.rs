@@ -196,7 +196,11 @@ mod tests {
         };
         let a = perturbed(&img, &noise, 1, 0);
         assert_eq!(a.pixels[3], Vec3::ZERO, "masked");
-        assert_eq!((a.masked, &a.valid), (1, &img.valid), "masks what it masked");
+        assert_eq!(
+            (a.masked, &a.valid),
+            (1, &img.valid),
+            "masks what it masked"
+        );
         let rel = |p: &Vec3| (p.x / v.x - 1.0, p.y / v.y - 1.0);
         let std = |r: &[Vec3]| {
             let e: Vec<f32> = r.iter().map(|p| rel(p).0).collect();

@@ -270,18 +270,20 @@ fn decode_corners(words: &[u32]) -> Vec<Option<(Hit, Vec3)>> {
 }
 
 fn encode_pixels(infos: &[PixelInfo]) -> Vec<u32> {
-    let mut out = Vec::with_capacity(infos.len() * PIXEL_WORDS);
-    for p in infos {
-        out.extend_from_slice(&[
-            p.shape,
-            p.normal.x.to_bits(),
-            p.normal.y.to_bits(),
-            p.normal.z.to_bits(),
-            p.plane.to_bits(),
-            u32::from(p.clean),
-        ]);
-    }
-    out
+    infos.iter().flat_map(pixel_words).collect()
+}
+
+/// One pixel's [`PIXEL_WORDS`] words.
+fn pixel_words(p: &PixelInfo) -> [u32; PIXEL_WORDS] {
+    let (n, f) = (p.normal, f32::to_bits);
+    [
+        p.shape,
+        f(n.x),
+        f(n.y),
+        f(n.z),
+        f(p.plane),
+        u32::from(p.clean),
+    ]
 }
 
 fn decode_pixels(words: &[u32]) -> Vec<PixelInfo> {
@@ -435,6 +437,57 @@ impl<'a> View<'a> {
                 hot,
             }),
         }
+    }
+
+    /// The view's classified pixels and corner hits as words, made as they are read (a view
+    /// of 512 x 384 is 7 MB of them): [`View::from_words`] makes the view again (without the
+    /// loose reading's parts) for no rays.
+    pub fn words(&self) -> impl Iterator<Item = u32> + '_ {
+        let f = f32::to_bits;
+        let corners = (self.traced.corners.iter()).flat_map(move |c| [c.prim, f(c.b1), f(c.b2)]);
+        self.pixels.iter().flat_map(pixel_words).chain(corners)
+    }
+
+    /// How many [`View::words`] a view of `camera` has.
+    pub fn word_count(camera: &Camera) -> usize {
+        let (w, h) = (camera.width() as usize, camera.height() as usize);
+        w * h * PIXEL_WORDS + (w + 1) * (h + 1) * 3
+    }
+
+    /// The view [`View::words`] wrote, of `camera` (the one it was made with) and `image`:
+    /// what [`View::new`] makes of them, bit for bit, when `image` masks the pixels the
+    /// view's own photo masked (a pixel `image` masks is made unclean, as
+    /// [`View::with_image`] does). `None` if the words do not fit the camera's size.
+    pub fn from_words(camera: Camera, image: &'a Image, words: &[u32]) -> Option<View<'a>> {
+        let (w, h) = (camera.width() as usize, camera.height() as usize);
+        let np = w * h * PIXEL_WORDS;
+        if words.len() != View::word_count(&camera)
+            || (image.width, image.height) != (w as u32, h as u32)
+        {
+            return None;
+        }
+        let mut pixels = decode_pixels(&words[..np]);
+        for (p, ok) in pixels.iter_mut().zip(&image.valid) {
+            p.clean &= *ok;
+        }
+        let f = f32::from_bits;
+        let corners = (words[np..].chunks_exact(3))
+            .map(|c| Corner {
+                prim: c[0],
+                b1: f(c[1]),
+                b2: f(c[2]),
+            })
+            .collect();
+        Some(View {
+            camera,
+            image,
+            pixels: Arc::new(pixels),
+            traced: Arc::new(Traced {
+                corners,
+                spans: Vec::new(),
+                hot: Vec::new(),
+            }),
+        })
     }
 
     /// The same view (camera, pixel classification, corners) of another photo of the same
@@ -735,7 +788,7 @@ pub fn classify_pixels(
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::*;
     use crate::atlas::store::{TexelState, TileStore};
     use std::sync::{Barrier, Mutex};
@@ -799,7 +852,7 @@ mod tests {
     }
 
     /// The Cornell box fixture, its BVH and its first camera.
-    fn cbox_first_camera() -> (Scene, Accel, Camera) {
+    pub(in crate::stages::project) fn cbox_first_camera() -> (Scene, Accel, Camera) {
         let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
         let scene =
             crate::scene::mitsuba::load(&root.join("tests/fixtures/cbox/input.xml")).unwrap();
