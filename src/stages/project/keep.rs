@@ -113,7 +113,9 @@ pub fn take<'a>(dir: &Path, index: usize, camera: &Camera, image: &'a Image) -> 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::stages::project::view::tests::cbox_first_camera as cbox;
+    use crate::stages::project::view::tests::{
+        cbox_first_camera as cbox, grey_with_a_masked_pixel,
+    };
     use glam::Vec3;
 
     /// Views are kept out of the memory budget and the disk beyond the reserve only: none
@@ -154,8 +156,7 @@ mod tests {
     fn a_kept_view_is_the_view_traced_again() {
         let (scene, accel, cam) = cbox();
         let (w, h) = (cam.width(), cam.height());
-        let mut px = vec![Vec3::splat(0.4); (w * h) as usize];
-        px[(37 * w + 101) as usize] = Vec3::NAN;
+        let mut px = grey_with_a_masked_pixel(&cam);
         let img = Image::from_raw(w, h, px.clone());
         let nominal = View::new_with(&scene, &accel, cam.clone(), &img, true);
         let tmp = tempfile::tempdir().unwrap();

@@ -861,6 +861,14 @@ pub(super) mod tests {
         (scene, accel, cam)
     }
 
+    /// A grey photo of `cam`'s size with one pixel masked (NaN), as pixel values.
+    pub(in crate::stages::project) fn grey_with_a_masked_pixel(cam: &Camera) -> Vec<Vec3> {
+        let w = cam.width();
+        let mut px = vec![Vec3::splat(0.4); (w * cam.height()) as usize];
+        px[(37 * w + 101) as usize] = Vec3::NAN;
+        px
+    }
+
     /// The classification split among 2 and 3 processes by bands of rows and gathered is the
     /// one process's, bit for bit, on every process (with a masked pixel, an emitter in view
     /// and the loose reading's spans).
@@ -868,9 +876,7 @@ pub(super) mod tests {
     fn rays_split_among_processes_and_gathered_classify_as_one_process() {
         let (scene, accel, cam) = cbox_first_camera();
         let (w, h) = (cam.width(), cam.height());
-        let mut px = vec![Vec3::splat(0.4); (w * h) as usize];
-        px[(37 * w + 101) as usize] = Vec3::NAN;
-        let img = Image::from_raw(w, h, px);
+        let img = Image::from_raw(w, h, grey_with_a_masked_pixel(&cam));
         let one = parts(&View::new_with(&scene, &accel, cam.clone(), &img, true));
         assert!(one.0.chunks(PIXEL_WORDS).any(|p| p[5] == 1), "clean pixels");
         assert!(one.3.iter().any(|&b| b), "an emitter in view");
