@@ -60,8 +60,7 @@ impl<'d> Keeper<'d> {
 
     /// Keeps `view` as view `index` ([`save`]) if it fits in what is left.
     pub fn offer(&mut self, index: usize, view: &View) {
-        let (w, h) = (view.camera.width() as u64, view.camera.height() as u64);
-        let bytes = 4 * (w * h * 6 + (w + 1) * (h + 1) * 3);
+        let bytes = 4 * View::word_count(&view.camera) as u64;
         if bytes <= self.left {
             self.left -= bytes;
             save(self.dir, index, view);
@@ -98,8 +97,12 @@ pub fn take<'a>(dir: &Path, index: usize, camera: &Camera, image: &'a Image) -> 
     let key = camera_key(camera);
     let mut len = [0u8; 4];
     f.read_exact(&mut len).ok()?;
-    let mut named = vec![0u8; u32::from_ne_bytes(len) as usize];
-    if named.len() != key.len() || f.read_exact(&mut named).is_err() || named != key.as_bytes() {
+    // the length is checked before anything is allocated for it
+    if u32::from_ne_bytes(len) as usize != key.len() {
+        return None;
+    }
+    let mut named = vec![0u8; key.len()];
+    if f.read_exact(&mut named).is_err() || named != key.as_bytes() {
         return None;
     }
     let mut words = vec![0u32; View::word_count(camera)];

@@ -41,7 +41,7 @@
 //!
 //! **Views that disagree.** The passes are also a robust fusion: each view's residual at a
 //! texel is judged against that view's noise there (the photo's local relative noise level,
-//! as [`shrink_residual_levels`] estimates it, interpolated over the pixels the texel covers,
+//! as [`noise_levels`] estimates it, interpolated over the pixels the texel covers,
 //! never below the view's median level: [`texel_noise_variance`]) plus a [`MODEL_FLOOR`] for
 //! differences that are expected; a view more than [`DISAGREE_Z`] such deviations away (a
 //! specular highlight, a misregistered pixel, something that moved) is down-weighted
@@ -80,7 +80,7 @@ mod window_median;
 pub use diagnose::notes as capture_notes;
 pub use lookups::{Lookups, TileLookups, ViewHits};
 pub use refine::{Refine, REFINE_SUPERSAMPLE};
-pub use shrinkage::{shrink_residual, shrink_residual_levels, NoiseLevels};
+pub use shrinkage::{noise_levels, shrink_residual, shrink_residual_levels, NoiseLevels};
 pub use view::{classify_pixels, Pair, PixelInfo, Rays, Value, View};
 
 use crate::atlas::context::HitTable;
@@ -678,7 +678,7 @@ pub struct Residual {
     /// `sum_v h_v w_v`: the robust-weighted total weight.
     pub hw: f32,
     /// `sum_v h_v w_v k_v`, `k_v` the shrinkage's keep factor at the texel in view `v`
-    /// ([`shrink_residual_levels`]): `hwk / hw` is the share of the texel's residual that is
+    /// ([`noise_levels`]): `hwk / hw` is the share of the texel's residual that is
     /// signal, what the gate of [`apply_refinement`] reads.
     pub hwk: f32,
 }

@@ -9,8 +9,8 @@ use super::shrinkage::relative;
 use super::total_variation::tv_luminance;
 use super::view::View;
 use super::{
-    apply_refinement, backproject_tile, shrink_residual_levels, Agreement, Lookups, Moved,
-    Residual, ResidualPixel, ResidualViews, Shard, TileLookups, ViewHits, ROW_BAND,
+    apply_refinement, backproject_tile, noise_levels, Agreement, Lookups, Moved, Residual,
+    ResidualPixel, ResidualViews, Shard, TileLookups, ViewHits, ROW_BAND,
 };
 use crate::atlas::context::HitTable;
 use crate::atlas::store::TileStore;
@@ -511,22 +511,21 @@ struct Prepared {
     mean: f64,
 }
 
-/// `photo - render` over a view's clean pixels (0 elsewhere), judged and shrunk
-/// ([`shrink_residual_levels`]).
+/// `photo - render` over a view's clean pixels (0 elsewhere), judged with the photo's noise
+/// levels and the shrinkage's keep factors ([`noise_levels`]; the shrunk residual is made as
+/// it is read, [`ResidualPixel::pair`]).
 fn prepare(view: &View, render: Vec<Option<Vec3>>, last: bool) -> Prepared {
     let photo = view.image;
-    let mut residual: Vec<Vec3> = (photo.pixels.iter().zip(&render).zip(view.pixels.iter()))
+    let residual: Vec<Vec3> = (photo.pixels.iter().zip(&render).zip(view.pixels.iter()))
         .map(|((ph, r), px)| match r {
             Some(r) if px.clean => *ph - *r,
             _ => Vec3::ZERO,
         })
         .collect();
     let mean = mean_relative_residual(&residual, &render, &photo.pixels, &view.pixels);
-    let raw = residual.clone();
     let w = photo.width as usize;
-    let levels = shrink_residual_levels(&mut residual, &photo.pixels, &view.pixels, w);
-    drop(residual); // shrunk: `raw * keep` to the bit, made again as it is read
-    let pairs = (raw.into_iter().zip(levels.level).zip(levels.keep))
+    let levels = noise_levels(&residual, &photo.pixels, &view.pixels, w);
+    let pairs = (residual.into_iter().zip(levels.level).zip(levels.keep))
         .map(|((raw, level), keep)| ResidualPixel { raw, level, keep })
         .collect();
     Prepared {

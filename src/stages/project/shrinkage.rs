@@ -80,9 +80,26 @@ pub struct NoiseLevels {
 }
 
 /// [`shrink_residual`], also returning the photo's noise levels ([`NoiseLevels`]; `level` is
-/// `sigma` everywhere, 0, for a noise-free photo).
+/// `sigma` everywhere, 0, for a noise-free photo): [`noise_levels`], then each pixel's
+/// residual scaled by its `keep`.
 pub fn shrink_residual_levels(
     residual: &mut [Vec3],
+    photo: &[Vec3],
+    pixels: &[PixelInfo],
+    width: usize,
+) -> NoiseLevels {
+    let levels = noise_levels(residual, photo, pixels, width);
+    for (r, k) in residual.iter_mut().zip(&levels.keep) {
+        *r *= *k;
+    }
+    levels
+}
+
+/// The photo's noise levels against a residual image of `width` pixels per row, and per pixel
+/// the factor the shrinkage scales its residual by (`keep`; 1 everywhere for a noise-free
+/// photo), the residual left as it is.
+pub fn noise_levels(
+    residual: &[Vec3],
     photo: &[Vec3],
     pixels: &[PixelInfo],
     width: usize,
@@ -106,16 +123,16 @@ pub fn shrink_residual_levels(
         .collect();
     let energy = box_sum(&energy, width, SHRINK_RADIUS);
     let (noise, level) = window_noise(residual, photo, (&e, &blocks), width, sigma);
-    let mut keep = vec![0.0; residual.len()];
-    for (i, (r, k)) in residual.iter_mut().zip(&mut keep).enumerate() {
-        // the window's noise energy against its residuals' energy
-        let (noise, total) = (noise[i], energy[i]);
-        *k = match e[i] {
-            Some(_) if total > noise => (1.0 - noise / total) as f32,
-            _ => 0.0,
-        };
-        *r *= *k;
-    }
+    let keep = (0..residual.len())
+        .map(|i| {
+            // the window's noise energy against its residuals' energy
+            let (noise, total) = (noise[i], energy[i]);
+            match e[i] {
+                Some(_) if total > noise => (1.0 - noise / total) as f32,
+                _ => 0.0,
+            }
+        })
+        .collect();
     NoiseLevels {
         sigma,
         level,

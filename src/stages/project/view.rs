@@ -64,20 +64,17 @@ pub struct Rays {
 
 impl Rays {
     /// The view of `image`, a photo of the same size, with these rays: a pixel `image` masks
-    /// (the coat's: see `coat`) is not read, so the classification is copied only when it
-    /// masks a clean one.
+    /// (the coat's: see `coat`) is not read, so a shared classification is copied only when
+    /// it masks a clean one.
     pub fn with_image(self, image: &Image) -> View<'_> {
         let masks = |(p, ok): (&PixelInfo, &bool)| p.clean && !*ok;
-        let pixels = match self.pixels.iter().zip(&image.valid).any(masks) {
-            true => {
-                let mut pixels = Vec::clone(&self.pixels);
-                for (p, ok) in pixels.iter_mut().zip(&image.valid) {
-                    p.clean &= *ok;
-                }
-                Arc::new(pixels)
+        let mut pixels = self.pixels;
+        if pixels.iter().zip(&image.valid).any(masks) {
+            // copied only if other views share it
+            for (p, ok) in Arc::make_mut(&mut pixels).iter_mut().zip(&image.valid) {
+                p.clean &= *ok;
             }
-            false => self.pixels,
-        };
+        }
         View {
             camera: self.camera,
             image,
@@ -466,10 +463,6 @@ impl<'a> View<'a> {
         {
             return None;
         }
-        let mut pixels = decode_pixels(&words[..np]);
-        for (p, ok) in pixels.iter_mut().zip(&image.valid) {
-            p.clean &= *ok;
-        }
         let f = f32::from_bits;
         let corners = (words[np..].chunks_exact(3))
             .map(|c| Corner {
@@ -478,16 +471,16 @@ impl<'a> View<'a> {
                 b2: f(c[2]),
             })
             .collect();
-        Some(View {
+        let rays = Rays {
             camera,
-            image,
-            pixels: Arc::new(pixels),
+            pixels: Arc::new(decode_pixels(&words[..np])),
             traced: Arc::new(Traced {
                 corners,
                 spans: Vec::new(),
                 hot: Vec::new(),
             }),
-        })
+        };
+        Some(rays.with_image(image))
     }
 
     /// The same view (camera, pixel classification, corners) of another photo of the same
