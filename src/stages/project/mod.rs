@@ -286,7 +286,7 @@ pub fn run_shard(
     let photos: Vec<Image> = (raw.iter().zip(&stats.gains))
         .map(|(ph, g)| exposure::apply(ph, g.gain))
         .collect();
-    let mut photos = coat::remove(p, &photos, cfg.seed).unwrap_or(photos);
+    let mut photos = coat::remove(p, &photos, &nominal, cfg.seed).unwrap_or(photos);
     let views: Vec<View> = (nominal.iter().zip(&photos))
         .map(|(v, ph)| v.with_image(ph))
         .collect();

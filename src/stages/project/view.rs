@@ -559,6 +559,18 @@ impl<'a> View<'a> {
             && (p.normal.dot(q) - p.plane).abs() <= tol
     }
 
+    /// Whether pixel `(x, y)` sees point `q` of `shape` (geometric normal `n`) first, from the
+    /// classification alone: `Some` where the pixel is clean (it sees one plane of one shape,
+    /// and `q` lies in the pixel's cone: seen exactly when `q` lies on that plane), `None`
+    /// where it is not (an edge, a masked pixel: only a ray can tell).
+    pub fn sees_first(&self, (x, y): (u32, u32), q: Vec3, shape: u32, n: Vec3) -> Option<bool> {
+        let w = self.camera.width();
+        let p = self.pixels.get((y * w + x) as usize)?;
+        let tol = plane_tol((q - self.camera.position()).length());
+        p.clean
+            .then(|| self.sees(x as i64, y as i64, q, shape, n, tol))
+    }
+
     /// The photo's radiance at surface point `q` of `shape` (geometric normal `n`), projected
     /// to continuous pixel coordinates `pix`, if the view sees it: bilinear when the four
     /// nearest pixels are clean pixels seeing `q`'s plane, else the containing pixel if it is,
@@ -860,6 +872,55 @@ pub(super) mod tests {
         let mut px = vec![Vec3::splat(0.4); (w * cam.height()) as usize];
         px[(37 * w + 101) as usize] = Vec3::NAN;
         px
+    }
+
+    /// Whether a clean pixel sees a surface point, read from the classification, is what a
+    /// ray from the camera to the point finds, for random points of every shape (in view,
+    /// occluded, behind a box, on the emitter); edges and the masked pixel leave it to a ray.
+    #[test]
+    fn sees_first_is_what_a_ray_from_the_camera_finds() {
+        let (scene, accel, cam) = cbox_first_camera();
+        let img = Image::from_raw(cam.width(), cam.height(), grey_with_a_masked_pixel(&cam));
+        let view = View::new_with(&scene, &accel, cam.clone(), &img, false);
+        let mut rng = crate::base::rng::Rng::new(5, 0, 0, 0);
+        let (mut seen, mut hidden, mut unknown) = (0, 0, 0);
+        for _ in 0..20_000 {
+            let s = (rng.f32() * scene.shapes.len() as f32) as usize % scene.shapes.len();
+            let mesh = &scene.shapes[s].mesh;
+            let t = (rng.f32() * mesh.triangles.len() as f32) as usize % mesh.triangles.len();
+            let [a, b, c] = mesh.triangles[t].map(|i| mesh.positions[i as usize]);
+            let (u, v) = (rng.f32(), rng.f32());
+            let (u, v) = if u + v > 1.0 {
+                (1.0 - u, 1.0 - v)
+            } else {
+                (u, v)
+            };
+            let q = a + (b - a) * u + (c - a) * v;
+            let n = mesh.face_normal_raw(t).normalize_or_zero();
+            let Some(pix) = cam.project(q).filter(|p| cam.on_film(*p)) else {
+                continue;
+            };
+            let (x, y) = (pix.x as u32, pix.y as u32);
+            let Some(got) = view.sees_first((x, y), q, s as u32, n) else {
+                unknown += 1;
+                continue;
+            };
+            let from = cam.position();
+            let dist = (q - from).length();
+            let hit = accel.intersect(from, (q - from) / dist, f32::INFINITY);
+            // seen: the ray's first hit lies on q's plane of q's shape
+            let want = hit.is_some_and(|h| {
+                let m = &scene.shapes[h.shape as usize].mesh;
+                let hn = m.face_normal_raw(h.tri as usize).normalize_or_zero();
+                h.shape == s as u32 && hn.dot(n) > 0.99 && (h.t - dist).abs() < 1e-3 * dist
+            });
+            assert_eq!(got, want, "{q} of shape {s} at pixel {x} {y}");
+            (seen, hidden) = (seen + got as u32, hidden + !got as u32);
+        }
+        assert!(
+            seen > 3000 && hidden > 1000 && unknown > 50,
+            "{seen} {hidden} {unknown}"
+        );
     }
 
     /// The classification split among 2 and 3 processes by bands of rows and gathered is the
