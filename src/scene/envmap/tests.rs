@@ -181,7 +181,7 @@ fn reads_exr_and_radiance_hdr_files_and_refuses_other_formats() {
 }
 
 #[test]
-fn the_blocked_cell_search_finds_what_a_search_of_the_whole_cdf_finds() {
+fn the_guided_cell_search_finds_what_a_search_of_the_whole_cdf_finds() {
     // sizes whose cell counts are and are not multiples of the block; a map with dark runs
     // (repeated CDF values) and one with a single bright texel
     let bright = |x: u32, y: u32| Vec3::splat(if (x, y) == (5, 3) { 9.0 } else { 0.0 });
@@ -198,11 +198,18 @@ fn the_blocked_cell_search_finds_what_a_search_of_the_whole_cdf_finds() {
             map(w, h, Mat4::IDENTITY, bright),
         ];
         for env in maps.iter().chain([&map(w, h, Mat4::IDENTITY, banded)]) {
-            let whole = |u: f64| env.cdf.partition_point(|&c| c <= u);
+            let cdf: Vec<f64> = env.cells.iter().map(|c| c.cdf).collect();
+            let whole = |u: f64| cdf.partition_point(|&c| c <= u);
             let mut us: Vec<f64> = (0..2000).map(|i| i as f64 / 1999.0).collect();
-            us.extend(env.cdf.iter().step_by(7).copied());
-            us.extend(env.cdf.iter().step_by(7).map(|&c| c - 1e-12));
+            us.extend(cdf.iter().step_by(7).copied());
+            us.extend(cdf.iter().step_by(7).map(|&c| c - 1e-12));
             us.extend([-1.0, 0.0, 1.0, 2.0, f64::NAN, 1.0 - 1e-16]);
+            // the guide's own bounds and a hair either side
+            let n = cdf.len() as f64;
+            for m in (0..=cdf.len()).step_by(3) {
+                let b = m as f64 / n;
+                us.extend([b, b - 1e-15, b + 1e-15, f64::from_bits(b.to_bits() + 1)]);
+            }
             for u in us {
                 assert_eq!(env.cell(u), whole(u), "{w}x{h}, u = {u}");
             }
