@@ -135,9 +135,9 @@ const FOLDERS: &[(&str, &[Layer])] = &[
         "stages::project",
         &[(
             &[
-                "coat",
                 "one_surface",
                 "view",
+                "coat",
                 "keep",
                 "lookups",
                 "visible",
