@@ -30,9 +30,6 @@ use crate::physics::coat::{self, Coat, Patch};
 use crate::physics::light::spot_falloff_towards;
 use crate::scene::{luminance, Emitter, Scene};
 use glam::{Vec2, Vec3};
-
-/// A pixel whose centre sees no shape ([`super::PixelInfo`]).
-const NO_SHAPE: u32 = u32::MAX;
 use rayon::prelude::*;
 
 /// Mixed into the seed of the rough coats' lobe samples.
@@ -89,9 +86,9 @@ fn shape_means(p: &RunContext, views: &[View], photos: &[Image]) -> Vec<Vec3> {
         let w = ph.width as usize;
         for (i, px) in view.pixels.iter().enumerate() {
             let (x, y) = ((i % w) as u32, (i / w) as u32);
-            if px.shape != NO_SHAPE && ph.is_valid(x, y) {
-                sum[px.shape as usize].0 += ph.get(x, y);
-                sum[px.shape as usize].1 += 1;
+            if let Some(s) = px.seen_shape().filter(|_| ph.is_valid(x, y)) {
+                sum[s as usize].0 += ph.get(x, y);
+                sum[s as usize].1 += 1;
             }
         }
     }
@@ -114,10 +111,7 @@ fn view(seen: &Seen, coats: &[Option<Coat>], v: usize, seed: u64) -> Image {
     let ph = &seen.photos[v];
     let (cam, pixels) = (&seen.views[v].camera, &seen.views[v].pixels);
     // the shape a pixel's centre sees, as the centre ray of `base` finds it
-    let coated = |i: usize| {
-        let s = pixels[i].shape;
-        s != NO_SHAPE && coats[s as usize].is_some()
-    };
+    let coated = |i: usize| (pixels[i].seen_shape()).is_some_and(|s| coats[s as usize].is_some());
     let mut out = ph.clone();
     let w = ph.width as usize;
     (out.pixels.par_chunks_mut(w))

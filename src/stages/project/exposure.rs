@@ -400,8 +400,8 @@ fn interior(
 fn emitted(p: &RunContext, view: &View, x: u32, y: u32) -> Option<Rgb> {
     let scene = &p.scene;
     // the classification's center ray already says what the pixel sees
-    let seen = view.pixels[(y * view.camera.width() + x) as usize].shape;
-    if seen != u32::MAX && scene.shapes[seen as usize].emission.is_none() {
+    let seen = view.pixels[(y * view.camera.width() + x) as usize].seen_shape();
+    if seen.is_some_and(|s| scene.shapes[s as usize].emission.is_none()) {
         return None;
     }
     let (o, d) = view.camera.ray(x as f32 + 0.5, y as f32 + 0.5);

@@ -562,9 +562,7 @@ fn render(
 /// Where the ray through pixel `(x, y)`'s center meets the plane its pixel sees.
 fn surface_point(view: &View, x: u32, y: u32) -> Option<Vec3> {
     let px = &view.pixels[(y * view.camera.width() + x) as usize];
-    if px.shape == u32::MAX {
-        return None;
-    }
+    px.seen_shape()?;
     let (o, d) = view.camera.ray(x as f32 + 0.5, y as f32 + 0.5);
     let den = px.normal.dot(d);
     let t = (px.plane - px.normal.dot(o)) / den;

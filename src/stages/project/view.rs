@@ -144,9 +144,19 @@ fn classify(
     )
 }
 
+impl PixelInfo {
+    /// The `shape` of a pixel whose centre ray hits nothing.
+    pub const NO_SHAPE: u32 = u32::MAX;
+
+    /// The shape the pixel's centre sees, `None` where its ray hits nothing.
+    pub fn seen_shape(&self) -> Option<u32> {
+        (self.shape != PixelInfo::NO_SHAPE).then_some(self.shape)
+    }
+}
+
 /// What a pixel that is not classified (here) holds.
 const MISS: PixelInfo = PixelInfo {
-    shape: u32::MAX,
+    shape: PixelInfo::NO_SHAPE,
     normal: Vec3::ZERO,
     plane: 0.0,
     clean: false,
